@@ -1,0 +1,155 @@
+"""Lossless JSON (de)serialisation of gymnasium spaces, and their leaves as (path, dtype, shape).
+
+Supported: Box (any dtype and shape), Discrete, MultiDiscrete, MultiBinary and Dict of these
+(nested). The JSON is plain (no NaN/Infinity literals): non-finite bounds are the strings "inf",
+"-inf" and "nan", so any JSON parser can read it. Bounds that are the same everywhere are written
+as one scalar. The format is specified in docs/FORMAT.md.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any, Iterator
+
+import gymnasium as gym
+import numpy as np
+
+from imitation.errors import SpaceError
+
+LeafPath = tuple[str, ...]
+
+
+def space_to_json(space: gym.Space) -> dict[str, Any]:
+    """A JSON-ready description of `space` from which `space_from_json` rebuilds an equal space."""
+    if isinstance(space, gym.spaces.Box):
+        return {
+            "type": "Box",
+            "dtype": np.dtype(space.dtype).name,
+            "shape": list(space.shape),
+            "low": _bounds_to_json(space.low),
+            "high": _bounds_to_json(space.high),
+        }
+    if isinstance(space, gym.spaces.Discrete):
+        return {"type": "Discrete", "n": int(space.n), "start": int(space.start)}
+    if isinstance(space, gym.spaces.MultiDiscrete):
+        return {
+            "type": "MultiDiscrete",
+            "dtype": np.dtype(space.dtype).name,
+            "nvec": space.nvec.tolist(),
+            "start": space.start.tolist(),
+        }
+    if isinstance(space, gym.spaces.MultiBinary):
+        n = space.n
+        return {"type": "MultiBinary", "n": list(n) if isinstance(n, (tuple, list, np.ndarray)) else int(n)}
+    if isinstance(space, gym.spaces.Dict):
+        for key in space.spaces:
+            _check_key(key)
+        return {"type": "Dict", "spaces": {key: space_to_json(sub) for key, sub in space.spaces.items()}}
+    raise SpaceError(f"unsupported gymnasium space {type(space).__name__}: use Box, Discrete, MultiDiscrete, MultiBinary or Dict")
+
+
+def space_from_json(description: dict[str, Any] | str) -> gym.Space:
+    """Rebuild a space from `space_to_json` output (a dict or its JSON text)."""
+    if isinstance(description, str):
+        description = json.loads(description)
+    try:
+        kind = description["type"]
+        if kind == "Box":
+            dtype = np.dtype(description["dtype"])
+            shape = tuple(description["shape"])
+            low = _bounds_from_json(description["low"], dtype, shape)
+            high = _bounds_from_json(description["high"], dtype, shape)
+            return gym.spaces.Box(low=low, high=high, shape=shape, dtype=dtype)
+        if kind == "Discrete":
+            return gym.spaces.Discrete(int(description["n"]), start=int(description.get("start", 0)))
+        if kind == "MultiDiscrete":
+            dtype = np.dtype(description.get("dtype", "int64"))
+            nvec = np.asarray(description["nvec"], dtype=dtype)
+            start = np.asarray(description.get("start", np.zeros_like(nvec)), dtype=dtype)
+            return gym.spaces.MultiDiscrete(nvec, dtype=dtype, start=start)
+        if kind == "MultiBinary":
+            n = description["n"]
+            return gym.spaces.MultiBinary(list(n) if isinstance(n, list) else int(n))
+        if kind == "Dict":
+            return gym.spaces.Dict({key: space_from_json(sub) for key, sub in description["spaces"].items()})
+    except (KeyError, TypeError, ValueError) as error:
+        raise SpaceError(f"malformed space description {description!r}: {error}") from error
+    raise SpaceError(f"unknown space type {kind!r}")
+
+
+def space_leaves(space: gym.Space, prefix: LeafPath = ()) -> Iterator[tuple[LeafPath, np.dtype, tuple[int, ...]]]:
+    """Each array-valued leaf of `space` as (path, dtype, shape of one sample); Dict spaces nest."""
+    if isinstance(space, gym.spaces.Dict):
+        for key, sub in space.spaces.items():
+            yield from space_leaves(sub, prefix + (key,))
+    elif isinstance(space, (gym.spaces.Box, gym.spaces.Discrete, gym.spaces.MultiDiscrete, gym.spaces.MultiBinary)):
+        yield prefix, np.dtype(space.dtype), tuple(space.shape)
+    else:
+        raise SpaceError(f"unsupported gymnasium space {type(space).__name__}")
+
+
+def spaces_equal(a: gym.Space, b: gym.Space) -> bool:
+    """Equal in everything the JSON form records (gymnasium's `==` ignores some dtypes)."""
+    return json.dumps(space_to_json(a), sort_keys=True) == json.dumps(space_to_json(b), sort_keys=True)
+
+
+def describe_space(space: gym.Space) -> str:
+    """A short human-readable form, e.g. `Box(float32, (4,))` or `Discrete(2)`."""
+    if isinstance(space, gym.spaces.Box):
+        return f"Box({np.dtype(space.dtype).name}, {tuple(space.shape)})"
+    if isinstance(space, gym.spaces.Discrete):
+        return f"Discrete({space.n})" if space.start == 0 else f"Discrete({space.n}, start={space.start})"
+    if isinstance(space, gym.spaces.MultiDiscrete):
+        return f"MultiDiscrete({space.nvec.tolist()})"
+    if isinstance(space, gym.spaces.MultiBinary):
+        return f"MultiBinary({space.n})"
+    if isinstance(space, gym.spaces.Dict):
+        return "Dict(" + ", ".join(f"{key}: {describe_space(sub)}" for key, sub in space.spaces.items()) + ")"
+    return repr(space)
+
+
+def _check_key(key: Any) -> None:
+    if not isinstance(key, str) or not key or "/" in key:
+        raise SpaceError(f"Dict space key {key!r} must be a non-empty string without '/' (keys become channel names)")
+
+
+def _scalar_to_json(value: Any) -> Any:
+    if isinstance(value, (np.floating, float)):
+        value = float(value)
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return value
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    return int(value)
+
+
+def _bounds_to_json(bounds: np.ndarray) -> Any:
+    flat = bounds.reshape(-1)
+    # Compare as bytes so that NaN == NaN and -0.0 != 0.0: the scalar form must be exact.
+    if flat.size > 0 and all(flat[i].tobytes() == flat[0].tobytes() for i in range(flat.size)):
+        return _scalar_to_json(flat[0])
+    return _nested_to_json(bounds)
+
+
+def _nested_to_json(array: np.ndarray) -> Any:
+    if array.ndim == 0:
+        return _scalar_to_json(array[()])
+    return [_nested_to_json(row) for row in array]
+
+
+def _bounds_from_json(value: Any, dtype: np.dtype, shape: tuple[int, ...]) -> np.ndarray:
+    def parse(item: Any) -> Any:
+        if isinstance(item, list):
+            return [parse(x) for x in item]
+        if isinstance(item, str):
+            return float(item)
+        return item
+
+    parsed = parse(value)
+    if isinstance(parsed, list):
+        return np.asarray(parsed, dtype=dtype).reshape(shape)
+    return np.full(shape, parsed, dtype=dtype)

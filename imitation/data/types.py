@@ -1,0 +1,201 @@
+"""The one episode type, the flat transitions batch learners consume, and helpers for Dict data.
+
+An observation or action is a numpy array, or, for a gymnasium Dict space, a (nested) dict of
+arrays: a "tree". Arrays along the time axis are stacked in the first dimension.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterator, Mapping, Sequence, Union
+
+import gymnasium as gym
+import numpy as np
+
+from imitation.data.spaces import LeafPath
+from imitation.errors import SpaceError
+
+Tree = Union[np.ndarray, dict[str, "Tree"]]
+
+
+def tree_leaves(tree: Tree, prefix: LeafPath = ()) -> Iterator[tuple[LeafPath, np.ndarray]]:
+    """(path, array) for each array in `tree`, in key order; a bare array has the path ()."""
+    if isinstance(tree, Mapping):
+        for key, sub in tree.items():
+            yield from tree_leaves(sub, prefix + (key,))
+    else:
+        yield prefix, tree
+
+
+def tree_from_leaves(leaves: Mapping[LeafPath, np.ndarray]) -> Tree:
+    """Inverse of `tree_leaves`: a bare array if the only path is (), else nested dicts."""
+    if () in leaves:
+        return leaves[()]
+    root: dict[str, Any] = {}
+    for path, array in leaves.items():
+        node = root
+        for key in path[:-1]:
+            node = node.setdefault(key, {})
+        node[path[-1]] = array
+    return root
+
+
+def tree_map(fn: Callable[[np.ndarray], Any], tree: Tree) -> Any:
+    if isinstance(tree, Mapping):
+        return {key: tree_map(fn, sub) for key, sub in tree.items()}
+    return fn(tree)
+
+
+def tree_concatenate(trees: Sequence[Tree]) -> Tree:
+    """Concatenate trees of the same structure along the first axis."""
+    if isinstance(trees[0], Mapping):
+        return {key: tree_concatenate([tree[key] for tree in trees]) for key in trees[0]}
+    return np.concatenate(trees, axis=0)
+
+
+def tree_rows(tree: Tree) -> int:
+    """Length of the first axis, which every leaf must share."""
+    lengths = {len(array) for _, array in tree_leaves(tree)}
+    if len(lengths) != 1:
+        raise ValueError(f"leaves disagree on their number of rows: {sorted(lengths)}")
+    return lengths.pop()
+
+
+def stack_samples(samples: Sequence[Any], space: gym.Space) -> Tree:
+    """Stack per-step samples of `space` (arrays, ints or dicts of those) into one tree of arrays."""
+    if isinstance(space, gym.spaces.Dict):
+        return {key: stack_samples([sample[key] for sample in samples], sub) for key, sub in space.spaces.items()}
+    return np.asarray(samples, dtype=space.dtype).reshape((len(samples), *space.shape))
+
+
+@dataclass(frozen=True, kw_only=True)
+class Episode:
+    """One episode: `observations` has T+1 rows (the last is the final observation), every
+    per-step field T rows.
+
+    `terminated` means the MDP reached a terminal state (no bootstrapping past it); `truncated`
+    means it was cut short (time limit, user stop) and the final observation is not terminal.
+    `timestamps` (int64 ns, T+1 rows, one per observation) is given for real recordings and is
+    None for simulators, whose step times are t_start + i·dt. `metadata` holds per-episode facts
+    such as `seed` and `source`; it must be JSON-serialisable.
+    """
+
+    observations: Tree
+    actions: Tree
+    rewards: np.ndarray
+    terminated: bool = False
+    truncated: bool = False
+    infos: list[dict[str, Any]] | None = None
+    timestamps: np.ndarray | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        steps = len(self.rewards)
+        if self.rewards.ndim != 1:
+            raise ValueError(f"rewards must be 1-D, got shape {self.rewards.shape}")
+        if tree_rows(self.observations) != steps + 1:
+            raise ValueError(f"observations need T+1 = {steps + 1} rows, got {tree_rows(self.observations)}")
+        if tree_rows(self.actions) != steps:
+            raise ValueError(f"actions need T = {steps} rows, got {tree_rows(self.actions)}")
+        if self.infos is not None and len(self.infos) != steps:
+            raise ValueError(f"infos need T = {steps} entries, got {len(self.infos)}")
+        if self.timestamps is not None and self.timestamps.shape != (steps + 1,):
+            raise ValueError(f"timestamps need shape ({steps + 1},), got {self.timestamps.shape}")
+        if self.terminated and self.truncated:
+            raise ValueError("an episode cannot be both terminated and truncated")
+
+    def __len__(self) -> int:
+        return len(self.rewards)
+
+    @property
+    def episode_return(self) -> float:
+        return float(np.sum(self.rewards, dtype=np.float64))
+
+
+def check_fits_space(tree: Tree, space: gym.Space, what: str) -> None:
+    """Raise SpaceError unless every leaf of `tree` has the dtype and row shape of `space`."""
+    from imitation.data.spaces import space_leaves
+
+    expected = {path: (dtype, shape) for path, dtype, shape in space_leaves(space)}
+    actual = dict(tree_leaves(tree))
+    if set(expected) != set(actual):
+        raise SpaceError(f"{what}: keys {sorted(actual)} do not match the space's {sorted(expected)}")
+    for path, (dtype, shape) in expected.items():
+        array = actual[path]
+        name = what + "".join(f"[{key!r}]" for key in path)
+        if array.dtype != dtype or array.shape[1:] != shape:
+            raise SpaceError(f"{name}: got {array.dtype}{list(array.shape[1:])} per row, the space holds {dtype}{list(shape)}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Transitions:
+    """A flat batch of N transitions (s, a, r, s', terminated, truncated) drawn from episodes.
+
+    `terminated[i]` is true only on the last transition of a terminated episode (no bootstrap
+    from `next_observations[i]`), `truncated[i]` only on the last transition of a truncated one.
+    `episode_index[i]` is the dataset-wide index of the episode transition i came from.
+    """
+
+    observations: Tree
+    actions: Tree
+    rewards: np.ndarray
+    next_observations: Tree
+    terminated: np.ndarray
+    truncated: np.ndarray
+    episode_index: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.rewards)
+
+    @property
+    def dones(self) -> np.ndarray:
+        """Episode ends of either kind."""
+        return self.terminated | self.truncated
+
+
+def episodes_to_transitions(episodes: Sequence[Episode], episode_indices: Sequence[int] | None = None) -> Transitions:
+    """Flatten episodes into one contiguous Transitions batch (one copy of each field)."""
+    if not episodes:
+        raise ValueError("no episodes to flatten")
+    if episode_indices is None:
+        episode_indices = range(len(episodes))
+    lengths = np.array([len(episode) for episode in episodes], dtype=np.int64)
+    total = int(lengths.sum())
+    ends = np.cumsum(lengths)
+    starts = ends - lengths
+
+    def gather(get: Callable[[Episode], Tree], drop_first: bool, drop_last: bool) -> Tree:
+        first = get(episodes[0])
+        leaves: dict[LeafPath, np.ndarray] = {}
+        for path, array in tree_leaves(first):
+            leaves[path] = np.empty((total, *array.shape[1:]), dtype=array.dtype)
+        for episode, start, end in zip(episodes, starts, ends):
+            for path, array in tree_leaves(get(episode)):
+                rows = array[1:] if drop_first else array[:-1] if drop_last else array
+                leaves[path][start:end] = rows
+        return tree_from_leaves(leaves)
+
+    terminated = np.zeros(total, dtype=bool)
+    truncated = np.zeros(total, dtype=bool)
+    for episode, end in zip(episodes, ends):
+        if len(episode) > 0:
+            terminated[end - 1] = episode.terminated
+            truncated[end - 1] = episode.truncated
+    return Transitions(
+        observations=gather(lambda e: e.observations, drop_first=False, drop_last=True),
+        actions=gather(lambda e: e.actions, drop_first=False, drop_last=False),
+        rewards=np.concatenate([episode.rewards for episode in episodes]).astype(np.float32, copy=False),
+        next_observations=gather(lambda e: e.observations, drop_first=True, drop_last=False),
+        terminated=terminated,
+        truncated=truncated,
+        episode_index=np.repeat(np.asarray(episode_indices, dtype=np.int64), lengths),
+    )
+
+
+def check_space_dtype(space: gym.Space) -> None:
+    """Dtypes must be plain numbers or bool: the store writes raw little-endian bytes."""
+    from imitation.data.spaces import space_leaves
+
+    for path, dtype, _ in space_leaves(space):
+        if dtype.kind not in "biuf":
+            raise SpaceError(f"space leaf {'/'.join(path) or '(root)'}: dtype {dtype} is not a number or bool")
