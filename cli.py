@@ -1,1 +1,141 @@
-def main(): pass
+"""The `imitation` command line: parse, call one library function, print.
+
+Errors are one line on stderr with exit code 1 (2 for usage errors); `--json` prints exactly one
+JSON object on stdout as the last line. Heavy libraries (torch, lerobot) are imported only by
+the commands that need them, so `imitation --help` and `imitation info` start fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from imitation import __version__
+from imitation.errors import ImitationError
+
+EXIT_ERROR = 1
+EXIT_INTERRUPTED = 130
+
+
+def _print_json(data: dict[str, Any]) -> None:
+    print(json.dumps(data, sort_keys=False))
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    from imitation.data.recorder import RecordEpisodes, run_episodes
+    from imitation.data.store import DemoWriter
+    from imitation.envs.make import control_period, make_env
+    from imitation.experts.load import load_expert
+
+    out = Path(args.out)
+    if out.is_dir():
+        raise ImitationError(f"--out {out}: is a directory; give a file name such as {out / 'demos.mcap'}")
+    if args.episodes < 1:
+        raise ImitationError(f"--episodes must be at least 1, got {args.episodes}")
+    env = make_env(args.env)
+    policy = load_expert(args.expert, env, seed=args.seed)
+    writer = DemoWriter(
+        out,
+        env_id=args.env,
+        observation_space=env.observation_space,
+        action_space=env.action_space,
+        dt=control_period(env),
+        source=f"imitation record --expert {args.expert}",
+        metadata={"expert": args.expert, "seed": args.seed},
+        durable=True,
+    )
+    recorder = RecordEpisodes(env, writer)
+    try:
+        with writer:
+            returns = run_episodes(recorder, policy, episodes=args.episodes, seed=args.seed, progress=not args.quiet)
+    except KeyboardInterrupt:
+        kept = writer.episodes_written
+        where = f"kept {kept} finished episode(s) in {out}" if kept else "no episode had finished; nothing written"
+        print(f"interrupted: {where}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    finally:
+        env.close()
+    result = {
+        "out": str(out),
+        "env_id": args.env,
+        "expert": args.expert,
+        "episodes": len(returns),
+        "mean_return": sum(returns) / len(returns),
+        "min_return": min(returns),
+        "max_return": max(returns),
+    }
+    if args.json:
+        _print_json(result)
+    else:
+        print(f"recorded {result['episodes']} episodes of {args.env} to {out}: mean return {result['mean_return']:.2f} "
+              f"(min {result['min_return']:.2f}, max {result['max_return']:.2f})")
+    return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from imitation.data.summary import format_summary, summarize
+
+    summary = summarize(args.file)
+    if args.json:
+        _print_json(summary)
+    else:
+        print(format_summary(summary))
+    if summary["damage"]:
+        print(f"error: {summary['file']}: damaged ({summary['damage']}); {summary['salvaged']} complete episodes are readable", file=sys.stderr)
+        return EXIT_ERROR
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="imitation",
+        description="Imitation learning on MCAP demonstration files: record, inspect, train, evaluate.",
+    )
+    parser.add_argument("--version", action="version", version=f"imitation-mcap {__version__}")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    record = commands.add_parser(
+        "record",
+        help="record expert episodes of a gymnasium env into an MCAP demo file",
+        description="Run an expert in a gymnasium environment and write each finished episode to an MCAP "
+        "demo file as it ends (while recording the file is named F.mcap.partial; Ctrl-C keeps the finished episodes).",
+    )
+    record.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id, e.g. CartPole-v1")
+    record.add_argument("--expert", default="scripted", metavar="SPEC", help="scripted (hand-written controller) or random (default: scripted)")
+    record.add_argument("--episodes", type=int, default=10, metavar="N", help="number of episodes (default: 10)")
+    record.add_argument("--seed", type=int, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
+    record.add_argument("--out", required=True, metavar="F.mcap", help="output demo file")
+    record.add_argument("--json", action="store_true", help="print one JSON object with the results")
+    record.add_argument("--quiet", action="store_true", help="no progress bar")
+    record.set_defaults(handler=cmd_record)
+
+    info = commands.add_parser(
+        "info",
+        help="describe a demo file: episodes, returns, lengths, spaces, channels, damage",
+        description="Describe an MCAP demo file. Every chunk is checked; a damaged file is described by the "
+        "complete episodes that can be salvaged and the command exits with code 1.",
+    )
+    info.add_argument("file", metavar="F.mcap", help="demo file")
+    info.add_argument("--json", action="store_true", help="print one JSON object")
+    info.set_defaults(handler=cmd_info)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    handler: Callable[[argparse.Namespace], int] = args.handler
+    try:
+        return handler(args)
+    except ImitationError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return EXIT_ERROR
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -27,8 +27,11 @@ import json
 import math
 import mmap
 import os
+import signal
 import struct
+import threading
 import zlib
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
@@ -171,6 +174,26 @@ def _with_crc(data: dict[str, str]) -> dict[str, str]:
     return {**data, "crc32": metadata_crc(data)}
 
 
+@contextmanager
+def _interrupts_deferred() -> Iterator[None]:
+    """Hold SIGINT until the block ends, so Ctrl-C never leaves half an episode in the file.
+
+    Signal handlers can only be set from the main thread; elsewhere this does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if received and callable(previous):
+            previous(signal.SIGINT, None)
+        elif received and previous == signal.SIG_DFL:
+            raise KeyboardInterrupt
+
+
 def _dt_ns(dt: float | None) -> int:
     return max(1, round((dt if dt and dt > 0 else 0.001) * 1e9))
 
@@ -265,6 +288,21 @@ class DemoWriter:
             elif f.kind == "time" and episode.timestamps is not None:
                 columns.append((f, times))
 
+        with _interrupts_deferred():
+            return self._append(episode, columns, times, rewards)
+
+    def _append(self, episode: Episode, columns: list[tuple[_Field, np.ndarray]], times: np.ndarray, rewards: np.ndarray) -> EpisodeFacts:
+        steps = len(episode)
+        facts = EpisodeFacts(
+            index=len(self._facts),
+            length=steps,
+            episode_return=float(rewards.sum()),
+            terminated=bool(episode.terminated),
+            truncated=bool(episode.truncated),
+            t_start_ns=int(times[0]),
+            t_end_ns=int(times[-1]),
+            metadata=json.loads(json.dumps(episode.metadata, default=_json_default)),
+        )
         # Interleave by block so that log times never go backwards within the file.
         for start in range(0, steps + 1, self._block_steps):
             for f, rows in columns:
@@ -276,17 +314,6 @@ class DemoWriter:
             if episode.infos is not None and start < steps:
                 infos = episode.infos[start : start + self._block_steps]
                 self._add("/info", int(times[start]), json.dumps(infos, default=_json_default).encode())
-
-        facts = EpisodeFacts(
-            index=len(self._facts),
-            length=steps,
-            episode_return=float(rewards.sum()),
-            terminated=bool(episode.terminated),
-            truncated=bool(episode.truncated),
-            t_start_ns=int(times[0]),
-            t_end_ns=int(times[-1]),
-            metadata=json.loads(json.dumps(episode.metadata, default=_json_default)),
-        )
         self._add(EPISODE_TOPIC, facts.t_end_ns, json.dumps(facts.to_json()).encode())
         self._facts.append(facts)
         self._next_time_ns = facts.t_end_ns + self._dt_ns
@@ -472,6 +499,8 @@ class DemoFile:
             summary_damage: str | None = None
             try:
                 index = self._read_summary(stream)
+            except DemoFileError:
+                raise
             except Exception as error:  # any malformed byte in the summary means: rebuild it by scanning
                 summary_damage = str(error) if isinstance(error, _Damage) else f"unreadable summary ({type(error).__name__}: {error})"
             if index is None and not salvage:
@@ -623,6 +652,7 @@ class DemoFile:
         if DATASET_METADATA not in metadata_offsets:
             return _Index({}, channels, chunks, [])
         dataset = self._read_metadata(stream, *metadata_offsets[DATASET_METADATA])
+        self._check_dataset(dataset)
         if EPISODES_METADATA not in metadata_offsets:
             raise _Damage("the episode index is missing")
         listing = self._read_metadata(stream, *metadata_offsets[EPISODES_METADATA])

@@ -1,0 +1,1 @@
+"""Episodes, spaces, the MCAP demo store, loaders and the recorder."""

@@ -1,0 +1,170 @@
+"""Demos → torch: contiguous transition tensors, episode-wise train/validation splits, minibatches.
+
+Typical use::
+
+    dataset = DemoDataset(["cartpole.mcap"])
+    train_ids, val_ids = split_episodes(len(dataset), validation_fraction=0.2, seed=0)
+    train = transitions_to_torch(load_transitions(dataset, episodes=train_ids), "cuda")
+    for batch in MinibatchLoader(train, batch_size=256, seed=0):
+        loss = policy_loss(batch.observations, batch.actions)
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, fields
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
+import torch
+
+from imitation.data.store import DemoDataset
+from imitation.data.types import Episode, Transitions, episodes_to_transitions
+from imitation.errors import ImitationError
+
+TensorTree = torch.Tensor | dict[str, Any]
+
+
+def resolve_device(device: str | torch.device = "auto") -> torch.device:
+    """'auto' → CUDA when available, else CPU; anything else is passed to torch.device."""
+    if isinstance(device, torch.device):
+        return device
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        resolved = torch.device(device)
+    except RuntimeError as error:
+        raise ImitationError(f"--device {device!r}: {error}") from None
+    if resolved.type == "cuda" and not torch.cuda.is_available():
+        raise ImitationError(f"--device {device}: CUDA is not available on this machine")
+    return resolved
+
+
+def _tree_apply(fn: Callable[[Any], Any], tree: Any) -> Any:
+    if isinstance(tree, dict):
+        return {key: _tree_apply(fn, sub) for key, sub in tree.items()}
+    return fn(tree)
+
+
+@dataclass(frozen=True, kw_only=True)
+class TransitionTensors:
+    """Transitions as torch tensors on one device; Dict observations/actions are dicts of tensors."""
+
+    observations: TensorTree
+    actions: TensorTree
+    rewards: torch.Tensor
+    next_observations: TensorTree
+    terminated: torch.Tensor
+    truncated: torch.Tensor
+    episode_index: torch.Tensor
+
+    def __len__(self) -> int:
+        return len(self.rewards)
+
+    @property
+    def device(self) -> torch.device:
+        return self.rewards.device
+
+    def to(self, device: str | torch.device) -> TransitionTensors:
+        device = resolve_device(device)
+        return TransitionTensors(**{f.name: _tree_apply(lambda t: t.to(device), getattr(self, f.name)) for f in fields(self)})
+
+    def select(self, index: torch.Tensor) -> TransitionTensors:
+        """The transitions at `index` (a long tensor on this device)."""
+        return TransitionTensors(**{f.name: _tree_apply(lambda t: t[index], getattr(self, f.name)) for f in fields(self)})
+
+
+def transitions_to_torch(transitions: Transitions, device: str | torch.device = "cpu") -> TransitionTensors:
+    """Zero-copy on CPU (the tensors share the numpy arrays' memory); one copy to a GPU."""
+    target = resolve_device(device)
+
+    def convert(array: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(np.ascontiguousarray(array)).to(target)
+
+    return TransitionTensors(**{f.name: _tree_apply(convert, getattr(transitions, f.name)) for f in fields(transitions)})
+
+
+def load_episodes(
+    source: DemoDataset | Sequence[str | os.PathLike] | str | os.PathLike,
+    *,
+    episodes: Sequence[int] | None = None,
+) -> tuple[list[Episode], list[int]]:
+    """The chosen episodes (all by default) and their dataset-wide indices, read in one pass."""
+    dataset = source if isinstance(source, DemoDataset) else DemoDataset(source)
+    if episodes is None:
+        chosen = list(range(len(dataset)))
+        return list(dataset), chosen
+    chosen = sorted(set(int(k) for k in episodes))
+    if chosen and not 0 <= chosen[0] <= chosen[-1] < len(dataset):
+        raise ImitationError(f"episode indices must lie in [0, {len(dataset)}), got {chosen[0]}..{chosen[-1]}")
+    if len(chosen) * 4 < len(dataset):
+        return [dataset[k] for k in chosen], chosen
+    # Most of the file is wanted: one sequential pass beats many seeks.
+    wanted = set(chosen)
+    return [episode for k, episode in enumerate(dataset) if k in wanted], chosen
+
+
+def load_transitions(
+    source: DemoDataset | Sequence[str | os.PathLike] | str | os.PathLike,
+    *,
+    episodes: Sequence[int] | None = None,
+) -> Transitions:
+    """All transitions of the chosen episodes as one contiguous numpy batch."""
+    selected, indices = load_episodes(source, episodes=episodes)
+    if not selected or sum(len(episode) for episode in selected) == 0:
+        raise ImitationError("no transitions to load: the demos hold no steps")
+    return episodes_to_transitions(selected, indices)
+
+
+def split_episodes(num_episodes: int, *, validation_fraction: float, seed: int) -> tuple[list[int], list[int]]:
+    """Shuffle episode indices with `seed` and split them: whole episodes go to one side only,
+    so validation measures generalisation to unseen trajectories, not to neighbouring steps.
+    At least one episode stays in training; validation gets round(fraction·n) episodes."""
+    if not 0.0 <= validation_fraction < 1.0:
+        raise ImitationError(f"validation fraction must be in [0, 1), got {validation_fraction}")
+    order = np.random.default_rng(seed).permutation(num_episodes)
+    num_validation = min(int(round(validation_fraction * num_episodes)), max(num_episodes - 1, 0))
+    return sorted(order[num_validation:].tolist()), sorted(order[:num_validation].tolist())
+
+
+class MinibatchLoader:
+    """Minibatches of transitions, reshuffled every epoch from a seeded generator.
+
+    Indexing happens on the tensors' device, so once the data is on a GPU no batch crosses the bus.
+    """
+
+    def __init__(self, data: TransitionTensors, *, batch_size: int, shuffle: bool = True, seed: int = 0, drop_last: bool = False) -> None:
+        if batch_size < 1:
+            raise ImitationError(f"batch size must be positive, got {batch_size}")
+        self.data = data
+        self.batch_size = batch_size
+        self.shuffle = shuffle
+        self.drop_last = drop_last
+        self._generator = torch.Generator(device="cpu").manual_seed(seed)
+
+    def __len__(self) -> int:
+        full, rest = divmod(len(self.data), self.batch_size)
+        return full if self.drop_last or rest == 0 else full + 1
+
+    def __iter__(self) -> Iterator[TransitionTensors]:
+        count = len(self.data)
+        if self.shuffle:
+            order = torch.randperm(count, generator=self._generator).to(self.data.device)
+        else:
+            order = torch.arange(count, device=self.data.device)
+        for start in range(0, count, self.batch_size):
+            index = order[start : start + self.batch_size]
+            if self.drop_last and len(index) < self.batch_size:
+                break
+            yield self.data.select(index)
+
+
+__all__ = [
+    "MinibatchLoader",
+    "TransitionTensors",
+    "load_episodes",
+    "load_transitions",
+    "resolve_device",
+    "split_episodes",
+    "transitions_to_torch",
+]

@@ -1,0 +1,73 @@
+"""What `imitation info` reports about a demo file: counts, return and length statistics, spaces,
+channels, format version, and damage (how many complete episodes were salvaged)."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from imitation.data.spaces import describe_space, space_to_json
+from imitation.data.store import DemoFile
+
+
+def _stats(values: list[float]) -> dict[str, float] | None:
+    if not values:
+        return None
+    array = np.asarray(values, dtype=np.float64)
+    return {"mean": float(array.mean()), "std": float(array.std()), "min": float(array.min()), "max": float(array.max())}
+
+
+def summarize(path: str | os.PathLike) -> dict[str, Any]:
+    """Open `path`, checking every chunk, and describe it. A damaged file is described by its
+    salvageable episodes, with `damage` saying what is wrong (None for a sound file)."""
+    demo = DemoFile(path, salvage=True, verify=True)
+    returns = [facts.episode_return for facts in demo.episodes]
+    lengths = [float(facts.length) for facts in demo.episodes]
+    return {
+        "file": str(demo.path),
+        "size_bytes": os.path.getsize(demo.path),
+        "format_version": demo.format_version,
+        "env_id": demo.env_id,
+        "episodes": len(demo),
+        "transitions": demo.num_transitions,
+        "terminated": sum(facts.terminated for facts in demo.episodes),
+        "truncated": sum(facts.truncated for facts in demo.episodes),
+        "return": _stats(returns),
+        "length": _stats(lengths),
+        "observation_space": space_to_json(demo.observation_space),
+        "action_space": space_to_json(demo.action_space),
+        "dt": demo.dt,
+        "channels": demo.channels,
+        "source": demo.source,
+        "creator": demo.creator,
+        "damage": demo.damage,
+        "salvaged": len(demo) if demo.damage else None,
+    }
+
+
+def format_summary(summary: dict[str, Any]) -> str:
+    """The human-readable form of `summarize`'s result."""
+    from imitation.data.spaces import space_from_json
+
+    def stats_line(stats: dict[str, float] | None) -> str:
+        if stats is None:
+            return "-"
+        return f"mean {stats['mean']:.2f} ± {stats['std']:.2f}  (min {stats['min']:.2f}, max {stats['max']:.2f})"
+
+    lines = [
+        f"file:          {summary['file']} ({summary['size_bytes'] / 1e6:.2f} MB, format version {summary['format_version']})",
+        f"env:           {summary['env_id']}  (dt {summary['dt']:g} s)",
+        f"episodes:      {summary['episodes']}  ({summary['terminated']} terminated, {summary['truncated']} truncated)",
+        f"transitions:   {summary['transitions']}",
+        f"return:        {stats_line(summary['return'])}",
+        f"length:        {stats_line(summary['length'])}",
+        f"observation:   {describe_space(space_from_json(summary['observation_space']))}",
+        f"action:        {describe_space(space_from_json(summary['action_space']))}",
+        f"channels:      {', '.join(summary['channels'])}",
+        f"source:        {summary['source'] or '-'}  (written by {summary['creator'] or 'unknown'})",
+    ]
+    if summary["damage"]:
+        lines.append(f"DAMAGED:       {summary['damage']}; salvaged {summary['salvaged']} complete episodes")
+    return "\n".join(lines)

@@ -1,0 +1,1 @@
+"""Environment construction and the project's own environments."""

@@ -1,0 +1,1 @@
+"""Experts that label states with actions: scripted controllers, saved policies."""

@@ -1,0 +1,21 @@
+"""Shared fixtures. Nothing may reach a hub: Hugging Face is offline with a private cache."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import pytest
+from support import TESTDATA
+
+os.environ["HF_HUB_OFFLINE"] = "1"
+os.environ.setdefault("HF_HOME", tempfile.mkdtemp(prefix="imitation-tests-hf-"))
+
+
+@pytest.fixture
+def testdata() -> Path:
+    """../shared/testdata: third-party files, present beside the repo in CI, absent in user clones."""
+    if not TESTDATA.is_dir():
+        pytest.skip(f"third-party test data not found at {TESTDATA} (only present beside the project's checkout)")
+    return TESTDATA

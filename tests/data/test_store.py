@@ -1,0 +1,213 @@
+"""The MCAP demo store: lossless round trips, lazy and random access, multi-file datasets."""
+
+from __future__ import annotations
+
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from helpers import assert_episodes_equal, random_episode
+from test_spaces import all_spaces
+
+from imitation.data.store import DemoDataset, DemoFile, DemoWriter, write_episodes
+from imitation.data.types import Episode
+from imitation.errors import DemoFileError, ImitationError
+
+BOX4 = gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)
+DISCRETE2 = gym.spaces.Discrete(2)
+
+
+def write(path, episodes, observation_space=BOX4, action_space=DISCRETE2, **options):
+    return write_episodes(path, episodes, env_id="Test-v0", observation_space=observation_space, action_space=action_space, **options)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(observation_space=all_spaces, action_space=all_spaces, lengths=st.lists(st.integers(0, 40), min_size=1, max_size=4), block_steps=st.sampled_from([1, 7, 4096]))
+def test_any_spaces_round_trip_losslessly(tmp_path, observation_space, action_space, lengths, block_steps) -> None:
+    episodes = [random_episode(observation_space, action_space, steps, seed=i, terminated=i % 2 == 0) for i, steps in enumerate(lengths)]
+    path = tmp_path / "any.mcap"
+    write(path, episodes, observation_space, action_space, block_steps=block_steps)
+    demo = DemoFile(path, verify=True)
+    assert demo.damage is None
+    assert len(demo) == len(episodes)
+    for read, original in zip(demo, episodes, strict=True):
+        assert_episodes_equal(read, original)
+    k = len(episodes) - 1
+    assert_episodes_equal(demo[k], episodes[k])
+
+
+def test_facts_are_known_without_reading_steps(tmp_path) -> None:
+    episodes = [random_episode(BOX4, DISCRETE2, steps, seed=steps, terminated=steps == 3) for steps in (3, 10, 5)]
+    write(tmp_path / "f.mcap", episodes)
+    demo = DemoFile(tmp_path / "f.mcap")
+    assert [f.length for f in demo.episodes] == [3, 10, 5]
+    assert [f.terminated for f in demo.episodes] == [True, False, False]
+    assert [f.episode_return for f in demo.episodes] == pytest.approx([e.episode_return for e in episodes])
+    assert [f.metadata["seed"] for f in demo.episodes] == [3, 10, 5]
+    assert demo.num_transitions == 18
+    assert demo.env_id == "Test-v0" and demo.observation_space == BOX4 and demo.action_space == DISCRETE2
+
+
+def test_random_access_reads_only_the_chunks_of_that_episode(tmp_path, monkeypatch) -> None:
+    episodes = [random_episode(BOX4, DISCRETE2, 50, seed=i) for i in range(40)]
+    # Small chunks: one or two episodes each.
+    write(tmp_path / "f.mcap", episodes, chunk_size=2_000)
+    demo = DemoFile(tmp_path / "f.mcap")
+    assert len(demo._index.chunks) >= 20
+    decompressed: list[int] = []
+    import imitation.data.store as store
+
+    original = store._chunk_messages
+
+    def counting(record, *args):
+        decompressed.append(len(record))
+        return original(record, *args)
+
+    monkeypatch.setattr(store, "_chunk_messages", counting)
+    for k in (37, 0, 21, -1):
+        decompressed.clear()
+        assert_episodes_equal(demo[k], episodes[k])
+        assert len(decompressed) <= 2
+    with pytest.raises(IndexError):
+        demo[40]
+
+
+def test_iteration_is_lazy(tmp_path) -> None:
+    write(tmp_path / "f.mcap", [random_episode(BOX4, DISCRETE2, 20, seed=i) for i in range(5)], durable=True)
+    iterator = iter(DemoFile(tmp_path / "f.mcap"))
+    first = next(iterator)
+    assert len(first) == 20
+    assert iterator.gi_frame is not None  # suspended, not exhausted
+
+
+def test_dict_observations_get_one_channel_per_key(tmp_path) -> None:
+    space = gym.spaces.Dict({"pos": gym.spaces.Box(-1, 1, (2,), np.float64), "grid": gym.spaces.Dict({"cell": gym.spaces.Discrete(9)})})
+    episode = random_episode(space, DISCRETE2, 6, seed=0)
+    write(tmp_path / "d.mcap", [episode], observation_space=space)
+    demo = DemoFile(tmp_path / "d.mcap")
+    assert "/observation/pos" in demo.channels and "/observation/grid/cell" in demo.channels
+    assert_episodes_equal(demo[0], episode)
+
+
+def test_timestamps_and_infos_round_trip(tmp_path) -> None:
+    base = random_episode(BOX4, DISCRETE2, 4, seed=0)
+    stamps = np.array([5, 7, 20, 21, 40], dtype=np.int64) * 1_000_000
+    infos = [{"x": i, "arr": np.arange(2) + i} for i in range(4)]
+    episode = Episode(observations=base.observations, actions=base.actions, rewards=base.rewards, truncated=True, timestamps=stamps, infos=infos)
+    # The second episode's clock restarts at 0: the writer shifts it after the first.
+    second = Episode(observations=base.observations, actions=base.actions, rewards=base.rewards, truncated=True, timestamps=stamps - stamps[0])
+    write(tmp_path / "t.mcap", [episode, second])
+    demo = DemoFile(tmp_path / "t.mcap")
+    first_read, second_read = demo[0], demo[1]
+    np.testing.assert_array_equal(first_read.timestamps, stamps)
+    assert first_read.infos == [{"x": i, "arr": [i, i + 1]} for i in range(4)]
+    assert second_read.infos is None
+    assert second_read.timestamps[0] > stamps[-1]
+    np.testing.assert_array_equal(np.diff(second_read.timestamps), np.diff(stamps))
+    assert demo.episodes[1].t_start_ns > demo.episodes[0].t_end_ns
+
+
+def test_simulator_time_is_step_times_dt(tmp_path) -> None:
+    write(tmp_path / "s.mcap", [random_episode(BOX4, DISCRETE2, 10, seed=i) for i in range(2)], dt=0.02)
+    demo = DemoFile(tmp_path / "s.mcap")
+    assert demo.dt == pytest.approx(0.02)
+    assert (demo.episodes[0].t_start_ns, demo.episodes[0].t_end_ns) == (0, 10 * 20_000_000)
+    assert demo.episodes[1].t_start_ns == 11 * 20_000_000
+
+
+def test_several_files_form_one_dataset(tmp_path) -> None:
+    first = [random_episode(BOX4, DISCRETE2, 5, seed=i) for i in range(3)]
+    second = [random_episode(BOX4, DISCRETE2, 7, seed=10 + i) for i in range(2)]
+    write(tmp_path / "a.mcap", first)
+    write(tmp_path / "b.mcap", second)
+    dataset = DemoDataset([tmp_path / "a.mcap", tmp_path / "b.mcap"])
+    assert len(dataset) == 5 and dataset.num_transitions == 29
+    for read, original in zip(dataset, first + second, strict=True):
+        assert_episodes_equal(read, original)
+    assert_episodes_equal(dataset[3], second[0])
+    assert_episodes_equal(dataset[-1], second[1])
+
+
+def test_datasets_refuse_mismatched_files(tmp_path) -> None:
+    write(tmp_path / "a.mcap", [random_episode(BOX4, DISCRETE2, 5, seed=0)])
+    write(tmp_path / "b.mcap", [random_episode(BOX4, gym.spaces.Discrete(3), 5, seed=0)], action_space=gym.spaces.Discrete(3))
+    with pytest.raises(DemoFileError, match="b.mcap: action space differs"):
+        DemoDataset([tmp_path / "a.mcap", tmp_path / "b.mcap"])
+
+
+def test_writer_checks_data_against_spaces(tmp_path) -> None:
+    episode = random_episode(gym.spaces.Box(-1, 1, (3,), np.float32), DISCRETE2, 5, seed=0)
+    with pytest.raises(ImitationError, match=r"observations: got float32\[3\] per row, the space holds float32\[4\]"):
+        write(tmp_path / "bad.mcap", [episode])
+    assert not (tmp_path / "bad.mcap").exists() and not (tmp_path / "bad.mcap.partial").exists()
+
+
+def test_writer_refuses_non_finite_rewards(tmp_path) -> None:
+    base = random_episode(BOX4, DISCRETE2, 3, seed=0)
+    bad = Episode(observations=base.observations, actions=base.actions, rewards=np.array([0.0, np.nan, 1.0]))
+    with pytest.raises(ImitationError, match="NaN"):
+        write(tmp_path / "nan.mcap", [bad])
+
+
+def test_interrupt_keeps_finished_episodes_other_errors_discard(tmp_path) -> None:
+    episode = random_episode(BOX4, DISCRETE2, 5, seed=0)
+    with pytest.raises(KeyboardInterrupt):
+        with DemoWriter(tmp_path / "k.mcap", env_id="T", observation_space=BOX4, action_space=DISCRETE2) as writer:
+            writer.write(episode)
+            raise KeyboardInterrupt
+    assert len(DemoFile(tmp_path / "k.mcap", verify=True)) == 1
+    with pytest.raises(RuntimeError):
+        with DemoWriter(tmp_path / "r.mcap", env_id="T", observation_space=BOX4, action_space=DISCRETE2) as writer:
+            writer.write(episode)
+            raise RuntimeError("boom")
+    assert list(tmp_path.glob("r.mcap*")) == []
+
+
+def test_existing_file_is_replaced_only_when_the_new_one_is_complete(tmp_path) -> None:
+    path = tmp_path / "f.mcap"
+    write(path, [random_episode(BOX4, DISCRETE2, 5, seed=0)])
+    before = path.read_bytes()
+    with pytest.raises(RuntimeError):
+        with DemoWriter(path, env_id="T", observation_space=BOX4, action_space=DISCRETE2) as writer:
+            writer.write(random_episode(BOX4, DISCRETE2, 9, seed=1))
+            assert path.read_bytes() == before
+            raise RuntimeError("boom")
+    assert path.read_bytes() == before
+
+
+def test_episode_markers_are_plain_json(tmp_path) -> None:
+    from mcap.reader import make_reader
+
+    write(tmp_path / "f.mcap", [random_episode(BOX4, DISCRETE2, 5, seed=0)])
+    with open(tmp_path / "f.mcap", "rb") as stream:
+        markers = [json.loads(message.data) for _, channel, message in make_reader(stream).iter_messages(topics=["/episode"])]
+    assert markers[0]["length"] == 5 and markers[0]["index"] == 0
+
+
+def test_ctrl_c_during_a_write_lands_after_the_episode(tmp_path, monkeypatch) -> None:
+    import os
+    import signal
+
+    import imitation.data.store as store
+
+    episodes = [random_episode(BOX4, DISCRETE2, 30, seed=i) for i in range(2)]
+    original_add = store.DemoWriter._add
+    calls = []
+
+    def interrupting_add(self, topic, log_time, data):
+        calls.append(topic)
+        if len(calls) == 2:  # in the middle of the second episode's messages
+            os.kill(os.getpid(), signal.SIGINT)
+        original_add(self, topic, log_time, data)
+
+    with pytest.raises(KeyboardInterrupt):
+        with DemoWriter(tmp_path / "c.mcap", env_id="T", observation_space=BOX4, action_space=DISCRETE2, block_steps=5) as writer:
+            writer.write(episodes[0])
+            monkeypatch.setattr(store.DemoWriter, "_add", interrupting_add)
+            writer.write(episodes[1])
+    demo = DemoFile(tmp_path / "c.mcap", verify=True)
+    assert demo.damage is None and len(demo) == 2
+    assert_episodes_equal(demo[1], episodes[1])

@@ -1,0 +1,122 @@
+"""Damaged and foreign files: one clear DemoFileError, never an uncaught exception, never silently
+wrong data; complete episodes before the damage are salvaged."""
+
+from __future__ import annotations
+
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from helpers import assert_episodes_equal, random_episode
+from mcap.writer import Writer
+
+from imitation.data.store import DATASET_METADATA, DemoFile, metadata_crc, write_episodes
+from imitation.errors import DemoFileError
+
+BOX = gym.spaces.Box(-1, 1, (3,), np.float32)
+ACTIONS = gym.spaces.Box(-1, 1, (2,), np.float32)
+EPISODES = [random_episode(BOX, ACTIONS, 20 + 3 * i, seed=i, terminated=i == 2) for i in range(6)]
+
+
+@pytest.fixture(scope="module")
+def good_file(tmp_path_factory) -> bytes:
+    path = tmp_path_factory.mktemp("damage") / "good.mcap"
+    write_episodes(path, EPISODES, env_id="Test-v0", observation_space=BOX, action_space=ACTIONS, durable=True)
+    return path.read_bytes()
+
+
+def read_salvaged(path) -> list:
+    demo = DemoFile(path, salvage=True, verify=True)
+    episodes = list(demo)
+    assert len(episodes) == len(demo)
+    for read, original in zip(episodes, EPISODES):
+        assert_episodes_equal(read, original)
+    return episodes
+
+
+def test_truncation_at_any_offset_salvages_every_complete_episode(good_file, tmp_path) -> None:
+    path = tmp_path / "cut.mcap"
+    salvaged_counts = []
+    for cut in range(0, len(good_file), 97):
+        path.write_bytes(good_file[:cut])
+        try:
+            salvaged_counts.append(len(read_salvaged(path)))
+        except DemoFileError as error:
+            assert str(error).startswith(str(path)), error
+            salvaged_counts.append(0)
+        with pytest.raises(DemoFileError):
+            DemoFile(path)
+    assert salvaged_counts == sorted(salvaged_counts), "cutting later never salvages less"
+    assert max(salvaged_counts) == len(EPISODES)
+    # Most of the file is episode data, so some cuts must land between every pair of episodes.
+    assert set(range(1, len(EPISODES) + 1)) <= set(salvaged_counts)
+
+
+def test_bit_flips_are_caught_or_harmless(good_file, tmp_path) -> None:
+    rng = np.random.default_rng(0)
+    path = tmp_path / "flipped.mcap"
+    caught = 0
+    for _ in range(400):
+        data = bytearray(good_file)
+        position = int(rng.integers(len(data)))
+        data[position] ^= 1 << int(rng.integers(8))
+        path.write_bytes(bytes(data))
+        try:
+            demo = DemoFile(path, verify=True)
+            for read, original in zip(demo, EPISODES, strict=True):
+                assert_episodes_equal(read, original)
+        except DemoFileError as error:
+            caught += 1
+            assert "\n" not in str(error) and str(path) in str(error)
+            read_salvaged_or_refused(path)
+    assert caught > 300, "most bytes of the file are checksummed episode data"
+
+
+def read_salvaged_or_refused(path) -> None:
+    try:
+        read_salvaged(path)
+    except DemoFileError:
+        pass
+
+
+def test_not_an_mcap_file(tmp_path) -> None:
+    for name, content in [("empty.mcap", b""), ("text.mcap", b"hello, world\n" * 10), ("npz.mcap", b"PK\x03\x04" + bytes(100))]:
+        (tmp_path / name).write_bytes(content)
+        with pytest.raises(DemoFileError, match=f"{name}: not an MCAP file"):
+            DemoFile(tmp_path / name, salvage=True)
+
+
+def test_missing_file(tmp_path) -> None:
+    with pytest.raises(DemoFileError, match="nope.mcap: cannot open: No such file"):
+        DemoFile(tmp_path / "nope.mcap")
+
+
+def plain_mcap(path, metadata: dict[str, str] | None) -> None:
+    with open(path, "wb") as stream:
+        writer = Writer(stream)
+        writer.start(profile="", library="test")
+        if metadata is not None:
+            writer.add_metadata(DATASET_METADATA, {**metadata, "crc32": metadata_crc(metadata)})
+        channel = writer.register_channel("/chatter", "json", 0)
+        writer.add_message(channel, log_time=1, data=b'{"a": 1}', publish_time=1)
+        writer.finish()
+
+
+def test_mcap_without_our_metadata_is_named_as_such(tmp_path) -> None:
+    plain_mcap(tmp_path / "other.mcap", None)
+    with pytest.raises(DemoFileError, match="other.mcap: an MCAP file but not an imitation demo file"):
+        DemoFile(tmp_path / "other.mcap")
+
+
+def test_newer_format_version_is_refused(tmp_path) -> None:
+    space = json.dumps({"type": "Discrete", "n": 2, "start": 0})
+    plain_mcap(tmp_path / "future.mcap", {"format_version": "2", "env_id": "X", "observation_space": space, "action_space": space})
+    with pytest.raises(DemoFileError, match="future.mcap: format version 2 is newer than this reader supports"):
+        DemoFile(tmp_path / "future.mcap")
+
+
+def test_ros2_bag_is_not_a_demo_file(testdata) -> None:
+    bag = testdata / "ros2" / "replay_testing" / "cmd_vel_only.mcap"
+    with pytest.raises(DemoFileError, match="not an imitation demo file"):
+        DemoFile(bag)

@@ -1,0 +1,48 @@
+"""The scripted experts solve their environments over a fixed set of seeds."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from imitation.errors import ImitationError
+from imitation.experts.scripted import SCRIPTED_EXPERTS, scripted_expert
+
+SEEDS = range(20)
+
+
+def _episode_returns(env_id: str) -> list[float]:
+    env = gym.make(env_id)
+    policy = scripted_expert(env_id)
+    returns = []
+    try:
+        for seed in SEEDS:
+            obs, _ = env.reset(seed=seed)
+            total, done = 0.0, False
+            while not done:
+                obs, reward, terminated, truncated, _ = env.step(policy(obs))
+                total += float(reward)
+                done = terminated or truncated
+            returns.append(total)
+    finally:
+        env.close()
+    return returns
+
+
+@pytest.mark.parametrize(
+    ("env_id", "threshold"),
+    [("CartPole-v1", 475.0), ("MountainCar-v0", -120.0), ("Pendulum-v1", -200.0)],
+)
+def test_scripted_expert_solves_env(env_id: str, threshold: float) -> None:
+    returns = _episode_returns(env_id)
+    assert np.mean(returns) >= threshold, f"{env_id}: returns {returns}"
+
+
+def test_unknown_env_lists_available_experts() -> None:
+    with pytest.raises(ImitationError) as excinfo:
+        scripted_expert("Nope-v0")
+    message = str(excinfo.value)
+    assert "'Nope-v0'" in message
+    for env_id in SCRIPTED_EXPERTS:
+        assert env_id in message
