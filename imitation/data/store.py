@@ -93,8 +93,10 @@ class EpisodeFacts:
     t_start_ns: int
     t_end_ns: int
     metadata: dict[str, Any] = field(default_factory=dict)
+    time_shift_ns: int = 0  # added to a recording's own timestamps to keep episodes disjoint
 
     def to_json(self) -> dict[str, Any]:
+        shift = {"time_shift_ns": self.time_shift_ns} if self.time_shift_ns else {}
         return {
             "index": self.index,
             "length": self.length,
@@ -104,6 +106,7 @@ class EpisodeFacts:
             "t_start_ns": self.t_start_ns,
             "t_end_ns": self.t_end_ns,
             "metadata": self.metadata,
+            **shift,
         }
 
     @staticmethod
@@ -117,6 +120,7 @@ class EpisodeFacts:
             t_start_ns=int(data["t_start_ns"]),
             t_end_ns=int(data["t_end_ns"]),
             metadata=dict(data.get("metadata") or {}),
+            time_shift_ns=int(data.get("time_shift_ns", 0)),
         )
 
 
@@ -153,8 +157,9 @@ class _Field:
 
 
 def _fields_for(observation_space: gym.Space, action_space: gym.Space) -> list[_Field]:
-    fields = [_Field("observation", path, dtype, shape) for path, dtype, shape in space_leaves(observation_space)]
-    fields += [_Field("action", path, dtype, shape) for path, dtype, shape in space_leaves(action_space)]
+    """The channels a file of these spaces uses; dtypes are little-endian, as stored."""
+    fields = [_Field("observation", path, dtype.newbyteorder("<"), shape) for path, dtype, shape in space_leaves(observation_space)]
+    fields += [_Field("action", path, dtype.newbyteorder("<"), shape) for path, dtype, shape in space_leaves(action_space)]
     fields += [_Field("reward", (), np.dtype("<f8"), ()), _Field("time", (), np.dtype("<i8"), ()), _Field("info", (), None, ())]
     for f in fields:
         if f.dtype is not None and f.dtype.kind not in "biuf":
@@ -194,10 +199,6 @@ def _interrupts_deferred() -> Iterator[None]:
             raise KeyboardInterrupt
 
 
-def _dt_ns(dt: float | None) -> int:
-    return max(1, round((dt if dt and dt > 0 else 0.001) * 1e9))
-
-
 class DemoWriter:
     """Write episodes of one environment to an MCAP demo file.
 
@@ -230,9 +231,22 @@ class DemoWriter:
         self._fields = _fields_for(observation_space, action_space)
         self._block_steps = block_steps
         self._durable = durable
-        self._dt_ns = _dt_ns(dt)
+        if dt is not None and not dt > 0:
+            raise ImitationError(f"dt must be a positive number of seconds, got {dt}")
+        self._dt_ns = max(1, round((dt or 0.001) * 1e9))
         self._next_time_ns = 0
         self._facts: list[EpisodeFacts] = []
+        # Everything that can fail on bad arguments happens before the file exists.
+        dataset = {
+            "format_version": str(FORMAT_VERSION),
+            "env_id": env_id,
+            "observation_space": json.dumps(space_to_json(observation_space)),
+            "action_space": json.dumps(space_to_json(action_space)),
+            "dt_ns": str(self._dt_ns),
+            "source": source,
+            "creator": f"imitation-mcap {__version__}",
+            "user_metadata": to_json_text(metadata or {}),
+        }
         try:
             self._file = open(self.partial_path, "wb")
         except OSError as error:
@@ -246,16 +260,6 @@ class DemoWriter:
             index_types=IndexType.CHUNK | IndexType.MESSAGE | IndexType.METADATA,
         )
         self._writer.start(profile=PROFILE, library=f"imitation-mcap {__version__}")
-        dataset = {
-            "format_version": str(FORMAT_VERSION),
-            "env_id": env_id,
-            "observation_space": json.dumps(space_to_json(observation_space)),
-            "action_space": json.dumps(space_to_json(action_space)),
-            "dt_ns": str(self._dt_ns),
-            "source": source,
-            "creator": f"imitation-mcap {__version__}",
-            "user_metadata": json.dumps(metadata or {}),
-        }
         self._writer.add_metadata(DATASET_METADATA, _with_crc(dataset))
         self._channels: dict[str, int] = {}
         for f in self._fields:
@@ -277,7 +281,7 @@ class DemoWriter:
         rewards = np.asarray(episode.rewards, dtype=np.float64)
         if not np.all(np.isfinite(rewards)):
             raise ImitationError(f"episode {len(self._facts)}: rewards contain NaN or infinity")
-        times = self._episode_times(episode)
+        times, time_shift_ns = self._episode_times(episode)
         columns: list[tuple[_Field, np.ndarray]] = []
         for f in self._fields:
             if f.kind in ("observation", "action"):
@@ -289,9 +293,11 @@ class DemoWriter:
                 columns.append((f, times))
 
         with _interrupts_deferred():
-            return self._append(episode, columns, times, rewards)
+            return self._append(episode, columns, times, time_shift_ns, rewards)
 
-    def _append(self, episode: Episode, columns: list[tuple[_Field, np.ndarray]], times: np.ndarray, rewards: np.ndarray) -> EpisodeFacts:
+    def _append(
+        self, episode: Episode, columns: list[tuple[_Field, np.ndarray]], times: np.ndarray, time_shift_ns: int, rewards: np.ndarray
+    ) -> EpisodeFacts:
         steps = len(episode)
         facts = EpisodeFacts(
             index=len(self._facts),
@@ -301,7 +307,8 @@ class DemoWriter:
             truncated=bool(episode.truncated),
             t_start_ns=int(times[0]),
             t_end_ns=int(times[-1]),
-            metadata=json.loads(json.dumps(episode.metadata, default=_json_default)),
+            metadata=json.loads(to_json_text(episode.metadata)),
+            time_shift_ns=time_shift_ns,
         )
         # Interleave by block so that log times never go backwards within the file.
         for start in range(0, steps + 1, self._block_steps):
@@ -313,8 +320,8 @@ class DemoWriter:
                 self._add(f.topic, int(times[start]), data)
             if episode.infos is not None and start < steps:
                 infos = episode.infos[start : start + self._block_steps]
-                self._add("/info", int(times[start]), json.dumps(infos, default=_json_default).encode())
-        self._add(EPISODE_TOPIC, facts.t_end_ns, json.dumps(facts.to_json()).encode())
+                self._add("/info", int(times[start]), to_json_text(infos).encode())
+        self._add(EPISODE_TOPIC, facts.t_end_ns, to_json_text(facts.to_json()).encode())
         self._facts.append(facts)
         self._next_time_ns = facts.t_end_ns + self._dt_ns
         if self._durable:
@@ -327,7 +334,7 @@ class DemoWriter:
         if self._closed:
             return self.path
         self._writer.flush()
-        episodes = json.dumps([facts.to_json() for facts in self._facts])
+        episodes = to_json_text([facts.to_json() for facts in self._facts])
         self._writer.add_metadata(EPISODES_METADATA, _with_crc({"episodes": episodes}))
         self._writer.finish()
         self._file.flush()
@@ -363,15 +370,18 @@ class DemoWriter:
             self._register(next(f for f in self._fields if f.topic == topic))
         self._writer.add_message(self._channels[topic], log_time=log_time, data=data, publish_time=log_time)
 
-    def _episode_times(self, episode: Episode) -> np.ndarray:
+    def _episode_times(self, episode: Episode) -> tuple[np.ndarray, int]:
+        """Log times of the episode's observations, and the shift applied to its own timestamps."""
         steps = len(episode)
         if episode.timestamps is None:
-            return self._next_time_ns + np.arange(steps + 1, dtype=np.int64) * self._dt_ns
+            return self._next_time_ns + np.arange(steps + 1, dtype=np.int64) * self._dt_ns, 0
         times = np.asarray(episode.timestamps, dtype=np.int64)
         if np.any(np.diff(times) < 0):
             raise ImitationError(f"episode {len(self._facts)}: timestamps go backwards")
-        # Episodes must occupy disjoint, increasing time ranges; shift one that starts too early.
-        return times + max(0, self._next_time_ns - int(times[0]))
+        # Episodes must occupy disjoint, increasing time ranges (and MCAP log times are unsigned):
+        # shift one that starts too early, and record the shift so readers can undo it.
+        shift = max(0, self._next_time_ns - int(times[0]))
+        return times + shift, shift
 
 
 def write_episodes(
@@ -390,11 +400,26 @@ def write_episodes(
     return writer.path
 
 
-def _json_default(value: Any) -> Any:
+def to_json_text(value: Any) -> str:
+    """Strict JSON (no NaN/Infinity literals) of infos and metadata: numpy values become plain
+    numbers and lists, non-finite floats the strings "nan", "inf", "-inf", anything else that
+    JSON cannot hold its repr()."""
+    return json.dumps(_plain(value), allow_nan=False)
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(key): _plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(item) for item in value]
     if isinstance(value, np.ndarray):
-        return value.tolist()
+        return _plain(value.tolist())
     if isinstance(value, np.generic):
-        return value.item()
+        return _plain(value.item())
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
     return repr(value)
 
 
@@ -426,8 +451,9 @@ class _EpisodeAssembler:
 
     def __init__(self, observation_space: gym.Space, action_space: gym.Space, channels: dict[int, _Field | None]):
         self._channels = channels
-        self._observation_fields = [_Field("observation", p, d, s) for p, d, s in space_leaves(observation_space)]
-        self._action_fields = [_Field("action", p, d, s) for p, d, s in space_leaves(action_space)]
+        fields = _fields_for(observation_space, action_space)
+        self._observation_fields = [f for f in fields if f.kind == "observation"]
+        self._action_fields = [f for f in fields if f.kind == "action"]
         self._blocks: dict[str, list[bytes | memoryview]] = {}
 
     def add(self, channel_id: int, data: memoryview) -> tuple[EpisodeFacts, Episode] | None:
@@ -460,7 +486,9 @@ class _EpisodeAssembler:
         infos = None
         if "/info" in blocks:
             infos = [info for part in blocks["/info"] for info in json.loads(bytes(part))]
-        timestamps = rows(_Field("time", (), np.dtype("<i8"), ()), steps + 1) if "/time" in blocks else None
+        timestamps = None
+        if "/time" in blocks:
+            timestamps = rows(_Field("time", (), np.dtype("<i8"), ()), steps + 1) - facts.time_shift_ns
         return Episode(
             observations=tree(self._observation_fields, steps + 1),
             actions=tree(self._action_fields, steps),
@@ -597,16 +625,17 @@ class DemoFile:
                 f"{self.path}: an MCAP file but not an imitation demo file (no '{DATASET_METADATA}' metadata); "
                 "convert it with `imitation convert`"
             )
-        if dataset.get("crc32") != metadata_crc(dataset):
-            raise DemoFileError(f"{self.path}: dataset metadata is corrupt (checksum mismatch)")
-        try:
-            version = int(dataset["format_version"])
-        except (KeyError, ValueError):
-            raise DemoFileError(f"{self.path}: dataset metadata has no valid format_version") from None
+        # The version comes first: a newer format may checksum differently.
+        version_text = dataset.get("format_version", "")
+        if not (version_text.isascii() and version_text.isdigit() and int(version_text) >= 1):
+            raise DemoFileError(f"{self.path}: dataset metadata has no valid format_version ({version_text!r})")
+        version = int(version_text)
         if version > FORMAT_VERSION:
             raise DemoFileError(
                 f"{self.path}: format version {version} is newer than this reader supports ({FORMAT_VERSION}); upgrade imitation-mcap"
             )
+        if dataset.get("crc32") != metadata_crc(dataset):
+            raise DemoFileError(f"{self.path}: dataset metadata is corrupt (checksum mismatch)")
         for key in ("env_id", "observation_space", "action_space"):
             if key not in dataset:
                 raise DemoFileError(f"{self.path}: dataset metadata lacks '{key}'")
@@ -685,6 +714,7 @@ class DemoFile:
         damage: str | None = None
         assembler: _EpisodeAssembler | None = None
         pending_chunks: list[_ChunkRef] = []
+        messages_after_last_episode = 0
         offset = len(MAGIC)
         try:
             for opcode, body, record_offset in _records_with_offsets(data, offset, len(data)):
@@ -708,10 +738,12 @@ class DemoFile:
                     record = data[record_offset : record_offset + ref.length]
                     for channel_id, _, message in _chunk_messages(record, channels, lambda c: channels.setdefault(c.id, _channel_field(c))):
                         result = assembler.add(channel_id, message)
+                        messages_after_last_episode += 1
                         if result is not None:
                             episodes.append(result[0])
                             chunks.extend(pending_chunks)
                             pending_chunks = [ref]
+                            messages_after_last_episode = 0
                 elif opcode in (_OP_DATA_END, _OP_FOOTER):
                     break
             else:
@@ -724,8 +756,8 @@ class DemoFile:
             damage = f"unreadable record ({type(error).__name__}: {error})"
         if not dataset:
             raise DemoFileError(f"{self.path}: damaged before any dataset metadata ({damage or 'none found'})")
-        if damage is None and pending_chunks[1:]:
-            damage = "data after the last complete episode"
+        if damage is None and messages_after_last_episode:
+            damage = "an incomplete episode after the last complete one"
         unique = sorted({(c.start_time, c.offset): c for c in chunks}.values(), key=lambda c: (c.start_time, c.offset))
         return _Index(dataset, channels, unique, episodes, damage)
 
@@ -782,6 +814,13 @@ def _chunk_messages(record: bytes, channels: dict[int, _Field | None], on_channe
             content = zstandard.ZstdDecompressor().decompress(compressed, max_output_size=uncompressed_size)
         except zstandard.ZstdError as error:
             raise _Damage(f"zstd cannot decompress it ({error})") from None
+    elif compression == "lz4":
+        import lz4.frame  # only files from other writers use lz4
+
+        try:
+            content = lz4.frame.decompress(bytes(compressed))
+        except RuntimeError as error:
+            raise _Damage(f"lz4 cannot decompress it ({error})") from None
     elif compression == "":
         content = bytes(compressed)
     else:
