@@ -589,9 +589,6 @@ class DemoFile:
         for _, episode in self._episodes_in(self._index.chunks, None):
             yield episode
 
-    def read_all(self) -> list[Episode]:
-        return list(self)
-
     # -- internals ----------------------------------------------------------------------------
 
     def _episodes_in(self, chunks: Sequence[_ChunkRef], time_range: tuple[int, int] | None) -> Iterator[tuple[EpisodeFacts, Episode]]:
@@ -644,6 +641,12 @@ class DemoFile:
             space_from_json(dataset["action_space"])
         except Exception as error:
             raise DemoFileError(f"{self.path}: bad space in dataset metadata: {error}") from None
+        if not dataset.get("dt_ns", "1").isdigit():
+            raise DemoFileError(f"{self.path}: dataset metadata has a bad dt_ns ({dataset['dt_ns']!r})")
+        try:
+            json.loads(dataset.get("user_metadata", "{}"))
+        except json.JSONDecodeError as error:
+            raise DemoFileError(f"{self.path}: dataset metadata has bad user_metadata JSON ({error})") from None
 
     def _read_summary(self, stream: Any) -> _Index:
         """The fast path: footer → summary (channels, chunk index, metadata index) → 2 records."""

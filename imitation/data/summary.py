@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from imitation.data.spaces import describe_space, space_to_json
+from imitation.data.spaces import describe_space, space_from_json, space_to_json
 from imitation.data.store import DemoFile
 
 
@@ -49,7 +49,6 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
 
 def format_summary(summary: dict[str, Any]) -> str:
     """The human-readable form of `summarize`'s result."""
-    from imitation.data.spaces import space_from_json
 
     def stats_line(stats: dict[str, float] | None) -> str:
         if stats is None:

@@ -12,7 +12,7 @@ from typing import Any, Callable, Iterator, Mapping, Sequence, Union
 import gymnasium as gym
 import numpy as np
 
-from imitation.data.spaces import LeafPath
+from imitation.data.spaces import LeafPath, space_leaves
 from imitation.errors import SpaceError
 
 Tree = Union[np.ndarray, dict[str, "Tree"]]
@@ -40,17 +40,6 @@ def tree_from_leaves(leaves: Mapping[LeafPath, np.ndarray]) -> Tree:
     return root
 
 
-def tree_map(fn: Callable[[np.ndarray], Any], tree: Tree) -> Any:
-    if isinstance(tree, Mapping):
-        return {key: tree_map(fn, sub) for key, sub in tree.items()}
-    return fn(tree)
-
-
-def tree_concatenate(trees: Sequence[Tree]) -> Tree:
-    """Concatenate trees of the same structure along the first axis."""
-    if isinstance(trees[0], Mapping):
-        return {key: tree_concatenate([tree[key] for tree in trees]) for key in trees[0]}
-    return np.concatenate(trees, axis=0)
 
 
 def tree_rows(tree: Tree) -> int:
@@ -114,8 +103,6 @@ class Episode:
 
 def check_fits_space(tree: Tree, space: gym.Space, what: str) -> None:
     """Raise SpaceError unless every leaf of `tree` has the dtype and row shape of `space`."""
-    from imitation.data.spaces import space_leaves
-
     expected = {path: (dtype, shape) for path, dtype, shape in space_leaves(space)}
     actual = dict(tree_leaves(tree))
     if set(expected) != set(actual):
@@ -190,12 +177,3 @@ def episodes_to_transitions(episodes: Sequence[Episode], episode_indices: Sequen
         truncated=truncated,
         episode_index=np.repeat(np.asarray(episode_indices, dtype=np.int64), lengths),
     )
-
-
-def check_space_dtype(space: gym.Space) -> None:
-    """Dtypes must be plain numbers or bool: the store writes raw little-endian bytes."""
-    from imitation.data.spaces import space_leaves
-
-    for path, dtype, _ in space_leaves(space):
-        if dtype.kind not in "biuf":
-            raise SpaceError(f"space leaf {'/'.join(path) or '(root)'}: dtype {dtype} is not a number or bool")
