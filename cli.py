@@ -89,6 +89,49 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train_ppo(args: argparse.Namespace) -> int:
+    from imitation.algorithms.ppo import PPOConfig, ppo_defaults
+    from imitation.envs.make import make_env
+    from imitation.training import ppo_job
+
+    env = make_env(args.env)
+    settings = ppo_defaults(args.env, env.action_space)
+    env.close()
+    for name in ("n_envs", "objective", "seed", "device", "threads"):
+        if getattr(args, name) is not None:
+            settings[name] = getattr(args, name)
+    if args.async_envs:
+        settings["async_envs"] = True
+    config = PPOConfig(env_id=args.env, total_steps=args.steps, reward_run=args.reward, **settings)
+    result = ppo_job(config, args.out, progress=not args.quiet)
+    if args.json:
+        _print_json(result)
+    else:
+        evaluation = result["eval"]
+        print(f"trained PPO ({config.objective}) on {args.env} for {result['steps']} steps in {result['seconds']:.0f} s "
+              f"({result['steps_per_second']:.0f} steps/s); eval return {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f}; run: {result['run']}")
+    return 0
+
+
+def cmd_eval_policy(args: argparse.Namespace) -> int:
+    from imitation.envs.make import make_env
+    from imitation.evaluation.policy import evaluate_policy
+    from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
+
+    policy = load_policy(args.run)
+    env = make_env(args.env)
+    check_policy_fits_env(policy, env, args.run)
+    result = evaluate_policy(SingleObservationPolicy(policy, deterministic=not args.stochastic), env, episodes=args.episodes, seed=args.seed)
+    env.close()
+    result = {"run": args.run, "env_id": args.env, "deterministic": not args.stochastic, **result}
+    if args.json:
+        _print_json(result)
+    else:
+        print(f"{args.run} on {args.env}: mean return {result['mean_return']:.2f} ± {result['std_return']:.2f} "
+              f"(min {result['min_return']:.2f}, max {result['max_return']:.2f}) over {args.episodes} episodes")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="imitation",
@@ -104,7 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
         "demo file as it ends (while recording the file is named F.mcap.partial; Ctrl-C keeps the finished episodes).",
     )
     record.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id, e.g. CartPole-v1")
-    record.add_argument("--expert", default="scripted", metavar="SPEC", help="scripted (hand-written controller) or random (default: scripted)")
+    record.add_argument("--expert", default="scripted", metavar="SPEC", help="scripted (hand-written controller), random, or a run directory with a policy (default: scripted)")
     record.add_argument("--episodes", type=int, default=10, metavar="N", help="number of episodes (default: 10)")
     record.add_argument("--seed", type=int, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
     record.add_argument("--out", required=True, metavar="F.mcap", help="output demo file")
@@ -121,6 +164,39 @@ def build_parser() -> argparse.ArgumentParser:
     info.add_argument("file", metavar="F.mcap", help="demo file")
     info.add_argument("--json", action="store_true", help="print one JSON object")
     info.set_defaults(handler=cmd_info)
+
+    train = commands.add_parser("train", help="train a policy or reward model", description="Train a policy or reward model into a run directory.")
+    algorithms = train.add_subparsers(dest="algorithm", required=True, metavar="ALGORITHM")
+    ppo = algorithms.add_parser(
+        "ppo",
+        help="the bundled PPO trainer (clip or adaptive-KL objective, GAE)",
+        description="Train PPO on a gymnasium env, on its own reward or on a learned one (--reward). "
+        "Per-environment defaults (rl-baselines3-zoo's settings where known) make flags optional.",
+    )
+    ppo.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
+    ppo.add_argument("--steps", type=int, default=100_000, metavar="N", help="environment steps in total (default: 100000)")
+    ppo.add_argument("--objective", choices=["clip", "kl"], help="clipped surrogate or adaptive KL penalty (default: clip)")
+    ppo.add_argument("--reward", metavar="RUN_DIR", help="optimise this reward model instead of the env's reward (true returns are still logged)")
+    ppo.add_argument("--n-envs", dest="n_envs", type=int, metavar="K", help="parallel environments (default: per env)")
+    ppo.add_argument("--async", dest="async_envs", action="store_true", help="step the environments in subprocesses")
+    ppo.add_argument("--seed", type=int, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
+    ppo.add_argument("--device", metavar="auto|cpu|cuda", help="where the networks run (default: auto)")
+    ppo.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (default: 1, fastest for small networks)")
+    ppo.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory to write (replaced only when the run completes)")
+    ppo.add_argument("--json", action="store_true", help="print one JSON object with the results")
+    ppo.add_argument("--quiet", action="store_true", help="no progress bar")
+    ppo.set_defaults(handler=cmd_train_ppo)
+
+    evaluate = commands.add_parser("eval", help="evaluate a policy or a recovered reward", description="Evaluate a trained policy or reward.")
+    targets = evaluate.add_subparsers(dest="target", required=True, metavar="TARGET")
+    policy = targets.add_parser("policy", help="return of a run's policy", description="Mean, std, min and max return of a run directory's policy.")
+    policy.add_argument("run", metavar="RUN_DIR", help="a PPO, BC or DAgger run directory")
+    policy.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
+    policy.add_argument("--episodes", type=int, default=10, metavar="N", help="episodes (default: 10)")
+    policy.add_argument("--seed", type=int, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
+    policy.add_argument("--stochastic", action="store_true", help="sample actions instead of taking the most likely one")
+    policy.add_argument("--json", action="store_true", help="print one JSON object")
+    policy.set_defaults(handler=cmd_eval_policy)
     return parser
 
 

@@ -2,20 +2,27 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any, Callable
 
 import gymnasium as gym
 
 from imitation.errors import ImitationError
+from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
 from imitation.experts.scripted import scripted_expert
 
 Policy = Callable[[Any], Any]
-EXPERT_SPECS = ("scripted", "random")
+EXPERT_SPECS = ("scripted", "random", "RUN_DIR")
 
 
 def load_expert(spec: str, env: gym.Env, *, seed: int) -> Policy:
     """`scripted`: the hand-written controller for env's id; `random`: uniform actions from the
-    action space, seeded with `seed` so recordings are reproducible."""
+    action space, seeded with `seed` so recordings are reproducible; a run directory: its saved
+    policy (PPO, BC, DAgger), acting deterministically."""
+    if Path(spec).is_dir():
+        policy = load_policy(spec)
+        check_policy_fits_env(policy, env, f"--expert {spec}")
+        return SingleObservationPolicy(policy)
     if spec == "scripted":
         return scripted_expert(env.spec.id if env.spec else "")
     if spec == "random":

@@ -1,0 +1,1 @@
+"""Learning algorithms: BC, DAgger, MaxEnt IRL and the bundled PPO trainer."""

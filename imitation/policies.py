@@ -1,0 +1,243 @@
+"""Actor-critic MLP policies shared by PPO, BC and DAgger, and their save/load.
+
+Two policy classes, chosen by the action space:
+
+- Discrete actions: a categorical (softmax) policy, π(a|s) = softmax(f(s))_a.
+- Box actions: a diagonal Gaussian with a state-independent log-std,
+  π(a|s) = Π_i N(a_i; μ_i(s), σ_i²), σ = exp(log_std); actions sent to the env are clipped to
+  the space bounds, while log-probs are of the unclipped sample (as in CleanRL and SB3).
+
+Observations go through an optional running mean/std normaliser that is part of the module
+(saved with the weights), so evaluation sees exactly what training saw. Discrete observations
+are one-hot encoded. Weights use orthogonal initialisation: gain √2 for hidden layers, 0.01 for
+the policy head (near-uniform initial policy), 1 for the value head.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from torch import nn
+from torch.distributions import Categorical, Distribution, Normal
+
+from imitation.data.spaces import describe_space, space_from_json, space_to_json, spaces_equal
+from imitation.errors import ImitationError
+from imitation.runs import read_run
+
+ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
+
+
+class RunningMeanStd(nn.Module):
+    """Running mean and variance of a stream of batches (Chan et al.'s parallel update).
+
+    Kept as buffers so they are saved with the model and follow it to its device."""
+
+    def __init__(self, shape: tuple[int, ...], epsilon: float = 1e-4) -> None:
+        super().__init__()
+        self.register_buffer("mean", torch.zeros(shape, dtype=torch.float64))
+        self.register_buffer("var", torch.ones(shape, dtype=torch.float64))
+        self.register_buffer("count", torch.tensor(epsilon, dtype=torch.float64))
+
+    @torch.no_grad()
+    def update(self, batch: torch.Tensor) -> None:
+        batch = batch.to(torch.float64).reshape(-1, *self.mean.shape)
+        batch_mean, batch_var, batch_count = batch.mean(0), batch.var(0, unbiased=False), batch.shape[0]
+        delta = batch_mean - self.mean
+        total = self.count + batch_count
+        self.mean += delta * batch_count / total
+        self.var.copy_((self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total)
+        self.count.copy_(total)
+
+    def normalize(self, x: torch.Tensor, clip: float = 10.0) -> torch.Tensor:
+        scaled = (x - self.mean.to(x.dtype)) / torch.sqrt(self.var.to(x.dtype) + 1e-8)
+        return scaled.clamp(-clip, clip)
+
+
+@dataclass(kw_only=True)
+class PolicyConfig:
+    """Everything needed to rebuild a policy before loading its weights."""
+
+    observation_space: dict[str, Any]
+    action_space: dict[str, Any]
+    hidden_sizes: list[int] = field(default_factory=lambda: [64, 64])
+    activation: str = "tanh"
+    shared_trunk: bool = False
+    normalize_observations: bool = False
+    log_std_init: float = 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @staticmethod
+    def from_json(data: dict[str, Any]) -> PolicyConfig:
+        return PolicyConfig(**data)
+
+
+def _layer(inputs: int, outputs: int, gain: float) -> nn.Linear:
+    linear = nn.Linear(inputs, outputs)
+    nn.init.orthogonal_(linear.weight, gain)
+    nn.init.zeros_(linear.bias)
+    return linear
+
+
+def _mlp(inputs: int, hidden_sizes: list[int], activation: str) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for size in hidden_sizes:
+        layers += [_layer(inputs, size, math.sqrt(2)), ACTIVATIONS[activation]()]
+        inputs = size
+    return nn.Sequential(*layers)
+
+
+def observation_size(space: gym.Space) -> int:
+    if isinstance(space, gym.spaces.Box):
+        return int(np.prod(space.shape))
+    if isinstance(space, gym.spaces.Discrete):
+        return int(space.n)
+    raise ImitationError(f"policies take Box or Discrete observations, not {type(space).__name__}")
+
+
+class ActorCritic(nn.Module):
+    """An MLP actor (categorical or Gaussian head) and critic, with separate or shared trunks."""
+
+    def __init__(self, config: PolicyConfig) -> None:
+        super().__init__()
+        if config.activation not in ACTIVATIONS:
+            raise ImitationError(f"activation must be one of {sorted(ACTIVATIONS)}, got {config.activation!r}")
+        self.config = config
+        self.observation_space = space_from_json(config.observation_space)
+        self.action_space = space_from_json(config.action_space)
+        obs_size = observation_size(self.observation_space)
+        hidden = config.hidden_sizes[-1] if config.hidden_sizes else obs_size
+        self.obs_rms = RunningMeanStd((obs_size,)) if config.normalize_observations else None
+        self.actor_trunk = _mlp(obs_size, config.hidden_sizes, config.activation)
+        self.critic_trunk = self.actor_trunk if config.shared_trunk else _mlp(obs_size, config.hidden_sizes, config.activation)
+        self.value_head = _layer(hidden, 1, 1.0)
+        if isinstance(self.action_space, gym.spaces.Discrete):
+            self.is_continuous = False
+            self.action_head = _layer(hidden, int(self.action_space.n), 0.01)
+        elif isinstance(self.action_space, gym.spaces.Box):
+            self.is_continuous = True
+            action_dim = int(np.prod(self.action_space.shape))
+            self.action_head = _layer(hidden, action_dim, 0.01)
+            self.log_std = nn.Parameter(torch.full((action_dim,), float(config.log_std_init)))
+            self.register_buffer("action_low", torch.as_tensor(self.action_space.low, dtype=torch.float32).reshape(-1))
+            self.register_buffer("action_high", torch.as_tensor(self.action_space.high, dtype=torch.float32).reshape(-1))
+        else:
+            raise ImitationError(f"policies take Discrete or Box actions, not {type(self.action_space).__name__}")
+
+    # -- observations ---------------------------------------------------------------------------
+
+    def encode(self, observations: torch.Tensor) -> torch.Tensor:
+        """Raw observations (batch first) → flat float features, normalised if configured."""
+        if isinstance(self.observation_space, gym.spaces.Discrete):
+            index = observations.long().reshape(-1) - int(self.observation_space.start)
+            return nn.functional.one_hot(index, int(self.observation_space.n)).float()
+        features = observations.reshape(observations.shape[0], -1).float()
+        if self.obs_rms is not None:
+            features = self.obs_rms.normalize(features)
+        return features
+
+    def update_normalizer(self, observations: torch.Tensor) -> None:
+        if self.obs_rms is not None:
+            self.obs_rms.update(observations.reshape(observations.shape[0], -1))
+
+    # -- the policy -------------------------------------------------------------------------------
+
+    def distribution(self, features: torch.Tensor) -> Distribution:
+        """π(·|s) for encoded observations: Categorical(logits) or Normal(μ, σ) per action dim."""
+        hidden = self.actor_trunk(features)
+        if self.is_continuous:
+            mean = self.action_head(hidden)
+            return Normal(mean, self.log_std.exp().expand_as(mean))
+        return Categorical(logits=self.action_head(hidden))
+
+    def log_prob_and_entropy(self, distribution: Distribution, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """log π(a|s) and H[π(·|s)]; for the Gaussian both are sums over action dimensions."""
+        if self.is_continuous:
+            actions = actions.reshape(actions.shape[0], -1)
+            return distribution.log_prob(actions).sum(-1), distribution.entropy().sum(-1)
+        return distribution.log_prob(actions.long().reshape(-1)), distribution.entropy()
+
+    def value(self, features: torch.Tensor) -> torch.Tensor:
+        return self.value_head(self.critic_trunk(features)).squeeze(-1)
+
+    def act(self, features: torch.Tensor, *, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Sample (or take the mode of) π(·|s): action, its log-prob, and V(s)."""
+        distribution = self.distribution(features)
+        if deterministic:
+            action = distribution.mean if self.is_continuous else distribution.probs.argmax(-1)
+        else:
+            action = distribution.sample()
+        log_prob, _ = self.log_prob_and_entropy(distribution, action)
+        return action, log_prob, self.value(features)
+
+    def to_env_action(self, actions: torch.Tensor) -> np.ndarray:
+        """Policy actions → what env.step takes: Box actions clipped to the bounds and shaped."""
+        if self.is_continuous:
+            clipped = torch.clamp(actions, self.action_low, self.action_high)
+            return clipped.cpu().numpy().astype(self.action_space.dtype).reshape(-1, *self.action_space.shape)
+        return actions.cpu().numpy().astype(np.int64) + int(self.action_space.start)
+
+    @torch.no_grad()
+    def predict(self, observations: Any, *, deterministic: bool = True) -> np.ndarray:
+        """Env actions for a batch of raw observations (numpy), e.g. for evaluation or as an expert."""
+        tensor = torch.as_tensor(np.asarray(observations), device=self.action_head.weight.device)
+        action, _, _ = self.act(self.encode(tensor), deterministic=deterministic)
+        return self.to_env_action(action)
+
+
+def make_policy(observation_space: gym.Space, action_space: gym.Space, **options: Any) -> ActorCritic:
+    config = PolicyConfig(observation_space=space_to_json(observation_space), action_space=space_to_json(action_space), **options)
+    return ActorCritic(config)
+
+
+class SingleObservationPolicy:
+    """Adapts an ActorCritic to the expert interface: one raw observation → one env action."""
+
+    def __init__(self, policy: ActorCritic, *, deterministic: bool = True) -> None:
+        self.policy = policy.eval()
+        self.deterministic = deterministic
+
+    def __call__(self, observation: Any) -> Any:
+        action = self.policy.predict(np.asarray(observation)[None], deterministic=self.deterministic)[0]
+        return int(action) if not self.policy.is_continuous else action
+
+
+POLICY_PREFIX = "policy."
+
+
+def policy_tensors(policy: ActorCritic) -> dict[str, torch.Tensor]:
+    """The policy's weights and normaliser statistics, named for model.safetensors."""
+    return {POLICY_PREFIX + name: tensor for name, tensor in policy.state_dict().items()}
+
+
+def load_policy(path: str | os.PathLike) -> ActorCritic:
+    """The policy of a run directory (PPO, BC, DAgger), on the CPU, in eval mode."""
+    config, weights = read_run(path)
+    if "policy" not in config:
+        raise ImitationError(f"{path}: a {config.get('kind', 'unknown')!r} run holds no policy")
+    try:
+        policy = ActorCritic(PolicyConfig.from_json(config["policy"]))
+        state = {name[len(POLICY_PREFIX) :]: tensor for name, tensor in weights.items() if name.startswith(POLICY_PREFIX)}
+        policy.load_state_dict(state)
+    except (TypeError, KeyError, RuntimeError) as error:
+        raise ImitationError(f"{path}: policy weights do not match its config ({str(error).splitlines()[0]})") from None
+    return policy.eval()
+
+
+def check_policy_fits_env(policy: ActorCritic, env: gym.Env, where: str) -> None:
+    """One-line error when a saved policy was trained for other spaces than env's."""
+    for name, mine, theirs in (
+        ("observation", policy.observation_space, env.observation_space),
+        ("action", policy.action_space, env.action_space),
+    ):
+        if not spaces_equal(mine, theirs):
+            raise ImitationError(
+                f"{where}: the policy's {name} space {describe_space(mine)} does not match the env's {describe_space(theirs)}"
+            )
