@@ -26,7 +26,7 @@ import torch
 from torch import nn
 from torch.distributions import Categorical, Distribution, Normal
 
-from imitation.data.spaces import describe_space, space_from_json, space_to_json, spaces_equal
+from imitation.data.spaces import describe_space, space_from_json, space_to_json, spaces_compatible
 from imitation.errors import ImitationError
 from imitation.runs import read_run
 
@@ -237,7 +237,7 @@ def check_policy_fits_env(policy: ActorCritic, env: gym.Env, where: str) -> None
         ("observation", policy.observation_space, env.observation_space),
         ("action", policy.action_space, env.action_space),
     ):
-        if not spaces_equal(mine, theirs):
+        if not spaces_compatible(mine, theirs):
             raise ImitationError(
                 f"{where}: the policy's {name} space {describe_space(mine)} does not match the env's {describe_space(theirs)}"
             )

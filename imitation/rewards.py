@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from imitation.data.spaces import describe_space, space_from_json, space_to_json, spaces_equal
+from imitation.data.spaces import describe_space, space_from_json, space_to_json, spaces_compatible
 from imitation.errors import ImitationError
 from imitation.policies import ACTIVATIONS, observation_size
 from imitation.runs import read_run
@@ -101,7 +101,7 @@ class LearnedReward(gym.Wrapper):
             ("observation", env.observation_space, model.observation_space),
             ("action", env.action_space, model.action_space),
         ):
-            if not spaces_equal(mine, theirs):
+            if not spaces_compatible(mine, theirs):
                 raise ImitationError(
                     f"{where}: the reward model's {name} space {describe_space(mine)} does not match the env's {describe_space(theirs)}"
                 )

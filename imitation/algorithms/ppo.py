@@ -283,6 +283,8 @@ def _train(config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, 
     env_return_accumulator = np.zeros(n_envs)
     history: list[dict[str, float]] = []
     beta = config.kl_beta_init
+    # Where the time goes (seconds, cumulative): stepping envs, the rollout's forward passes, updates.
+    timers = {"env": 0.0, "inference": 0.0, "update": 0.0}
     started = time.perf_counter()
     global_step = 0
 
@@ -294,6 +296,7 @@ def _train(config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, 
 
         # -- rollout with π_k ---------------------------------------------------------------
         for t in range(n_steps):
+            tick = time.perf_counter()
             observation_tensor = torch.as_tensor(observations, device=device)
             policy.update_normalizer(observation_tensor)
             with torch.no_grad():
@@ -305,7 +308,12 @@ def _train(config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, 
                 log_probs[t], _ = policy.log_prob_and_entropy(distribution, action)
                 values[t] = policy.value(features[t])
             actions[t] = action.reshape(actions[t].shape)
-            observations, reward, term, trunc, info = envs.step(policy.to_env_action(action))
+            env_action = policy.to_env_action(action)
+            tock = time.perf_counter()
+            timers["inference"] += tock - tick
+            observations, reward, term, trunc, info = envs.step(env_action)
+            tick = time.perf_counter()
+            timers["env"] += tick - tock
             env_return_accumulator += reward
             for i in np.flatnonzero(term | trunc):
                 recent_env_returns.append(float(env_return_accumulator[i]))
@@ -321,7 +329,9 @@ def _train(config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, 
                 with torch.no_grad():
                     final_values = policy.value(policy.encode(torch.as_tensor(final, device=device)))
                 truncated_values[t, torch.as_tensor(np.flatnonzero(trunc), device=device)] = final_values
+            timers["inference"] += time.perf_counter() - tick
         global_step += rollout_size
+        update_started = time.perf_counter()
 
         with torch.no_grad():
             last_values = policy.value(policy.encode(torch.as_tensor(observations, device=device)))
@@ -398,6 +408,7 @@ def _train(config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, 
                 mean_kl = float((kl_all.sum(-1) if policy.is_continuous else kl_all).mean())
             beta = update_kl_penalty(beta, mean_kl, config.kl_target)
 
+        timers["update"] += time.perf_counter() - update_started
         explained_variance = 1.0 - float(torch.var(flat_returns - flat_values) / (torch.var(flat_returns) + 1e-8))
         elapsed = time.perf_counter() - started
         row = {
@@ -414,6 +425,9 @@ def _train(config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, 
             "learning_rate": optimizer.param_groups[0]["lr"],
             "early_stop": float(stopped_early),
             "steps_per_second": global_step / elapsed,
+            "seconds_env": timers["env"],
+            "seconds_inference": timers["inference"],
+            "seconds_update": timers["update"],
         }
         history.append(row)
         if log is not None:

@@ -94,6 +94,13 @@ def spaces_equal(a: gym.Space, b: gym.Space) -> bool:
     return json.dumps(space_to_json(a), sort_keys=True) == json.dumps(space_to_json(b), sort_keys=True)
 
 
+def spaces_compatible(a: gym.Space, b: gym.Space) -> bool:
+    """Same kind, dtype, shape and (for discrete spaces) number of values: a model built for `a`
+    can take inputs from `b`. Box bounds may differ."""
+    strip = lambda d: {k: (strip(v) if isinstance(v, dict) else v) for k, v in d.items() if k not in ("low", "high")}  # noqa: E731
+    return json.dumps(strip(space_to_json(a)), sort_keys=True) == json.dumps(strip(space_to_json(b)), sort_keys=True)
+
+
 def describe_space(space: gym.Space) -> str:
     """A short human-readable form, e.g. `Box(float32, (4,))` or `Discrete(2)`."""
     if isinstance(space, gym.spaces.Box):

@@ -1,0 +1,84 @@
+"""PPO's formulas against values worked by hand: GAE, the KL-penalty rule, the clipped objective."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from imitation.algorithms.ppo import clipped_surrogate, compute_gae, update_kl_penalty
+
+GAMMA, LAMBDA = 0.9, 0.5
+
+
+def gae(rewards, values, next_values, terminated, truncated):
+    as_column = lambda xs, dtype=torch.float32: torch.tensor(xs, dtype=dtype)[:, None]  # noqa: E731
+    advantages, returns = compute_gae(
+        as_column(rewards), as_column(values), as_column(next_values),
+        as_column(terminated, torch.bool), as_column(truncated, torch.bool), gamma=GAMMA, gae_lambda=LAMBDA,
+    )
+    return advantages[:, 0].tolist(), returns[:, 0].tolist()
+
+
+def test_gae_without_episode_ends() -> None:
+    # δ = 1 + 0.9·V(s') − V(s) = 0.86, 0.87, 0.88;  Â2 = 0.88, Â1 = 0.87 + 0.45·0.88, Â0 = 0.86 + 0.45·Â1
+    advantages, returns = gae([1, 1, 1], [0.5, 0.4, 0.3], [0.4, 0.3, 0.2], [0, 0, 0], [0, 0, 0])
+    assert advantages == pytest.approx([1.4297, 1.266, 0.88])
+    assert returns == pytest.approx([1.9297, 1.666, 1.18])
+
+
+def test_gae_termination_does_not_bootstrap() -> None:
+    # Step 1 terminates: δ1 = 1 − 0.4 (no γV), and Â1 does not look into the next episode.
+    advantages, _ = gae([1, 1, 1], [0.5, 0.4, 0.3], [0.4, 123.0, 0.2], [0, 1, 0], [0, 0, 0])
+    assert advantages == pytest.approx([0.86 + 0.45 * 0.6, 0.6, 0.88])
+
+
+def test_gae_truncation_bootstraps_from_the_final_state() -> None:
+    # Step 1 is cut by a time limit; its true next state has V = 2: δ1 = 1 + 0.9·2 − 0.4 = 2.4.
+    advantages, _ = gae([1, 1, 1], [0.5, 0.4, 0.3], [0.4, 2.0, 0.2], [0, 0, 0], [0, 1, 0])
+    assert advantages == pytest.approx([0.86 + 0.45 * 2.4, 2.4, 0.88])
+
+
+def test_gae_with_several_envs_ending_mid_rollout() -> None:
+    rewards = torch.tensor([[1.0, 0.0], [0.0, 1.0], [2.0, 0.0]])
+    values = torch.zeros(3, 2)
+    next_values = torch.tensor([[0.0, 1.0], [0.0, 0.0], [1.0, 5.0]])
+    terminated = torch.tensor([[False, False], [True, False], [False, False]])
+    truncated = torch.tensor([[False, False], [False, True], [False, False]])
+    advantages, _ = compute_gae(rewards, values, next_values, terminated, truncated, gamma=GAMMA, gae_lambda=LAMBDA)
+    # env 0: δ = 1, 0, 2.9; ends at t=1 → Â = 1 + 0.45·0, 0, 2.9
+    # env 1: δ = 0.9, 1, 4.5; truncated at t=1 (V(final)=0) → Â = 0.9 + 0.45·1, 1, 4.5
+    assert advantages[:, 0].tolist() == pytest.approx([1.0, 0.0, 2.9])
+    assert advantages[:, 1].tolist() == pytest.approx([0.9 + 0.45, 1.0, 4.5])
+
+
+@pytest.mark.parametrize(
+    ("kl", "expected"),
+    [(0.015, 2.0), (0.03, 2.0), (0.0149, 1.0), (0.01, 1.0), (0.0067, 1.0), (0.01 / 1.5, 0.5), (0.001, 0.5)],
+)
+def test_kl_penalty_rule(kl: float, expected: float) -> None:
+    # δ = 0.01: double at KL ≥ 0.015, halve at KL ≤ 0.00667, keep in between.
+    assert update_kl_penalty(1.0, kl, 0.01) == pytest.approx(expected)
+
+
+def gradient_of_clipped_objective(ratio: float, advantage: float) -> float:
+    log_ratio = torch.tensor(float(torch.log(torch.tensor(ratio))), requires_grad=True)
+    clipped_surrogate(log_ratio.exp(), torch.tensor(advantage), 0.2).backward()
+    return float(log_ratio.grad)
+
+
+def test_clipped_objective_gradient_vanishes_where_the_notes_say() -> None:
+    # Â > 0: no incentive to push r above 1 + ε; Â < 0: none to push it below 1 − ε.
+    assert gradient_of_clipped_objective(1.3, +1.0) == 0.0
+    assert gradient_of_clipped_objective(0.7, -1.0) == 0.0
+    # Inside the trust region the gradient is Â·r (d/dlog r of r·Â).
+    assert gradient_of_clipped_objective(1.1, +1.0) == pytest.approx(1.1)
+    assert gradient_of_clipped_objective(0.9, -1.0) == pytest.approx(-0.9)
+    # Pessimism: when the change makes things worse, the gradient is not clipped away.
+    assert gradient_of_clipped_objective(0.7, +1.0) == pytest.approx(0.7)
+    assert gradient_of_clipped_objective(1.3, -1.0) == pytest.approx(-1.3)
+
+
+def test_clipped_objective_values() -> None:
+    ratio = torch.tensor([0.5, 1.0, 1.5, 0.5, 1.5])
+    advantage = torch.tensor([1.0, 2.0, 1.0, -1.0, -1.0])
+    assert clipped_surrogate(ratio, advantage, 0.2).tolist() == pytest.approx([0.5, 2.0, 1.2, -0.8, -1.5])

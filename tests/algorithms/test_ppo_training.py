@@ -1,0 +1,129 @@
+"""PPO as a whole: truncation is bootstrapped inside the real loop, short runs learn, NaN stops
+with a clear message, learned rewards are optimised while true returns are logged."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from gymnasium.envs.classic_control.cartpole import CartPoleEnv
+
+import imitation.algorithms.ppo as ppo
+from imitation.algorithms.ppo import PPOConfig, ppo_defaults, train_ppo
+from imitation.envs.make import make_env
+from imitation.errors import ImitationError
+from imitation.evaluation.policy import evaluate_policy
+from imitation.policies import SingleObservationPolicy
+from imitation.rewards import LearnedReward, make_reward_model
+
+gym.register("TestShortCartPole-v0", entry_point=CartPoleEnv, max_episode_steps=7)
+
+
+def test_truncated_steps_bootstrap_from_the_final_state(monkeypatch) -> None:
+    captured = {}
+    original = ppo.compute_gae
+
+    def capture(rewards, values, next_values, terminated, truncated, **kwargs):
+        captured.update(values=values.clone(), next_values=next_values.clone(), terminated=terminated.clone(), truncated=truncated.clone())
+        return original(rewards, values, next_values, terminated, truncated, **kwargs)
+
+    monkeypatch.setattr(ppo, "compute_gae", capture)
+    train_ppo(PPOConfig(env_id="TestShortCartPole-v0", total_steps=64, n_envs=2, n_steps=32, batch_size=32, n_epochs=1, seed=0, device="cpu"), progress=False)
+    values, next_values, truncated, terminated = captured["values"], captured["next_values"], captured["truncated"], captured["terminated"]
+    assert truncated.any(), "a 7-step time limit must truncate within 32 steps"
+    following = torch.cat([values[1:], values[-1:]])
+    inside = ~(truncated | terminated)
+    inside[-1] = False
+    assert torch.equal(next_values[inside], following[inside]), "ordinary steps bootstrap from the next state in the rollout"
+    rows, envs = torch.nonzero(truncated[:-1], as_tuple=True)
+    # After a truncation the rollout continues from a reset state; the bootstrap must not use it.
+    assert not torch.allclose(next_values[rows, envs], values[rows + 1, envs])
+
+
+def quick_cartpole(objective: str, steps: int, seed: int = 0) -> tuple[float, list[dict]]:
+    config = PPOConfig(env_id="CartPole-v1", total_steps=steps, objective=objective, seed=seed, device="cpu", **ppo_defaults("CartPole-v1"))
+    result = train_ppo(config, progress=False)
+    env = make_env("CartPole-v1")
+    return evaluate_policy(SingleObservationPolicy(result.policy), env, episodes=5, seed=123)["mean_return"], result.history
+
+
+def test_a_short_clip_run_learns_cartpole() -> None:
+    mean_return, history = quick_cartpole("clip", 30_000)
+    assert mean_return >= 300, mean_return  # random play scores about 22
+    assert history[-1]["return"] > history[0]["return"]
+
+
+def test_a_short_kl_run_learns_and_adapts_beta() -> None:
+    mean_return, history = quick_cartpole("kl", 30_000)
+    assert mean_return >= 150, mean_return
+    betas = {row["kl_beta"] for row in history}
+    assert len(betas) > 2, "β must move with the measured KL"
+    for before, after in zip(history, history[1:]):
+        assert after["kl_beta"] in (before["kl_beta"], 2 * before["kl_beta"], before["kl_beta"] / 2)
+
+
+def test_pendulum_runs_with_its_defaults() -> None:
+    config = PPOConfig(env_id="Pendulum-v1", total_steps=8192, seed=0, device="cpu", **ppo_defaults("Pendulum-v1"))
+    result = train_ppo(config, progress=False)
+    assert result.policy.is_continuous and result.steps == 8192
+    assert np.isfinite(result.history[-1]["value_loss"])
+
+
+def test_nan_loss_stops_naming_the_update() -> None:
+    model = make_reward_model(gym.spaces.Box(-np.inf, np.inf, (4,), np.float32), gym.spaces.Discrete(2))
+    with torch.no_grad():
+        for parameter in model.parameters():
+            parameter.fill_(float("nan"))
+    config = PPOConfig(env_id="CartPole-v1", total_steps=512, n_envs=2, n_steps=64, batch_size=64, seed=0, device="cpu")
+    with pytest.raises(ImitationError, match=r"PPO update 1/4, epoch 1: the loss is nan"):
+        train_ppo(config, wrap_env=lambda env: LearnedReward(env, model), progress=False)
+
+
+def test_learned_reward_wrapper_passes_the_model_reward_and_keeps_the_true_one() -> None:
+    env = gym.make("CartPole-v1")
+    model = make_reward_model(env.observation_space, env.action_space, inputs="sas")
+    wrapped = LearnedReward(env, model)
+    observation, _ = wrapped.reset(seed=0)
+    next_observation, reward, _, _, info = wrapped.step(1)
+    with torch.no_grad():
+        expected = model(torch.as_tensor(observation[None]), torch.tensor([1]), torch.as_tensor(next_observation[None])).item()
+    assert reward == pytest.approx(expected) and info["true_reward"] == 1.0
+
+
+def test_learned_reward_must_fit_the_env() -> None:
+    model = make_reward_model(gym.spaces.Box(-1, 1, (3,), np.float32), gym.spaces.Discrete(2))
+    with pytest.raises(ImitationError, match=r"observation space Box\(float32, \(3,\)\) does not match the env's Box\(float32, \(4,\)\)"):
+        LearnedReward(gym.make("CartPole-v1"), model)
+
+
+def test_training_on_a_learned_reward_logs_both_returns() -> None:
+    model = make_reward_model(gym.spaces.Box(-np.inf, np.inf, (4,), np.float32), gym.spaces.Discrete(2), hidden_sizes=[])
+    with torch.no_grad():
+        model.net[0].weight.zero_()
+        model.net[0].bias.fill_(2.0)  # a constant reward of 2 per step
+    config = PPOConfig(env_id="CartPole-v1", total_steps=1024, n_envs=2, n_steps=128, batch_size=64, seed=0, device="cpu")
+    history = train_ppo(config, wrap_env=lambda env: LearnedReward(env, model), progress=False).history
+    last = history[-1]
+    assert last["optimised_return"] == pytest.approx(2 * last["return"], rel=0.35)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("objective,needed", [("clip", 3), ("kl", 2)])
+def test_acceptance_cartpole_100k(objective: str, needed: int) -> None:
+    results = []
+    for seed in (0, 1, 2):
+        config = PPOConfig(env_id="CartPole-v1", total_steps=100_000, objective=objective, seed=seed, device="cpu", **ppo_defaults("CartPole-v1"))
+        policy = train_ppo(config, progress=False).policy
+        results.append(evaluate_policy(SingleObservationPolicy(policy), make_env("CartPole-v1"), episodes=10, seed=0)["mean_return"])
+    assert sum(r >= 475 for r in results) >= needed, results
+
+
+@pytest.mark.slow
+def test_acceptance_pendulum_200k() -> None:
+    results = []
+    for seed in (0, 1, 2):
+        config = PPOConfig(env_id="Pendulum-v1", total_steps=200_000, seed=seed, device="cpu", **ppo_defaults("Pendulum-v1"))
+        policy = train_ppo(config, progress=False).policy
+        results.append(evaluate_policy(SingleObservationPolicy(policy), make_env("Pendulum-v1"), episodes=10, seed=0)["mean_return"])
+    assert sum(r >= -250 for r in results) >= 2, results

@@ -1,0 +1,83 @@
+"""Both policy classes against closed forms; save/load round trip; env action mapping."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from imitation.errors import ImitationError
+from imitation.policies import load_policy, make_policy, policy_tensors
+from imitation.runs import RunWriter
+
+BOX4 = gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)
+
+
+def test_categorical_log_prob_and_entropy_match_softmax() -> None:
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, gym.spaces.Discrete(3), hidden_sizes=[8])
+    torch.nn.init.normal_(policy.action_head.weight)  # leave the near-uniform initial policy
+    features = torch.randn(5, 4)
+    logits = policy.action_head(policy.actor_trunk(features))
+    probabilities = torch.softmax(logits, -1)
+    actions = torch.tensor([0, 1, 2, 1, 0])
+    log_prob, entropy = policy.log_prob_and_entropy(policy.distribution(features), actions)
+    assert torch.allclose(log_prob, torch.log(probabilities[torch.arange(5), actions]))
+    assert torch.allclose(entropy, -(probabilities * probabilities.log()).sum(-1))
+
+
+def test_gaussian_log_prob_and_entropy_match_closed_form() -> None:
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, gym.spaces.Box(-1, 1, (2,), np.float32), hidden_sizes=[8], log_std_init=-0.3)
+    with torch.no_grad():
+        policy.log_std.copy_(torch.tensor([-0.3, 0.4]))
+    features, actions = torch.randn(6, 4), torch.randn(6, 2)
+    mean = policy.action_head(policy.actor_trunk(features))
+    sigma = torch.tensor([math.exp(-0.3), math.exp(0.4)])
+    expected_log_prob = (-((actions - mean) ** 2) / (2 * sigma**2) - sigma.log() - 0.5 * math.log(2 * math.pi)).sum(-1)
+    expected_entropy = (0.5 * math.log(2 * math.pi * math.e) + sigma.log()).sum()
+    log_prob, entropy = policy.log_prob_and_entropy(policy.distribution(features), actions)
+    assert torch.allclose(log_prob, expected_log_prob, atol=1e-5)
+    assert torch.allclose(entropy, expected_entropy.expand(6), atol=1e-6)
+
+
+def test_gaussian_env_actions_are_clipped_to_the_bounds() -> None:
+    policy = make_policy(BOX4, gym.spaces.Box(np.array([-2.0], np.float32), np.array([1.0], np.float32)))
+    env_actions = policy.to_env_action(torch.tensor([[-5.0], [0.5], [7.0]]))
+    assert env_actions.dtype == np.float32 and env_actions[:, 0].tolist() == [-2.0, 0.5, 1.0]
+
+
+def test_discrete_observations_are_one_hot() -> None:
+    policy = make_policy(gym.spaces.Discrete(5, start=1), gym.spaces.Discrete(2))
+    assert policy.encode(torch.tensor([1, 5])).tolist() == [[1, 0, 0, 0, 0], [0, 0, 0, 0, 1]]
+
+
+def test_observation_normaliser_tracks_mean_and_variance() -> None:
+    policy = make_policy(BOX4, gym.spaces.Discrete(2), normalize_observations=True)
+    data = torch.randn(1000, 4) * torch.tensor([1.0, 2.0, 3.0, 4.0]) + 5.0
+    for chunk in data.split(100):
+        policy.update_normalizer(chunk)
+    assert torch.allclose(policy.obs_rms.mean.float(), data.mean(0), atol=1e-4)
+    assert torch.allclose(policy.obs_rms.var.float(), data.var(0, unbiased=False), rtol=1e-3)
+
+
+def test_saved_policy_acts_identically(tmp_path) -> None:
+    policy = make_policy(BOX4, gym.spaces.Box(-1, 1, (2,), np.float32), normalize_observations=True, hidden_sizes=[16, 16])
+    policy.update_normalizer(torch.randn(50, 4) * 3)
+    run = RunWriter(tmp_path / "run", config={"kind": "ppo", "policy": policy.config.to_json()}, tensorboard=False)
+    run.save_weights(policy_tensors(policy))
+    run.finish({})
+    restored = load_policy(tmp_path / "run")
+    observations = np.random.default_rng(0).normal(size=(7, 4)).astype(np.float32)
+    np.testing.assert_array_equal(restored.predict(observations), policy.predict(observations))
+
+
+def test_loading_something_that_is_not_a_policy(tmp_path) -> None:
+    with pytest.raises(ImitationError, match="not a run directory"):
+        load_policy(tmp_path / "missing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ImitationError, match="not a finished run directory"):
+        load_policy(tmp_path / "empty")
