@@ -195,8 +195,10 @@ def make_vector_env(
         env = gym.wrappers.RecordEpisodeStatistics(make_env(env_id))
         return wrap(env) if wrap is not None else env
 
-    vector_class = gym.vector.AsyncVectorEnv if asynchronous else gym.vector.SyncVectorEnv
-    return vector_class([factory] * n_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+    if asynchronous:
+        # spawn, not fork: forking a process that already runs torch threads can deadlock.
+        return gym.vector.AsyncVectorEnv([factory] * n_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP, context="spawn")
+    return gym.vector.SyncVectorEnv([factory] * n_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
 
 
 def finished_episode_returns(info: dict[str, Any]) -> list[float]:

@@ -127,3 +127,13 @@ def test_acceptance_pendulum_200k() -> None:
         policy = train_ppo(config, progress=False).policy
         results.append(evaluate_policy(SingleObservationPolicy(policy), make_env("Pendulum-v1"), episodes=10, seed=0)["mean_return"])
     assert sum(r >= -250 for r in results) >= 2, results
+
+
+def test_async_envs_give_the_same_rollouts_as_sync() -> None:
+    def first_update(asynchronous: bool) -> dict:
+        config = PPOConfig(env_id="CartPole-v1", total_steps=256, n_envs=2, n_steps=128, batch_size=128, n_epochs=1, seed=3, device="cpu", async_envs=asynchronous)
+        return train_ppo(config, progress=False).history[0]
+
+    sync_row, async_row = first_update(False), first_update(True)
+    for key in ("return", "policy_loss", "value_loss", "entropy"):
+        assert async_row[key] == pytest.approx(sync_row[key], nan_ok=True), key
