@@ -46,6 +46,7 @@ def cmd_record(args: argparse.Namespace) -> int:
         source=f"imitation record --expert {args.expert}",
         metadata={"expert": args.expert, "seed": args.seed},
         durable=True,
+        compression=args.compression,
     )
     recorder = RecordEpisodes(env, writer)
     try:
@@ -151,6 +152,7 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--episodes", type=int, default=10, metavar="N", help="number of episodes (default: 10)")
     record.add_argument("--seed", type=int, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
     record.add_argument("--out", required=True, metavar="F.mcap", help="output demo file")
+    record.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd", help="chunk compression (default: zstd; none loads fastest)")
     record.add_argument("--json", action="store_true", help="print one JSON object with the results")
     record.add_argument("--quiet", action="store_true", help="no progress bar")
     record.set_defaults(handler=cmd_record)

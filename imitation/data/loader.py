@@ -41,6 +41,8 @@ def resolve_device(device: str | torch.device = "auto") -> torch.device:
 
 
 def _tree_apply(fn: Callable[[Any], Any], tree: Any) -> Any:
+    if tree is None:
+        return None
     if isinstance(tree, dict):
         return {key: _tree_apply(fn, sub) for key, sub in tree.items()}
     return fn(tree)
@@ -53,7 +55,7 @@ class TransitionTensors:
     observations: TensorTree
     actions: TensorTree
     rewards: torch.Tensor
-    next_observations: TensorTree
+    next_observations: TensorTree | None
     terminated: torch.Tensor
     truncated: torch.Tensor
     episode_index: torch.Tensor
@@ -88,32 +90,36 @@ def load_episodes(
     source: DemoDataset | Sequence[str | os.PathLike] | str | os.PathLike,
     *,
     episodes: Sequence[int] | None = None,
-) -> tuple[list[Episode], list[int]]:
-    """The chosen episodes (all by default) and their dataset-wide indices, read in one pass."""
+) -> list[Episode]:
+    """The chosen episodes (all by default), in ascending order, each chunk read once."""
     dataset = source if isinstance(source, DemoDataset) else DemoDataset(source)
-    if episodes is None:
-        chosen = list(range(len(dataset)))
-        return list(dataset), chosen
-    chosen = sorted(set(int(k) for k in episodes))
-    if chosen and not 0 <= chosen[0] <= chosen[-1] < len(dataset):
-        raise ImitationError(f"episode indices must lie in [0, {len(dataset)}), got {chosen[0]}..{chosen[-1]}")
-    if len(chosen) * 4 < len(dataset):
-        return [dataset[k] for k in chosen], chosen
-    # Most of the file is wanted: one sequential pass beats many seeks.
-    wanted = set(chosen)
-    return [episode for k, episode in enumerate(dataset) if k in wanted], chosen
+    return _read(dataset, episodes, zero_copy=False)
+
+
+def _read(dataset: DemoDataset, episodes: Sequence[int] | None, *, zero_copy: bool) -> list[Episode]:
+    try:
+        return dataset.read_episodes(episodes, zero_copy=zero_copy)
+    except IndexError as error:
+        raise ImitationError(str(error)) from None
 
 
 def load_transitions(
     source: DemoDataset | Sequence[str | os.PathLike] | str | os.PathLike,
     *,
     episodes: Sequence[int] | None = None,
+    next_observations: bool = True,
 ) -> Transitions:
-    """All transitions of the chosen episodes as one contiguous numpy batch."""
-    selected, indices = load_episodes(source, episodes=episodes)
+    """All transitions of the chosen episodes as one contiguous numpy batch.
+
+    Leave out `next_observations` when the learner does not need s': it is a second copy of
+    the observations."""
+    dataset = source if isinstance(source, DemoDataset) else DemoDataset(source)
+    indices = sorted(set(int(k) for k in episodes)) if episodes is not None else list(range(len(dataset)))
+    # Zero-copy is safe here: the episodes' arrays are copied into the batch and then dropped.
+    selected = _read(dataset, indices, zero_copy=True)
     if not selected or sum(len(episode) for episode in selected) == 0:
         raise ImitationError("no transitions to load: the demos hold no steps")
-    return episodes_to_transitions(selected, indices)
+    return episodes_to_transitions(selected, indices, next_observations=next_observations)
 
 
 def split_episodes(num_episodes: int, *, validation_fraction: float, seed: int) -> tuple[list[int], list[int]]:

@@ -23,6 +23,9 @@ it to disk, so a killed process leaves a file whose complete chunks hold every f
 from __future__ import annotations
 
 import bisect
+import functools
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 import json
 import math
 import mmap
@@ -35,7 +38,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Sequence
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -56,6 +59,8 @@ EPISODES_METADATA = "imitation.episodes"
 BLOCK_ENCODING = "imitation.ndarray"
 EPISODE_TOPIC = "/episode"
 DEFAULT_BLOCK_STEPS = 4096
+# zstd is the default; "none" trades size for the fastest loads (chunks are read in place).
+COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 MAGIC = b"\x89MCAP0\r\n"
 
 _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x02, 0x03, 0x04, 0x05, 0x06
@@ -124,7 +129,7 @@ class EpisodeFacts:
         )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Field:
     """One channel: which part of an episode it carries and how its rows are laid out."""
 
@@ -133,14 +138,20 @@ class _Field:
     dtype: np.dtype | None  # None for JSON channels
     shape: tuple[int, ...]
 
-    @property
+    # Cached: the reader asks for these once per block.
+    @functools.cached_property
     def topic(self) -> str:
         return "/" + "/".join((self.kind, *self.path))
 
-    @property
+    @functools.cached_property
     def row_nbytes(self) -> int:
         assert self.dtype is not None
         return self.dtype.itemsize * math.prod(self.shape)
+
+    @functools.cached_property
+    def native_dtype(self) -> np.dtype:
+        assert self.dtype is not None
+        return self.dtype.newbyteorder("=")
 
     def channel_metadata(self) -> dict[str, str]:
         if self.dtype is None:
@@ -156,11 +167,15 @@ class _Field:
         return _Field(kind, path, np.dtype(metadata["dtype"]), tuple(json.loads(metadata["shape"])))
 
 
+_REWARD_FIELD = _Field("reward", (), np.dtype("<f8"), ())
+_TIME_FIELD = _Field("time", (), np.dtype("<i8"), ())
+
+
 def _fields_for(observation_space: gym.Space, action_space: gym.Space) -> list[_Field]:
     """The channels a file of these spaces uses; dtypes are little-endian, as stored."""
     fields = [_Field("observation", path, dtype.newbyteorder("<"), shape) for path, dtype, shape in space_leaves(observation_space)]
     fields += [_Field("action", path, dtype.newbyteorder("<"), shape) for path, dtype, shape in space_leaves(action_space)]
-    fields += [_Field("reward", (), np.dtype("<f8"), ()), _Field("time", (), np.dtype("<i8"), ()), _Field("info", (), None, ())]
+    fields += [_REWARD_FIELD, _TIME_FIELD, _Field("info", (), None, ())]
     for f in fields:
         if f.dtype is not None and f.dtype.kind not in "biuf":
             raise ImitationError(f"space field {f.topic}: dtype {f.dtype} is not a number or bool")
@@ -223,6 +238,7 @@ class DemoWriter:
         block_steps: int = DEFAULT_BLOCK_STEPS,
         durable: bool = False,
         chunk_size: int = 1024 * 1024,
+        compression: str = "zstd",
     ) -> None:
         self.path = Path(path)
         self.partial_path = self.path.with_name(self.path.name + ".partial")
@@ -231,6 +247,8 @@ class DemoWriter:
         self._fields = _fields_for(observation_space, action_space)
         self._block_steps = block_steps
         self._durable = durable
+        if compression not in COMPRESSIONS:
+            raise ImitationError(f"compression must be one of {', '.join(COMPRESSIONS)}, got {compression!r}")
         if dt is not None and not dt > 0:
             raise ImitationError(f"dt must be a positive number of seconds, got {dt}")
         self._dt_ns = max(1, round((dt or 0.001) * 1e9))
@@ -256,7 +274,7 @@ class DemoWriter:
         self._writer = Writer(
             self._file,
             chunk_size=chunk_size,
-            compression=CompressionType.ZSTD,
+            compression=COMPRESSIONS[compression],
             index_types=IndexType.CHUNK | IndexType.MESSAGE | IndexType.METADATA,
         )
         self._writer.start(profile=PROFILE, library=f"imitation-mcap {__version__}")
@@ -456,7 +474,10 @@ class _EpisodeAssembler:
         self._action_fields = [f for f in fields if f.kind == "action"]
         self._blocks: dict[str, list[bytes | memoryview]] = {}
 
-    def add(self, channel_id: int, data: memoryview) -> tuple[EpisodeFacts, Episode] | None:
+    def add(self, channel_id: int, data: memoryview, keep: Callable[[EpisodeFacts], bool] | None = None) -> tuple[EpisodeFacts, Episode | None] | None:
+        """Route one message; at an episode marker return its facts and, if `keep(facts)`
+        (default: always), the assembled episode. Blocks of a dropped episode are discarded
+        unread, so they may be incomplete (the tail of an episode begun in an unread chunk)."""
         if channel_id not in self._channels:
             raise ValueError(f"message on unknown channel id {channel_id}")
         f = self._channels[channel_id]
@@ -465,6 +486,8 @@ class _EpisodeAssembler:
             return None
         facts = EpisodeFacts.from_json(json.loads(bytes(data)))
         blocks, self._blocks = self._blocks, {}
+        if keep is not None and not keep(facts):
+            return facts, None
         return facts, self._build(facts, blocks)
 
     def _build(self, facts: EpisodeFacts, blocks: dict[str, list[bytes | memoryview]]) -> Episode:
@@ -473,12 +496,12 @@ class _EpisodeAssembler:
         def rows(f: _Field, count: int) -> np.ndarray:
             parts = blocks.get(f.topic, [])
             if f.row_nbytes == 0:
-                return np.zeros((count, *f.shape), dtype=f.dtype.newbyteorder("="))
+                return np.zeros((count, *f.shape), dtype=f.native_dtype)
             data = parts[0] if len(parts) == 1 else b"".join(parts)
             if len(data) != count * f.row_nbytes:
                 raise ValueError(f"episode {facts.index}: {f.topic} holds {len(data) // f.row_nbytes} rows, expected {count}")
             array = np.frombuffer(data, dtype=f.dtype).reshape((count, *f.shape))
-            return array.astype(f.dtype.newbyteorder("="), copy=False)
+            return array if f.dtype == f.native_dtype else array.astype(f.native_dtype)
 
         def tree(fields: list[_Field], count: int) -> Tree:
             return tree_from_leaves({f.path: rows(f, count) for f in fields})
@@ -488,11 +511,11 @@ class _EpisodeAssembler:
             infos = [info for part in blocks["/info"] for info in json.loads(bytes(part))]
         timestamps = None
         if "/time" in blocks:
-            timestamps = rows(_Field("time", (), np.dtype("<i8"), ()), steps + 1) - facts.time_shift_ns
+            timestamps = rows(_TIME_FIELD, steps + 1) - facts.time_shift_ns
         return Episode(
             observations=tree(self._observation_fields, steps + 1),
             actions=tree(self._action_fields, steps),
-            rewards=rows(_Field("reward", (), np.dtype("<f8"), ()), steps),
+            rewards=rows(_REWARD_FIELD, steps),
             terminated=facts.terminated,
             truncated=facts.truncated,
             infos=infos,
@@ -558,6 +581,7 @@ class DemoFile:
         self.episodes: list[EpisodeFacts] = index.episodes
         self.damage: str | None = index.damage
         self._chunk_starts = [chunk.start_time for chunk in index.chunks]
+        self._chunk_ends = [chunk.end_time for chunk in index.chunks]
 
     # -- public API ---------------------------------------------------------------------------
 
@@ -576,42 +600,64 @@ class DemoFile:
     def __getitem__(self, k: int) -> Episode:
         if not -len(self) <= k < len(self):
             raise IndexError(f"{self.path}: episode {k} out of range (the file holds {len(self)})")
-        facts = self.episodes[k % len(self)]
-        # Chunks are in time order; those overlapping [t_start, t_end] hold episode k.
-        last = bisect.bisect_right(self._chunk_starts, facts.t_end_ns)
-        chunks = [c for c in self._index.chunks[:last] if c.end_time >= facts.t_start_ns]
-        for found, episode in self._episodes_in(chunks, (facts.t_start_ns, facts.t_end_ns)):
-            if found.index == facts.index:
-                return episode
-        raise DemoFileError(f"{self.path}: episode {facts.index} is listed in the index but its data is missing")
+        return self.read_episodes([k % len(self)])[0]
 
     def __iter__(self) -> Iterator[Episode]:
-        for _, episode in self._episodes_in(self._index.chunks, None):
+        for _, episode in self._read(self._index.chunks, keep=None, zero_copy=False):
             yield episode
+
+    def read_episodes(self, indices: Sequence[int] | None = None, *, zero_copy: bool = False) -> list[Episode]:
+        """Episodes `indices` (all by default), in file order, reading each needed chunk once.
+
+        With `zero_copy=True` the arrays of uncompressed chunks are views of the memory-mapped
+        file: fastest, but only safe while the file is not changed; for short-lived use such as
+        copying into a batch."""
+        if indices is None:
+            return [episode for _, episode in self._read(self._index.chunks, keep=None, zero_copy=zero_copy)]
+        wanted = set(indices)
+        for k in wanted:
+            if not 0 <= k < len(self):
+                raise IndexError(f"{self.path}: episode {k} out of range (the file holds {len(self)})")
+        needed: dict[int, _ChunkRef] = {}
+        for k in wanted:
+            for chunk in self._chunks_of(self.episodes[k]):
+                needed[chunk.offset] = chunk
+        chunks = sorted(needed.values(), key=lambda c: (c.start_time, c.offset))
+        found = {facts.index: episode for facts, episode in self._read(chunks, keep=lambda f: f.index in wanted, zero_copy=zero_copy)}
+        missing = wanted - set(found)
+        if missing:
+            raise DemoFileError(f"{self.path}: episode {min(missing)} is listed in the index but its data is missing")
+        return [found[k] for k in sorted(wanted)]
 
     # -- internals ----------------------------------------------------------------------------
 
-    def _episodes_in(self, chunks: Sequence[_ChunkRef], time_range: tuple[int, int] | None) -> Iterator[tuple[EpisodeFacts, Episode]]:
-        wanted = len(self.episodes)
+    def _chunks_of(self, facts: EpisodeFacts) -> list[_ChunkRef]:
+        # Log times never decrease through the file, so chunk start and end times are both
+        # sorted: the chunks overlapping [t_start, t_end] form one contiguous run.
+        first = bisect.bisect_left(self._chunk_ends, facts.t_start_ns)
+        last = bisect.bisect_right(self._chunk_starts, facts.t_end_ns)
+        return self._index.chunks[first:last]
+
+    def _read(
+        self, chunks: Sequence[_ChunkRef], *, keep: Callable[[EpisodeFacts], bool] | None, zero_copy: bool
+    ) -> Iterator[tuple[EpisodeFacts, Episode]]:
+        """Assemble episodes from `chunks` (in file order); yield those `keep` accepts."""
+        if not chunks:
+            return
         assembler = _EpisodeAssembler(self.observation_space, self.action_space, self._index.channels)
-        emitted = 0
         with open(self.path, "rb") as stream:
-            for chunk in chunks:
-                stream.seek(chunk.offset)
-                record = stream.read(chunk.length)
-                try:
-                    messages = list(_chunk_messages(record, self._index.channels, self._register_channel))
-                    for channel_id, log_time, data in messages:
-                        if time_range is not None and not time_range[0] <= log_time <= time_range[1]:
-                            continue
-                        result = assembler.add(channel_id, data)
-                        if result is not None and emitted < wanted:
-                            emitted += 1
-                            yield result
-                except _Damage as error:
-                    raise DemoFileError(f"{self.path}: damaged chunk at byte {chunk.offset}: {error}") from None
-                except (ValueError, KeyError, TypeError, json.JSONDecodeError) as error:
-                    raise DemoFileError(f"{self.path}: bad data in chunk at byte {chunk.offset}: {error}") from None
+            mapped = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
+        for chunk, decoded in _decode_chunks(memoryview(mapped), chunks, zero_copy=zero_copy):
+            try:
+                content = decoded.result()
+                for channel_id, _, data in _chunk_records(content, self._register_channel):
+                    result = assembler.add(channel_id, data, keep)
+                    if result is not None and result[1] is not None:
+                        yield result[0], result[1]
+            except _Damage as error:
+                raise DemoFileError(f"{self.path}: damaged chunk at byte {chunk.offset}: {error}") from None
+            except (ValueError, KeyError, TypeError, json.JSONDecodeError) as error:
+                raise DemoFileError(f"{self.path}: bad data in chunk at byte {chunk.offset}: {error}") from None
 
     def _register_channel(self, channel: Channel) -> None:
         self._index.channels.setdefault(channel.id, _channel_field(channel))
@@ -739,7 +785,8 @@ class DemoFile:
                     ref = _ChunkRef(record_offset, 9 + len(body), start_time, end_time)
                     pending_chunks.append(ref)
                     record = data[record_offset : record_offset + ref.length]
-                    for channel_id, _, message in _chunk_messages(record, channels, lambda c: channels.setdefault(c.id, _channel_field(c))):
+                    content = _decode_chunk(memoryview(record), zero_copy=False)
+                    for channel_id, _, message in _chunk_records(content, lambda c: channels.setdefault(c.id, _channel_field(c))):
                         result = assembler.add(channel_id, message)
                         messages_after_last_episode += 1
                         if result is not None:
@@ -795,11 +842,13 @@ def _records_with_offsets(buffer: bytes | memoryview, start: int, end: int) -> I
         offset = body_start + length
 
 
-def _chunk_messages(record: bytes, channels: dict[int, _Field | None], on_channel: Any) -> Iterator[tuple[int, int, memoryview]]:
-    """(channel id, log time, data) of each message in one Chunk record, after checking its CRC."""
+def _decode_chunk(record: memoryview, *, zero_copy: bool) -> memoryview | bytes:
+    """The checked, decompressed content of one Chunk record (zstd, lz4 or none).
+
+    Decompression and CRC-32 release the GIL, so chunks decode in parallel threads."""
     if len(record) < 9 or record[0] != _OP_CHUNK:
         raise _Damage("chunk index points at a non-chunk record")
-    body = memoryview(record)[9:]
+    body = record[9:]
     try:
         _, _, uncompressed_size, uncompressed_crc, compression_length = struct.unpack_from("<QQQII", body)
         position = 32
@@ -812,6 +861,7 @@ def _chunk_messages(record: bytes, channels: dict[int, _Field | None], on_channe
     compressed = body[position : position + data_length]
     if len(compressed) != data_length:
         raise _Damage("chunk data is truncated")
+    content: memoryview | bytes
     if compression == "zstd":
         try:
             content = zstandard.ZstdDecompressor().decompress(compressed, max_output_size=uncompressed_size)
@@ -825,13 +875,34 @@ def _chunk_messages(record: bytes, channels: dict[int, _Field | None], on_channe
         except RuntimeError as error:
             raise _Damage(f"lz4 cannot decompress it ({error})") from None
     elif compression == "":
-        content = bytes(compressed)
+        content = compressed if zero_copy else bytes(compressed)
     else:
         raise _Damage(f"unsupported chunk compression {compression!r}")
     if len(content) != uncompressed_size:
         raise _Damage("decompressed size differs from the chunk header")
     if uncompressed_crc != 0 and zlib.crc32(content) != uncompressed_crc:
         raise _Damage("checksum mismatch: the chunk's bytes were altered")
+    return content
+
+
+def _decode_chunks(mapped: memoryview, chunks: Sequence[_ChunkRef], *, zero_copy: bool) -> Iterator[tuple[_ChunkRef, Future]]:
+    """Decode chunks on a small thread pool, a bounded window ahead of the consumer, in order.
+
+    A chunk that cannot be decoded raises _Damage from its future's result()."""
+    threads = min(len(chunks), os.cpu_count() or 1, 8)
+    window: deque[tuple[_ChunkRef, Future]] = deque()
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        for chunk in chunks:
+            record = mapped[chunk.offset : chunk.offset + chunk.length]
+            window.append((chunk, pool.submit(_decode_chunk, record, zero_copy=zero_copy)))
+            if len(window) > 2 * threads:
+                yield window.popleft()
+        while window:
+            yield window.popleft()
+
+
+def _chunk_records(content: memoryview | bytes, on_channel: Callable[[Channel], Any]) -> Iterator[tuple[int, int, memoryview]]:
+    """(channel id, log time, data) of each message in a decoded chunk; channels are registered."""
     view = memoryview(content)
     for opcode, inner in _records(view, 0, len(view)):
         if opcode == _OP_MESSAGE:
@@ -889,3 +960,18 @@ class DemoDataset:
     def __iter__(self) -> Iterator[Episode]:
         for f in self.files:
             yield from f
+
+    def read_episodes(self, indices: Sequence[int] | None = None, *, zero_copy: bool = False) -> list[Episode]:
+        """Episodes `indices` (dataset-wide; all by default) in ascending order, each chunk read once."""
+        if indices is None:
+            return [episode for f in self.files for episode in f.read_episodes(zero_copy=zero_copy)]
+        chosen = sorted(set(int(k) for k in indices))
+        if chosen and not 0 <= chosen[0] <= chosen[-1] < len(self):
+            raise IndexError(f"episode indices must lie in [0, {len(self)}), got {chosen[0]}..{chosen[-1]}")
+        episodes: list[Episode] = []
+        for file_index, f in enumerate(self.files):
+            start, end = int(self._offsets[file_index]), int(self._offsets[file_index + 1])
+            local = [k - start for k in chosen if start <= k < end]
+            if local:
+                episodes += f.read_episodes(local, zero_copy=zero_copy)
+        return episodes

@@ -20,7 +20,7 @@ Tree = Union[np.ndarray, dict[str, "Tree"]]
 
 def tree_leaves(tree: Tree, prefix: LeafPath = ()) -> Iterator[tuple[LeafPath, np.ndarray]]:
     """(path, array) for each array in `tree`, in key order; a bare array has the path ()."""
-    if isinstance(tree, Mapping):
+    if isinstance(tree, dict):  # not Mapping: an ABC check costs more than the rest of this call
         for key, sub in tree.items():
             yield from tree_leaves(sub, prefix + (key,))
     else:
@@ -118,7 +118,8 @@ def check_fits_space(tree: Tree, space: gym.Space, what: str) -> None:
 class Transitions:
     """A flat batch of N transitions (s, a, r, s', terminated, truncated) drawn from episodes.
 
-    `terminated[i]` is true only on the last transition of a terminated episode (no bootstrap
+    Rewards are float32 (what learners use; the store keeps float64). `next_observations` is
+    None when it was not asked for (behavioural cloning does not need s'). `terminated[i]` is true only on the last transition of a terminated episode (no bootstrap
     from `next_observations[i]`), `truncated[i]` only on the last transition of a truncated one.
     `episode_index[i]` is the dataset-wide index of the episode transition i came from.
     """
@@ -126,7 +127,7 @@ class Transitions:
     observations: Tree
     actions: Tree
     rewards: np.ndarray
-    next_observations: Tree
+    next_observations: Tree | None
     terminated: np.ndarray
     truncated: np.ndarray
     episode_index: np.ndarray
@@ -140,7 +141,9 @@ class Transitions:
         return self.terminated | self.truncated
 
 
-def episodes_to_transitions(episodes: Sequence[Episode], episode_indices: Sequence[int] | None = None) -> Transitions:
+def episodes_to_transitions(
+    episodes: Sequence[Episode], episode_indices: Sequence[int] | None = None, *, next_observations: bool = True
+) -> Transitions:
     """Flatten episodes into one contiguous Transitions batch (one copy of each field)."""
     if not episodes:
         raise ValueError("no episodes to flatten")
@@ -172,7 +175,7 @@ def episodes_to_transitions(episodes: Sequence[Episode], episode_indices: Sequen
         observations=gather(lambda e: e.observations, drop_first=False, drop_last=True),
         actions=gather(lambda e: e.actions, drop_first=False, drop_last=False),
         rewards=np.concatenate([episode.rewards for episode in episodes]).astype(np.float32, copy=False),
-        next_observations=gather(lambda e: e.observations, drop_first=True, drop_last=False),
+        next_observations=gather(lambda e: e.observations, drop_first=True, drop_last=False) if next_observations else None,
         terminated=terminated,
         truncated=truncated,
         episode_index=np.repeat(np.asarray(episode_indices, dtype=np.int64), lengths),

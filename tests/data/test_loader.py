@@ -106,3 +106,24 @@ def test_device_selection() -> None:
             resolve_device("cuda")
     with pytest.raises(ImitationError, match="--device 'potato'"):
         resolve_device("potato")
+
+
+def test_next_observations_can_be_left_out(demo_paths) -> None:
+    paths, _ = demo_paths
+    without = load_transitions(paths, next_observations=False)
+    assert without.next_observations is None
+    np.testing.assert_array_equal(without.observations, load_transitions(paths).observations)
+    tensors = transitions_to_torch(without)
+    assert tensors.next_observations is None
+    batch = next(iter(MinibatchLoader(tensors, batch_size=4, seed=0)))
+    assert batch.next_observations is None and batch.observations.shape == (4, 3)
+
+
+def test_uncompressed_files_load_the_same(tmp_path) -> None:
+    episodes = [random_episode(BOX, ACTIONS, 9, seed=i) for i in range(3)]
+    for compression in ("zstd", "none"):
+        write_episodes(tmp_path / f"{compression}.mcap", episodes, env_id="T", observation_space=BOX, action_space=ACTIONS, compression=compression)
+    packed, plain = load_transitions(tmp_path / "zstd.mcap"), load_transitions(tmp_path / "none.mcap")
+    np.testing.assert_array_equal(packed.observations, plain.observations)
+    np.testing.assert_array_equal(packed.next_observations, plain.next_observations)
+    assert plain.observations.flags.owndata  # a copy: the mapped file may change after loading

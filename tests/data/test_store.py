@@ -60,13 +60,13 @@ def test_random_access_reads_only_the_chunks_of_that_episode(tmp_path, monkeypat
     decompressed: list[int] = []
     import imitation.data.store as store
 
-    original = store._chunk_messages
+    original = store._decode_chunk
 
-    def counting(record, *args):
+    def counting(record, **kwargs):
         decompressed.append(len(record))
-        return original(record, *args)
+        return original(record, **kwargs)
 
-    monkeypatch.setattr(store, "_chunk_messages", counting)
+    monkeypatch.setattr(store, "_decode_chunk", counting)
     for k in (37, 0, 21, -1):
         decompressed.clear()
         assert_episodes_equal(demo[k], episodes[k])
@@ -255,3 +255,41 @@ def test_ctrl_c_during_a_write_lands_after_the_episode(tmp_path, monkeypatch) ->
     demo = DemoFile(tmp_path / "c.mcap", verify=True)
     assert demo.damage is None and len(demo) == 2
     assert_episodes_equal(demo[1], episodes[1])
+
+
+@pytest.mark.parametrize("compression", ["none", "lz4", "zstd"])
+def test_every_compression_round_trips(tmp_path, compression) -> None:
+    episodes = [random_episode(BOX4, DISCRETE2, 30 + i, seed=i) for i in range(4)]
+    write(tmp_path / "c.mcap", episodes, compression=compression, chunk_size=1500)
+    demo = DemoFile(tmp_path / "c.mcap", verify=True)
+    for zero_copy in (False, True):
+        for read, original in zip(demo.read_episodes(zero_copy=zero_copy), episodes, strict=True):
+            assert_episodes_equal(read, original)
+    assert_episodes_equal(demo[2], episodes[2])
+
+
+def test_reading_a_subset_decodes_each_chunk_once(tmp_path, monkeypatch) -> None:
+    import imitation.data.store as store
+
+    episodes = [random_episode(BOX4, DISCRETE2, 40, seed=i) for i in range(30)]
+    write(tmp_path / "s.mcap", episodes, chunk_size=3000)  # several episodes per chunk
+    demo = DemoFile(tmp_path / "s.mcap")
+    decoded: list[int] = []
+    original = store._decode_chunk
+
+    def counting(record, **kwargs):
+        decoded.append(len(record))
+        return original(record, **kwargs)
+
+    monkeypatch.setattr(store, "_decode_chunk", counting)
+    wanted = [3, 4, 5, 17, 29]
+    for read, k in zip(demo.read_episodes(wanted), wanted, strict=True):
+        assert_episodes_equal(read, episodes[k])
+    chunks_needed = {chunk.offset for k in wanted for chunk in demo._chunks_of(demo.episodes[k])}
+    assert len(decoded) == len(chunks_needed) < len(demo._index.chunks)
+
+
+def test_reading_an_absent_episode_raises(tmp_path) -> None:
+    write(tmp_path / "f.mcap", [random_episode(BOX4, DISCRETE2, 5, seed=0)])
+    with pytest.raises(IndexError, match="out of range"):
+        DemoFile(tmp_path / "f.mcap").read_episodes([1])
