@@ -7,7 +7,7 @@ crash or `kill -9` loses at most the episode in progress.
 
 from __future__ import annotations
 
-from typing import Any, Callable, SupportsFloat
+from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -15,9 +15,7 @@ from tqdm import tqdm
 
 from imitation.data.store import DemoWriter
 from imitation.data.types import Episode, stack_samples
-
-Policy = Callable[[Any], Any]
-
+from imitation.envs.rollout import Policy, play_episode
 
 class RecordEpisodes(gym.Wrapper):
     """Buffers the current episode and writes it when it terminates or is truncated.
@@ -82,12 +80,7 @@ def run_episodes(
     bar = tqdm(total=episodes, desc="recording", unit="ep", disable=None if progress else True, dynamic_ncols=True)
     with bar:
         for i in range(episodes):
-            observation, _ = env.reset(seed=seed + i)
-            episode_return, done = 0.0, False
-            while not done:
-                observation, reward, terminated, truncated, _ = env.step(policy(observation))
-                episode_return += float(reward)
-                done = terminated or truncated
+            episode_return, _ = play_episode(env, policy, seed=seed + i)
             returns.append(episode_return)
             bar.set_postfix(ret=f"{episode_return:.1f}", mean=f"{np.mean(returns):.1f}")
             bar.update()

@@ -2,25 +2,19 @@
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-Policy = Callable[[Any], Any]
+from imitation.envs.rollout import Policy, play_episode
 
 
 def evaluate_policy(policy: Policy, env: gym.Env, *, episodes: int = 10, seed: int = 0) -> dict[str, Any]:
     """Run `episodes` episodes (episode i reset with seed `seed + i`); return statistics."""
     returns, lengths = [], []
     for i in range(episodes):
-        observation, _ = env.reset(seed=seed + i)
-        episode_return, length, done = 0.0, 0, False
-        while not done:
-            observation, reward, terminated, truncated, _ = env.step(policy(observation))
-            episode_return += float(reward)
-            length += 1
-            done = terminated or truncated
+        episode_return, length = play_episode(env, policy, seed=seed + i)
         returns.append(episode_return)
         lengths.append(length)
     values = np.asarray(returns)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from imitation.errors import ImitationError
+from imitation.evaluation.policy import evaluate_policy
 from imitation.experts.scripted import SCRIPTED_EXPERTS, scripted_expert
 
 SEEDS = range(20)
@@ -14,20 +15,10 @@ SEEDS = range(20)
 
 def _episode_returns(env_id: str) -> list[float]:
     env = gym.make(env_id)
-    policy = scripted_expert(env_id)
-    returns = []
     try:
-        for seed in SEEDS:
-            obs, _ = env.reset(seed=seed)
-            total, done = 0.0, False
-            while not done:
-                obs, reward, terminated, truncated, _ = env.step(policy(obs))
-                total += float(reward)
-                done = terminated or truncated
-            returns.append(total)
+        return evaluate_policy(scripted_expert(env_id), env, episodes=len(SEEDS), seed=SEEDS.start)["returns"]
     finally:
         env.close()
-    return returns
 
 
 @pytest.mark.parametrize(
