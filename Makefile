@@ -25,8 +25,10 @@ test: venv
 test-all: venv
 	@$(PY) -m pytest -q -m "slow or not slow"
 
+# Peers (stable-baselines3, LeRobot's dataset paths) are measured side by side; SB3 gets its own venv.
 bench: venv
 	$(PY) bench/load.py
+	$(PY) bench/ppo.py
 
 datasets: venv
 	$(IMITATION) record --env CartPole-v1 --expert scripted --episodes 25 --seed $(DATASET_SEED) --out datasets/CartPole-v1.mcap

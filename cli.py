@@ -114,6 +114,36 @@ def cmd_train_ppo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _hidden_sizes(text: str) -> list[int]:
+    try:
+        sizes = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated layer widths such as 64,64, got {text!r}") from None
+    if any(size < 1 for size in sizes):
+        raise argparse.ArgumentTypeError(f"layer widths must be positive, got {text!r}")
+    return sizes
+
+
+def cmd_train_bc(args: argparse.Namespace) -> int:
+    from imitation.algorithms.bc import BCConfig
+    from imitation.training import bc_job
+
+    config = BCConfig(
+        epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, hidden_sizes=args.hidden, activation=args.activation, loss=args.loss,
+        entropy_coef=args.entropy, l2_coef=args.l2, validation_fraction=args.validation, patience=args.patience,
+        seed=args.seed, device=args.device,
+    )
+    result = bc_job(args.demos, args.env, config, args.out, progress=not args.quiet)
+    if args.json:
+        _print_json(result)
+    else:
+        evaluation = result["eval"]
+        print(f"trained BC on {result['train_transitions']} transitions for {result['epochs']} epochs (best {result['best_epoch']}, "
+              f"validation loss {result['best_validation_loss']:.4f}); eval return {evaluation['mean_return']:.1f} ± "
+              f"{evaluation['std_return']:.1f}; run: {result['run']}")
+    return 0
+
+
 def cmd_eval_policy(args: argparse.Namespace) -> int:
     from imitation.envs.make import make_env
     from imitation.evaluation.policy import evaluate_policy
@@ -148,7 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
         "demo file as it ends (while recording the file is named F.mcap.partial; Ctrl-C keeps the finished episodes).",
     )
     record.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id, e.g. CartPole-v1")
-    record.add_argument("--expert", default="scripted", metavar="SPEC", help="scripted (hand-written controller), random, or a run directory with a policy (default: scripted)")
+    record.add_argument("--expert", default="scripted", metavar="SPEC", help="scripted (hand-written controller), random, a run directory with a policy, or sb3:ZIP (a stable-baselines3 policy, read without unpickling) (default: scripted)")
     record.add_argument("--episodes", type=int, default=10, metavar="N", help="number of episodes (default: 10)")
     record.add_argument("--seed", type=int, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
     record.add_argument("--out", required=True, metavar="F.mcap", help="output demo file")
@@ -188,6 +218,31 @@ def build_parser() -> argparse.ArgumentParser:
     ppo.add_argument("--json", action="store_true", help="print one JSON object with the results")
     ppo.add_argument("--quiet", action="store_true", help="no progress bar")
     ppo.set_defaults(handler=cmd_train_ppo)
+
+    bc = algorithms.add_parser(
+        "bc",
+        help="behavioural cloning on MCAP demos",
+        description="Behavioural cloning: fit a policy to the demos' (observation, action) pairs. Whole episodes are "
+        "held out for validation; training stops early when the validation loss stops improving.",
+    )
+    bc.add_argument("--demos", required=True, nargs="+", metavar="F.mcap", help="one or more demo files of the same env")
+    bc.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id (for spaces and evaluation)")
+    bc.add_argument("--epochs", type=int, default=300, metavar="N", help="maximum epochs (default: 300)")
+    bc.add_argument("--batch-size", type=int, default=256, metavar="B", help="minibatch size (default: 256)")
+    bc.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (default: 1e-3)")
+    bc.add_argument("--hidden", type=_hidden_sizes, default=[256, 256], metavar="256,256", help="MLP layer widths (default: 256,256)")
+    bc.add_argument("--activation", choices=["tanh", "relu"], default="relu", help="hidden-layer activation (default: relu)")
+    bc.add_argument("--loss", choices=["nll", "mse"], default="nll", help="nll (log-likelihood) or mse (continuous actions only)")
+    bc.add_argument("--entropy", type=float, default=0.0, metavar="C", help="entropy bonus coefficient (default: 0)")
+    bc.add_argument("--l2", type=float, default=0.0, metavar="C", help="L2 penalty on the policy weights (default: 0)")
+    bc.add_argument("--validation", type=float, default=0.2, metavar="F", help="fraction of episodes held out (default: 0.2)")
+    bc.add_argument("--patience", type=int, default=50, metavar="N", help="epochs without a better validation loss before stopping (default: 50)")
+    bc.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
+    bc.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
+    bc.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory to write")
+    bc.add_argument("--json", action="store_true", help="print one JSON object with the results")
+    bc.add_argument("--quiet", action="store_true", help="no progress bar")
+    bc.set_defaults(handler=cmd_train_bc)
 
     evaluate = commands.add_parser("eval", help="evaluate a policy or a recovered reward", description="Evaluate a trained policy or reward.")
     targets = evaluate.add_subparsers(dest="target", required=True, metavar="TARGET")

@@ -40,9 +40,16 @@ class RunningMeanStd(nn.Module):
 
     def __init__(self, shape: tuple[int, ...], epsilon: float = 1e-4) -> None:
         super().__init__()
+        self.epsilon = epsilon
         self.register_buffer("mean", torch.zeros(shape, dtype=torch.float64))
         self.register_buffer("var", torch.ones(shape, dtype=torch.float64))
         self.register_buffer("count", torch.tensor(epsilon, dtype=torch.float64))
+
+    def reset_parameters(self) -> None:
+        """Forget everything seen (before fitting the statistics of a new data set)."""
+        self.mean.zero_()
+        self.var.fill_(1.0)
+        self.count.fill_(self.epsilon)
 
     @torch.no_grad()
     def update(self, batch: torch.Tensor) -> None:

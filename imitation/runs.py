@@ -55,8 +55,9 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
 class RunWriter:
     """Builds a run directory under `<path>.partial`; `finish()` moves it into place."""
 
-    def __init__(self, path: str | os.PathLike, *, config: dict[str, Any], tensorboard: bool = True) -> None:
+    def __init__(self, path: str | os.PathLike, *, config: dict[str, Any], tensorboard: bool = True, x_axis: str = "step") -> None:
         self.path = Path(path)
+        self.x_axis = x_axis
         self.partial = self.path.with_name(self.path.name + ".partial")
         if self.path.exists() and not self.path.is_dir():
             raise ImitationError(f"--out {self.path}: exists and is not a directory")
@@ -86,7 +87,7 @@ class RunWriter:
         write_json(self.partial / CONFIG_FILE, self.config)
 
     def log(self, row: dict[str, float]) -> None:
-        """One row of progress (the same keys every time; `step` is the x axis)."""
+        """One row of progress (the same keys every time; the `x_axis` column is the x axis)."""
         if self._csv is None:
             self._csv = csv.DictWriter(self._csv_file, fieldnames=list(row))
             self._csv.writeheader()
@@ -95,8 +96,8 @@ class RunWriter:
         self._history.append(dict(row))
         if self._tensorboard is not None:
             for key, value in row.items():
-                if key != "step" and isinstance(value, (int, float)) and math.isfinite(value):
-                    self._tensorboard.add_scalar(key, value, int(row["step"]))
+                if key != self.x_axis and isinstance(value, (int, float)) and math.isfinite(value):
+                    self._tensorboard.add_scalar(key, value, int(row[self.x_axis]))
 
     def save_weights(self, tensors: dict[str, torch.Tensor]) -> None:
         save_file({name: tensor.detach().cpu().contiguous() for name, tensor in tensors.items()}, str(self.partial / WEIGHTS_FILE))

@@ -11,15 +11,79 @@ from typing import Any
 import gymnasium as gym
 
 from imitation import __version__
+from imitation.algorithms.bc import BCConfig, policy_options, train_bc
 from imitation.algorithms.ppo import PPOConfig, train_ppo
+from imitation.data.loader import load_transitions, split_episodes, transitions_to_torch
+from imitation.data.spaces import describe_space, spaces_compatible
+from imitation.data.store import DemoDataset
 from imitation.envs.make import make_env
+from imitation.errors import ImitationError
 from imitation.evaluation.policy import evaluate_policy
-from imitation.policies import SingleObservationPolicy, policy_tensors
+from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy, policy_tensors
 from imitation.rewards import LearnedReward, load_reward
 from imitation.runs import RunWriter, plot_curve
 
 EVAL_SEED = 10_000  # evaluation episodes start here, away from training and demo seeds
 EVAL_EPISODES = 10
+
+
+def _check_demos_fit_env(dataset: DemoDataset, env: gym.Env) -> None:
+    first = dataset.files[0].path
+    if dataset.num_transitions == 0:
+        raise ImitationError(f"{first}: the demos hold no transitions (no episode, or only empty ones)")
+    for name, theirs, mine in (
+        ("observation", dataset.observation_space, env.observation_space),
+        ("action", dataset.action_space, env.action_space),
+    ):
+        if not spaces_compatible(theirs, mine):
+            raise ImitationError(
+                f"{first}: the demos' {name} space {describe_space(theirs)} does not match {dataset.env_id and env.spec.id}'s {describe_space(mine)}"
+            )
+
+
+def bc_job(demos: list[str], env_id: str, config: BCConfig, out: str | os.PathLike, *, progress: bool = True) -> dict[str, Any]:
+    """Behavioural cloning on `demos` into run directory `out`."""
+    env = make_env(env_id)
+    dataset = DemoDataset(demos)
+    _check_demos_fit_env(dataset, env)
+    policy = make_policy(env.observation_space, env.action_space, **policy_options(config))
+    config.validate(policy.is_continuous)
+    train_ids, validation_ids = split_episodes(len(dataset), validation_fraction=config.validation_fraction, seed=config.seed)
+    train = transitions_to_torch(load_transitions(dataset, episodes=train_ids, next_observations=False))
+    validation = transitions_to_torch(load_transitions(dataset, episodes=validation_ids, next_observations=False)) if validation_ids else None
+
+    def env_return(candidate: ActorCritic) -> float:
+        return evaluate_policy(SingleObservationPolicy(candidate), env, episodes=5, seed=EVAL_SEED)["mean_return"]
+
+    run = RunWriter(out, config={
+        "kind": "bc", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "demos": [str(p) for p in demos],
+        "bc": vars(config).copy(), "policy": policy.config.to_json(),
+        "split": {"train_episodes": train_ids, "validation_episodes": validation_ids},
+    }, x_axis="epoch")
+    try:
+        result = train_bc(policy, train, validation, config, evaluate=env_return, log=run.log, progress=progress)
+        run.save_weights(policy_tensors(result.policy.cpu()))
+        plot_curve(run.file("loss_curve.png"), run.history, x="epoch", ys=["train_loss", "validation_loss"], title=f"BC on {env_id}: loss")
+        plot_curve(run.file("return_curve.png"), run.history, x="epoch", ys=["return"], title=f"BC on {env_id}: return")
+        evaluation = evaluate_policy(SingleObservationPolicy(result.policy), env, episodes=EVAL_EPISODES, seed=EVAL_SEED)
+        metrics = {
+            "env_id": env_id,
+            "train_transitions": len(train),
+            "validation_transitions": len(validation) if validation is not None else 0,
+            "epochs": len(result.history),
+            "best_epoch": result.best_epoch,
+            "best_validation_loss": min((row["validation_loss"] for row in result.history), default=None),
+            "seconds": result.seconds,
+            "samples_per_second": result.history[-1]["samples_per_second"],
+            "eval": {key: value for key, value in evaluation.items() if key != "returns"},
+        }
+        run.finish(metrics)
+    except BaseException:
+        run.abort()
+        raise
+    finally:
+        env.close()
+    return {"run": str(run.path), **metrics}
 
 
 def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True) -> dict[str, Any]:

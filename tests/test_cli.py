@@ -32,8 +32,8 @@ def test_help(command: list[str]) -> None:
     assert result.returncode == 0 and "usage: imitation" in result.stdout
 
 
-def test_help_starts_fast_without_torch_or_lerobot() -> None:
-    code = "import sys, cli; cli.build_parser(); print('torch' in sys.modules, 'lerobot' in sys.modules)"
+def test_help_and_info_start_fast_without_torch_or_lerobot() -> None:
+    code = "import sys, cli, imitation.data.summary; cli.build_parser(); print('torch' in sys.modules, 'lerobot' in sys.modules)"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
     assert result.stdout.split() == ["False", "False"], result.stderr
     started = time.perf_counter()

@@ -9,18 +9,25 @@ import gymnasium as gym
 
 from imitation.errors import ImitationError
 from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
+from imitation.experts.sb3 import load_sb3_policy
 from imitation.experts.scripted import scripted_expert
 
 Policy = Callable[[Any], Any]
-EXPERT_SPECS = ("scripted", "random", "RUN_DIR")
+EXPERT_SPECS = ("scripted", "random", "RUN_DIR", "sb3:PATH")
 
 
 def load_expert(spec: str, env: gym.Env, *, seed: int) -> Policy:
     """`scripted`: the hand-written controller for env's id; `random`: uniform actions from the
     action space, seeded with `seed` so recordings are reproducible; a run directory: its saved
-    policy (PPO, BC, DAgger), acting deterministically."""
+    policy (PPO, BC, DAgger), acting deterministically; `sb3:PATH`: the policy in a
+    stable-baselines3 PPO/A2C zip, read without unpickling (see `imitation.experts.sb3`), acting
+    deterministically."""
     if Path(spec).is_dir():
         policy = load_policy(spec)
+        check_policy_fits_env(policy, env, f"--expert {spec}")
+        return SingleObservationPolicy(policy)
+    if spec.startswith("sb3:"):
+        policy = load_sb3_policy(spec.removeprefix("sb3:"))
         check_policy_fits_env(policy, env, f"--expert {spec}")
         return SingleObservationPolicy(policy)
     if spec == "scripted":
