@@ -144,6 +144,27 @@ def cmd_train_bc(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train_dagger(args: argparse.Namespace) -> int:
+    from imitation.algorithms.bc import BCConfig
+    from imitation.algorithms.dagger import DAggerConfig
+    from imitation.training import dagger_job
+
+    config = DAggerConfig(
+        rounds=args.rounds, episodes_per_round=args.episodes_per_round, beta_schedule=args.beta_schedule,
+        beta_decay=args.beta_decay, seed=args.seed,
+        bc=BCConfig(epochs=args.epochs, patience=args.patience, hidden_sizes=args.hidden, seed=args.seed, device=args.device),
+    )
+    result = dagger_job(args.env, args.expert, config, args.out, demos=args.demos or [], progress=not args.quiet)
+    if args.json:
+        _print_json(result)
+    else:
+        evaluation = result["eval"]
+        returns = ", ".join(f"{value:.1f}" for value in result["round_returns"])
+        print(f"DAgger on {args.env} with expert {args.expert}: {result['rounds']} rounds, {result['expert_labels']} expert labels; "
+              f"return by round: {returns}; eval return {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f}; run: {result['run']}")
+    return 0
+
+
 def cmd_eval_policy(args: argparse.Namespace) -> int:
     from imitation.envs.make import make_env
     from imitation.evaluation.policy import evaluate_policy
@@ -243,6 +264,29 @@ def build_parser() -> argparse.ArgumentParser:
     bc.add_argument("--json", action="store_true", help="print one JSON object with the results")
     bc.add_argument("--quiet", action="store_true", help="no progress bar")
     bc.set_defaults(handler=cmd_train_bc)
+
+    dagger = algorithms.add_parser(
+        "dagger",
+        help="DAgger: BC on expert-labelled states the learner itself visits",
+        description="DAgger: each round rolls out a β-mixture of expert and learner, labels every visited state with the "
+        "expert's action, writes the round as RUN_DIR/rounds/round-NN.mcap and retrains BC on everything so far.",
+    )
+    dagger.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
+    dagger.add_argument("--expert", required=True, metavar="SPEC", help="scripted, a run directory, or sb3:ZIP")
+    dagger.add_argument("--demos", nargs="+", metavar="F.mcap", help="expert demos to start from (optional)")
+    dagger.add_argument("--rounds", type=int, default=5, metavar="R", help="rounds (default: 5)")
+    dagger.add_argument("--episodes-per-round", type=int, default=5, metavar="N", help="rollouts per round (default: 5)")
+    dagger.add_argument("--beta-schedule", choices=["linear", "exponential"], default="linear", help="how β decays (default: linear)")
+    dagger.add_argument("--beta-decay", type=float, default=0.5, metavar="P", help="β_i = P^(i-1) for the exponential schedule (default: 0.5)")
+    dagger.add_argument("--epochs", type=int, default=60, metavar="N", help="BC epochs per round (default: 60)")
+    dagger.add_argument("--patience", type=int, default=15, metavar="N", help="BC early-stopping patience per round (default: 15)")
+    dagger.add_argument("--hidden", type=_hidden_sizes, default=[256, 256], metavar="256,256", help="MLP layer widths (default: 256,256)")
+    dagger.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
+    dagger.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
+    dagger.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory to write")
+    dagger.add_argument("--json", action="store_true", help="print one JSON object with the results")
+    dagger.add_argument("--quiet", action="store_true", help="no progress bar")
+    dagger.set_defaults(handler=cmd_train_dagger)
 
     evaluate = commands.add_parser("eval", help="evaluate a policy or a recovered reward", description="Evaluate a trained policy or reward.")
     targets = evaluate.add_subparsers(dest="target", required=True, metavar="TARGET")

@@ -9,9 +9,11 @@ import os
 from typing import Any
 
 import gymnasium as gym
+from tqdm import tqdm
 
 from imitation import __version__
 from imitation.algorithms.bc import BCConfig, policy_options, train_bc
+from imitation.algorithms.dagger import DAggerConfig, train_dagger
 from imitation.algorithms.ppo import PPOConfig, train_ppo
 from imitation.data.loader import load_transitions, split_episodes, transitions_to_torch
 from imitation.data.spaces import describe_space, spaces_compatible
@@ -19,6 +21,7 @@ from imitation.data.store import DemoDataset
 from imitation.envs.make import make_env
 from imitation.errors import ImitationError
 from imitation.evaluation.policy import evaluate_policy
+from imitation.experts.load import load_expert
 from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy, policy_tensors
 from imitation.rewards import LearnedReward, load_reward
 from imitation.runs import RunWriter, plot_curve
@@ -84,6 +87,56 @@ def bc_job(demos: list[str], env_id: str, config: BCConfig, out: str | os.PathLi
     finally:
         env.close()
     return {"run": str(run.path), **metrics}
+
+
+def dagger_job(
+    env_id: str, expert_spec: str, config: DAggerConfig, out: str | os.PathLike, *, demos: list[str] = (), progress: bool = True
+) -> dict[str, Any]:
+    """DAgger with `expert_spec` into run directory `out`; each round's labelled rollouts are
+    written to `out/rounds/round-NN.mcap`."""
+    env = make_env(env_id)
+    expert = load_expert(expert_spec, env, seed=config.seed)
+    if demos:
+        _check_demos_fit_env(DemoDataset(demos), env)
+    policy = make_policy(env.observation_space, env.action_space, **policy_options(config.bc))
+    config.bc.validate(policy.is_continuous)
+
+    def env_return(candidate: ActorCritic) -> float:
+        return evaluate_policy(SingleObservationPolicy(candidate), env, episodes=5, seed=EVAL_SEED)["mean_return"]
+
+    run = RunWriter(out, config={
+        "kind": "dagger", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "expert": expert_spec,
+        "demos": [str(p) for p in demos], "dagger": {**vars(config), "bc": vars(config.bc).copy()}, "policy": policy.config.to_json(),
+    }, x_axis="round")
+    try:
+        bar = tqdm(total=config.rounds, desc="dagger", unit="round", disable=None if progress else True, dynamic_ncols=True)
+
+        def log(row: dict[str, float]) -> None:
+            run.log(row)
+            bar.update()
+            bar.set_postfix(beta=f"{row['beta']:.2f}", labels=int(row["expert_labels"]), ret=f"{row['return']:.1f}")
+
+        with bar:
+            result = train_dagger(env, expert, policy, config, round_dir=run.file("rounds"), env_id=env_id, demos=demos, evaluate=env_return, log=log)
+        run.save_weights(policy_tensors(result.policy.cpu()))
+        plot_curve(run.file("return_curve.png"), run.history, x="expert_labels", ys=["return", "rollout_return"], title=f"DAgger on {env_id}")
+        plot_curve(run.file("loss_curve.png"), run.history, x="round", ys=["validation_loss"], title=f"DAgger on {env_id}: validation loss")
+        evaluation = evaluate_policy(SingleObservationPolicy(result.policy), env, episodes=EVAL_EPISODES, seed=EVAL_SEED)
+        metrics = {
+            "env_id": env_id,
+            "expert": expert_spec,
+            "rounds": len(result.history),
+            "expert_labels": int(result.history[-1]["expert_labels"]),
+            "round_returns": [row["return"] for row in result.history],
+            "eval": {key: value for key, value in evaluation.items() if key != "returns"},
+        }
+        run.finish(metrics)
+    except BaseException:
+        run.abort()
+        raise
+    finally:
+        env.close()
+    return {"run": str(run.path), "round_files": [str(run.path / "rounds" / p.name) for p in result.round_files], **metrics}
 
 
 def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True) -> dict[str, Any]:

@@ -1,0 +1,90 @@
+"""Behavioural cloning: the loss is the one in the notes, early stopping keeps the best weights,
+and short runs on the bundled demos clone the expert."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from support import DATASETS
+
+from imitation.algorithms.bc import BCConfig, bc_loss, policy_options, train_bc
+from imitation.data.loader import TransitionTensors, load_transitions, transitions_to_torch
+from imitation.data.store import DemoFile
+from imitation.envs.make import make_env
+from imitation.errors import ImitationError
+from imitation.evaluation.policy import evaluate_policy
+from imitation.policies import SingleObservationPolicy, make_policy
+
+BOX4 = gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)
+
+
+def batch_of(observations: torch.Tensor, actions: torch.Tensor) -> TransitionTensors:
+    n = len(observations)
+    return TransitionTensors(
+        observations=observations, actions=actions, rewards=torch.zeros(n), next_observations=None,
+        terminated=torch.zeros(n, dtype=torch.bool), truncated=torch.zeros(n, dtype=torch.bool), episode_index=torch.zeros(n, dtype=torch.long),
+    )
+
+
+def test_discrete_loss_is_cross_entropy_and_regularisers_add_up() -> None:
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, gym.spaces.Discrete(3), hidden_sizes=[8])
+    batch = batch_of(torch.randn(10, 4), torch.randint(0, 3, (10,)))
+    logits = policy.action_head(policy.actor_trunk(policy.encode(batch.observations)))
+    cross_entropy = torch.nn.functional.cross_entropy(logits, batch.actions)
+    loss, parts = bc_loss(policy, batch, BCConfig())
+    assert loss.item() == pytest.approx(cross_entropy.item(), rel=1e-5)
+    entropy = torch.distributions.Categorical(logits=logits).entropy().mean()
+    l2 = sum((p**2).sum() for n, p in policy.named_parameters() if n.startswith(("actor_trunk", "action_head")))
+    regularised, _ = bc_loss(policy, batch, BCConfig(entropy_coef=0.1, l2_coef=0.01))
+    assert regularised.item() == pytest.approx((cross_entropy - 0.1 * entropy + 0.01 * l2).item(), rel=1e-5)
+
+
+def test_continuous_mse_loss_fits_the_mean() -> None:
+    policy = make_policy(BOX4, gym.spaces.Box(-1, 1, (2,), np.float32), hidden_sizes=[8])
+    batch = batch_of(torch.randn(6, 4), torch.randn(6, 2))
+    mean = policy.action_head(policy.actor_trunk(policy.encode(batch.observations)))
+    loss, _ = bc_loss(policy, batch, BCConfig(loss="mse"))
+    assert loss.item() == pytest.approx(((mean - batch.actions) ** 2).sum(-1).mean().item(), rel=1e-5)
+    with pytest.raises(ImitationError, match="mse is for continuous"):
+        BCConfig(loss="mse").validate(continuous=False)
+
+
+def test_early_stopping_keeps_the_best_epoch() -> None:
+    torch.manual_seed(0)
+    # Labels unrelated to the inputs: validation loss can only get worse as training memorises noise.
+    train = batch_of(torch.randn(64, 4), torch.randint(0, 2, (64,)))
+    validation = batch_of(torch.randn(64, 4), torch.randint(0, 2, (64,)))
+    policy = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[64, 64])
+    result = train_bc(policy, train, validation, BCConfig(epochs=200, patience=5, batch_size=16, learning_rate=1e-2), progress=False)
+    assert len(result.history) < 200
+    best = min(result.history, key=lambda row: row["validation_loss"])
+    assert result.best_epoch == best["epoch"] and len(result.history) == result.best_epoch + 5
+    with torch.no_grad():
+        final, _ = bc_loss(result.policy, validation, BCConfig())
+    assert final.item() == pytest.approx(best["validation_loss"], rel=1e-4)
+
+
+@pytest.mark.parametrize(("env_id", "minimum"), [("CartPole-v1", 475.0)])
+def test_short_bc_clones_the_bundled_expert(env_id: str, minimum: float) -> None:
+    env = make_env(env_id)
+    config = BCConfig(epochs=30, patience=30, seed=0)
+    policy = make_policy(env.observation_space, env.action_space, **policy_options(config))
+    data = transitions_to_torch(load_transitions(DATASETS / f"{env_id}.mcap", next_observations=False))
+    trained = train_bc(policy, data, None, config, progress=False).policy
+    assert evaluate_policy(SingleObservationPolicy(trained), env, episodes=5, seed=0)["mean_return"] >= minimum
+
+
+@pytest.mark.slow
+def test_acceptance_pendulum_normalised_return() -> None:
+    env = make_env("Pendulum-v1")
+    data = transitions_to_torch(load_transitions(DATASETS / "Pendulum-v1.mcap", next_observations=False))
+    random_return = evaluate_policy(lambda o: env.action_space.sample(), env, episodes=20, seed=10_000)["mean_return"]
+    expert_return = float(np.mean([f.episode_return for f in DemoFile(DATASETS / "Pendulum-v1.mcap").episodes]))
+    config = BCConfig(seed=0)
+    policy = make_policy(env.observation_space, env.action_space, **policy_options(config))
+    trained = train_bc(policy, data, None, config, progress=False).policy
+    learned = evaluate_policy(SingleObservationPolicy(trained), env, episodes=10, seed=0)["mean_return"]
+    assert (learned - random_return) / (expert_return - random_return) >= 0.9
