@@ -159,17 +159,42 @@ class ActorCritic(nn.Module):
     def distribution(self, features: torch.Tensor) -> Distribution:
         """π(·|s) for encoded observations: Categorical(logits) or Normal(μ, σ) per action dim."""
         hidden = self.actor_trunk(features)
+        # No argument validation: it costs more than the network on small batches.
         if self.is_continuous:
             mean = self.action_head(hidden)
-            return Normal(mean, self.log_std.exp().expand_as(mean))
-        return Categorical(logits=self.action_head(hidden))
+            return Normal(mean, self.log_std.exp().expand_as(mean), validate_args=False)
+        return Categorical(logits=self.action_head(hidden), validate_args=False)
+
+    def log_prob(self, distribution: Distribution, actions: torch.Tensor) -> torch.Tensor:
+        """log π(a|s); for the Gaussian, the sum over action dimensions."""
+        if self.is_continuous:
+            return distribution.log_prob(actions.reshape(actions.shape[0], -1)).sum(-1)
+        return distribution.log_prob(actions.long().reshape(-1))
+
+    def entropy(self, distribution: Distribution) -> torch.Tensor:
+        """H[π(·|s)]; for the Gaussian, the sum over action dimensions."""
+        entropy = distribution.entropy()
+        return entropy.sum(-1) if self.is_continuous else entropy
 
     def log_prob_and_entropy(self, distribution: Distribution, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """log π(a|s) and H[π(·|s)]; for the Gaussian both are sums over action dimensions."""
+        return self.log_prob(distribution, actions), self.entropy(distribution)
+
+    @torch.no_grad()
+    def sample(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Sample a ~ π(·|s) for a rollout: (action, log π(a|s), distribution parameters).
+
+        Written out rather than through torch.distributions, whose per-call overhead is several
+        times the network's cost on a rollout's small batches. The parameters are the Gaussian
+        mean or the normalised logits (log-probabilities), enough to rebuild π_k(·|s)."""
+        out = self.action_head(self.actor_trunk(features))
         if self.is_continuous:
-            actions = actions.reshape(actions.shape[0], -1)
-            return distribution.log_prob(actions).sum(-1), distribution.entropy().sum(-1)
-        return distribution.log_prob(actions.long().reshape(-1)), distribution.entropy()
+            noise = torch.randn_like(out)
+            action = out + self.log_std.exp() * noise
+            log_prob = (-0.5 * noise**2 - self.log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
+            return action, log_prob, out
+        log_probs = torch.log_softmax(out, -1)
+        action = torch.multinomial(log_probs.exp(), 1).squeeze(-1)
+        return action, log_probs.gather(-1, action[:, None]).squeeze(-1), log_probs
 
     def value(self, features: torch.Tensor) -> torch.Tensor:
         return self.value_head(self.critic_trunk(features)).squeeze(-1)

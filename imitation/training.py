@@ -30,6 +30,12 @@ EVAL_SEED = 10_000  # evaluation episodes start here, away from training and dem
 EVAL_EPISODES = 10
 
 
+def _final_evaluation(policy: ActorCritic, env: gym.Env) -> dict[str, Any]:
+    """The deterministic evaluation every run records in metrics.json (returns list left out)."""
+    evaluation = evaluate_policy(SingleObservationPolicy(policy), env, episodes=EVAL_EPISODES, seed=EVAL_SEED)
+    return {key: value for key, value in evaluation.items() if key != "returns"}
+
+
 def _check_demos_fit_env(dataset: DemoDataset, env: gym.Env) -> None:
     first = dataset.files[0].path
     if dataset.num_transitions == 0:
@@ -40,7 +46,7 @@ def _check_demos_fit_env(dataset: DemoDataset, env: gym.Env) -> None:
     ):
         if not spaces_compatible(theirs, mine):
             raise ImitationError(
-                f"{first}: the demos' {name} space {describe_space(theirs)} does not match {dataset.env_id and env.spec.id}'s {describe_space(mine)}"
+                f"{first}: the demos' {name} space {describe_space(theirs)} does not match {env.spec.id if env.spec else 'the env'}'s {describe_space(mine)}"
             )
 
 
@@ -68,7 +74,6 @@ def bc_job(demos: list[str], env_id: str, config: BCConfig, out: str | os.PathLi
         run.save_weights(policy_tensors(result.policy.cpu()))
         plot_curve(run.file("loss_curve.png"), run.history, x="epoch", ys=["train_loss", "validation_loss"], title=f"BC on {env_id}: loss")
         plot_curve(run.file("return_curve.png"), run.history, x="epoch", ys=["return"], title=f"BC on {env_id}: return")
-        evaluation = evaluate_policy(SingleObservationPolicy(result.policy), env, episodes=EVAL_EPISODES, seed=EVAL_SEED)
         metrics = {
             "env_id": env_id,
             "train_transitions": len(train),
@@ -78,7 +83,7 @@ def bc_job(demos: list[str], env_id: str, config: BCConfig, out: str | os.PathLi
             "best_validation_loss": min((row["validation_loss"] for row in result.history), default=None),
             "seconds": result.seconds,
             "samples_per_second": result.history[-1]["samples_per_second"],
-            "eval": {key: value for key, value in evaluation.items() if key != "returns"},
+            "eval": _final_evaluation(result.policy.cpu(), env),
         }
         run.finish(metrics)
     except BaseException:
@@ -121,14 +126,13 @@ def dagger_job(
         run.save_weights(policy_tensors(result.policy.cpu()))
         plot_curve(run.file("return_curve.png"), run.history, x="expert_labels", ys=["return", "rollout_return"], title=f"DAgger on {env_id}")
         plot_curve(run.file("loss_curve.png"), run.history, x="round", ys=["validation_loss"], title=f"DAgger on {env_id}: validation loss")
-        evaluation = evaluate_policy(SingleObservationPolicy(result.policy), env, episodes=EVAL_EPISODES, seed=EVAL_SEED)
         metrics = {
             "env_id": env_id,
             "expert": expert_spec,
             "rounds": len(result.history),
             "expert_labels": int(result.history[-1]["expert_labels"]),
             "round_returns": [row["return"] for row in result.history],
-            "eval": {key: value for key, value in evaluation.items() if key != "returns"},
+            "eval": _final_evaluation(result.policy.cpu(), env),
         }
         run.finish(metrics)
     except BaseException:
@@ -161,8 +165,6 @@ def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True)
         ys = ["return"] + (["optimised_return"] if config.reward_run else [])
         plot_curve(run.file("learning_curve.png"), run.history, x="step", ys=ys, title=f"PPO ({config.objective}) on {config.env_id}")
         env = make_env(config.env_id)
-        evaluation = evaluate_policy(SingleObservationPolicy(result.policy.cpu()), env, episodes=EVAL_EPISODES, seed=EVAL_SEED)
-        env.close()
         metrics = {
             "env_id": config.env_id,
             "objective": config.objective,
@@ -170,8 +172,9 @@ def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True)
             "seconds": result.seconds,
             "steps_per_second": result.steps / result.seconds,
             "final_train_return": result.history[-1]["return"] if result.history else None,
-            "eval": {key: value for key, value in evaluation.items() if key != "returns"},
+            "eval": _final_evaluation(result.policy.cpu(), env),
         }
+        env.close()
         run.finish(metrics)
     except BaseException:
         run.abort()

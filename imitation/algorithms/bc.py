@@ -63,15 +63,17 @@ def bc_loss(policy: ActorCritic, batch: TransitionTensors, config: BCConfig) -> 
     """The objective above on one batch, and its parts for logging."""
     features = policy.encode(batch.observations)
     distribution = policy.distribution(features)
-    log_prob, entropy = policy.log_prob_and_entropy(distribution, batch.actions)
     if config.loss == "mse":
         fit = ((distribution.mean - batch.actions.reshape(len(batch), -1).float()) ** 2).sum(-1).mean()
     else:
-        fit = -log_prob.mean()
-    entropy_mean = entropy.mean()
-    l2 = sum((parameter**2).sum() for name, parameter in policy.named_parameters() if name.startswith(("actor_trunk", "action_head")))
-    loss = fit - config.entropy_coef * entropy_mean + config.l2_coef * l2
-    return loss, {"fit": fit.item(), "entropy": entropy_mean.item()}
+        fit = -policy.log_prob(distribution, batch.actions).mean()
+    loss = fit
+    if config.entropy_coef:
+        loss = loss - config.entropy_coef * policy.entropy(distribution).mean()
+    if config.l2_coef:
+        l2 = sum((parameter**2).sum() for name, parameter in policy.named_parameters() if name.startswith(("actor_trunk", "action_head")))
+        loss = loss + config.l2_coef * l2
+    return loss, {"fit": fit.item()}
 
 
 @torch.no_grad()

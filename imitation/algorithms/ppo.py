@@ -95,7 +95,8 @@ class PPOConfig:
         return PPOConfig(**{key: value for key, value in data.items() if key in known})
 
 
-# rl-baselines3-zoo's tuned settings where we have them; CleanRL's defaults otherwise.
+# rl-baselines3-zoo's tuned settings where we have them (Pendulum departs from them, see there);
+# CleanRL's defaults otherwise.
 _ENV_DEFAULTS: dict[str, dict[str, Any]] = {
     "CartPole-v1": dict(n_envs=8, n_steps=32, batch_size=256, gamma=0.98, gae_lambda=0.8, n_epochs=20, learning_rate=1e-3),
     # The zoo reaches Pendulum with gSDE; with a state-independent log-std, an entropy bonus keeps
@@ -306,11 +307,8 @@ def _train(config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, 
             policy.update_normalizer(observation_tensor)
             with torch.no_grad():
                 features[t] = policy.encode(observation_tensor)
-                distribution = policy.distribution(features[t])
-                # Kept so the KL objective can compare π_θ with π_k exactly, not by samples.
-                distribution_parameters[t] = distribution.loc if policy.is_continuous else distribution.logits
-                action = distribution.sample()
-                log_probs[t], _ = policy.log_prob_and_entropy(distribution, action)
+                # The parameters are kept so the KL objective can compare π_θ with π_k exactly.
+                action, log_probs[t], distribution_parameters[t] = policy.sample(features[t])
                 values[t] = policy.value(features[t])
             actions[t] = action.reshape(actions[t].shape)
             env_action = policy.to_env_action(action)
@@ -353,14 +351,15 @@ def _train(config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, 
         flat_returns, flat_values = returns.reshape(-1), values.reshape(-1)
         flat_parameters = distribution_parameters.reshape(rollout_size, -1)
         old_log_std = policy.log_std.detach().clone() if policy.is_continuous else None
-        clip_fractions, approx_kls, policy_losses, value_losses, entropies = [], [], [], [], []
+        # Statistics stay tensors until the update ends: one device sync instead of one per batch.
+        statistics: list[torch.Tensor] = []
         stopped_early = False
         for epoch in range(config.n_epochs):
             order = torch.randperm(rollout_size, device=device)
             for start in range(0, rollout_size, config.batch_size):
                 index = order[start : start + config.batch_size]
                 distribution = policy.distribution(flat_features[index])
-                new_log_prob, entropy = policy.log_prob_and_entropy(distribution, flat_actions[index])
+                new_log_prob = policy.log_prob(distribution, flat_actions[index])
                 log_ratio = new_log_prob - flat_log_probs[index]
                 ratio = log_ratio.exp()
                 batch_advantages = flat_advantages[index]
@@ -381,8 +380,9 @@ def _train(config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, 
                     value_loss = 0.5 * torch.max((new_values - flat_returns[index]) ** 2, (clipped_values - flat_returns[index]) ** 2).mean()
                 else:
                     value_loss = 0.5 * ((new_values - flat_returns[index]) ** 2).mean()
-                entropy_mean = entropy.mean()
-                loss = policy_loss + config.value_coef * value_loss - config.entropy_coef * entropy_mean
+                loss = policy_loss + config.value_coef * value_loss
+                if config.entropy_coef:
+                    loss = loss - config.entropy_coef * policy.entropy(distribution).mean()
                 if not torch.isfinite(loss):
                     raise ImitationError(
                         f"PPO update {update + 1}/{n_updates}, epoch {epoch + 1}: the loss is {loss.item()} "
@@ -391,20 +391,20 @@ def _train(config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, 
 
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
-                torch.nn.utils.clip_grad_norm_(policy.parameters(), config.max_grad_norm)
+                torch.nn.utils.clip_grad_norm_(policy.parameters(), config.max_grad_norm, foreach=True)
                 optimizer.step()
 
                 with torch.no_grad():
-                    approx_kls.append(((ratio - 1.0) - log_ratio).mean().item())
-                    clip_fractions.append(((ratio - 1.0).abs() > config.clip_range).float().mean().item())
-                policy_losses.append(policy_loss.item())
-                value_losses.append(value_loss.item())
-                entropies.append(entropy_mean.item())
-            if config.target_kl is not None and approx_kls[-1] > 1.5 * config.target_kl:
+                    approx_kl = ((ratio - 1.0) - log_ratio).mean()
+                    clip_fraction = ((ratio - 1.0).abs() > config.clip_range).float().mean()
+                    statistics.append(torch.stack([policy_loss.detach(), value_loss.detach(), approx_kl, clip_fraction]))
+            if config.target_kl is not None and statistics[-1][2].item() > 1.5 * config.target_kl:
                 stopped_early = True
                 break
 
-        mean_kl = float(np.mean(approx_kls))
+        policy_loss_mean, value_loss_mean, mean_kl, clip_fraction_mean = torch.stack(statistics).mean(0).tolist()
+        with torch.no_grad():
+            entropy_mean = policy.entropy(policy.distribution(flat_features)).mean().item()
         if config.objective == "kl":
             with torch.no_grad():
                 old = _distribution_from(policy, flat_parameters, old_log_std)
@@ -420,12 +420,12 @@ def _train(config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, 
             "step": float(global_step),
             "return": float(np.mean(recent_returns)) if recent_returns else float("nan"),
             "optimised_return": float(np.mean(recent_env_returns)) if recent_env_returns else float("nan"),
-            "policy_loss": float(np.mean(policy_losses)),
-            "value_loss": float(np.mean(value_losses)),
-            "entropy": float(np.mean(entropies)),
+            "policy_loss": policy_loss_mean,
+            "value_loss": value_loss_mean,
+            "entropy": entropy_mean,
             "kl": mean_kl,
             "kl_beta": beta if config.objective == "kl" else float("nan"),
-            "clip_fraction": float(np.mean(clip_fractions)),
+            "clip_fraction": clip_fraction_mean,
             "explained_variance": explained_variance,
             "learning_rate": optimizer.param_groups[0]["lr"],
             "early_stop": float(stopped_early),

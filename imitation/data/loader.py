@@ -93,12 +93,12 @@ def load_episodes(
 ) -> list[Episode]:
     """The chosen episodes (all by default), in ascending order, each chunk read once."""
     dataset = source if isinstance(source, DemoDataset) else DemoDataset(source)
-    return _read(dataset, episodes, zero_copy=False)
+    return _read(dataset, episodes)
 
 
-def _read(dataset: DemoDataset, episodes: Sequence[int] | None, *, zero_copy: bool) -> list[Episode]:
+def _read(dataset: DemoDataset, episodes: Sequence[int] | None) -> list[Episode]:
     try:
-        return dataset.read_episodes(episodes, zero_copy=zero_copy)
+        return dataset.read_episodes(episodes)
     except IndexError as error:
         raise ImitationError(str(error)) from None
 
@@ -115,8 +115,7 @@ def load_transitions(
     the observations."""
     dataset = source if isinstance(source, DemoDataset) else DemoDataset(source)
     indices = sorted(set(int(k) for k in episodes)) if episodes is not None else list(range(len(dataset)))
-    # Zero-copy is safe here: the episodes' arrays are copied into the batch and then dropped.
-    selected = _read(dataset, indices, zero_copy=True)
+    selected = _read(dataset, indices)
     if not selected or sum(len(episode) for episode in selected) == 0:
         raise ImitationError("no transitions to load: the demos hold no steps")
     return episodes_to_transitions(selected, indices, next_observations=next_observations)

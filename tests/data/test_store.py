@@ -62,9 +62,9 @@ def test_random_access_reads_only_the_chunks_of_that_episode(tmp_path, monkeypat
 
     original = store._decode_chunk
 
-    def counting(record, **kwargs):
+    def counting(record, *args):
         decompressed.append(len(record))
-        return original(record, **kwargs)
+        return original(record, *args)
 
     monkeypatch.setattr(store, "_decode_chunk", counting)
     for k in (37, 0, 21, -1):
@@ -262,9 +262,8 @@ def test_every_compression_round_trips(tmp_path, compression) -> None:
     episodes = [random_episode(BOX4, DISCRETE2, 30 + i, seed=i) for i in range(4)]
     write(tmp_path / "c.mcap", episodes, compression=compression, chunk_size=1500)
     demo = DemoFile(tmp_path / "c.mcap", verify=True)
-    for zero_copy in (False, True):
-        for read, original in zip(demo.read_episodes(zero_copy=zero_copy), episodes, strict=True):
-            assert_episodes_equal(read, original)
+    for read, original in zip(demo.read_episodes(), episodes, strict=True):
+        assert_episodes_equal(read, original)
     assert_episodes_equal(demo[2], episodes[2])
 
 
@@ -277,9 +276,9 @@ def test_reading_a_subset_decodes_each_chunk_once(tmp_path, monkeypatch) -> None
     decoded: list[int] = []
     original = store._decode_chunk
 
-    def counting(record, **kwargs):
+    def counting(record, *args):
         decoded.append(len(record))
-        return original(record, **kwargs)
+        return original(record, *args)
 
     monkeypatch.setattr(store, "_decode_chunk", counting)
     wanted = [3, 4, 5, 17, 29]
