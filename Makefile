@@ -16,6 +16,13 @@ demo: venv
 	@echo "== recording 3 scripted Pendulum-v1 episodes to $(DEMO_OUT)/pendulum.mcap"
 	@$(IMITATION) record --env Pendulum-v1 --expert scripted --episodes 3 --seed 0 --out $(DEMO_OUT)/pendulum.mcap
 	@$(IMITATION) info $(DEMO_OUT)/pendulum.mcap
+	@echo; echo "== behavioural cloning on the bundled CartPole-v1 demos"
+	@$(IMITATION) train bc --demos datasets/CartPole-v1.mcap --env CartPole-v1 --epochs 40 --out $(DEMO_OUT)/bc-cartpole --quiet
+	@echo; echo "== DAgger on CartPole-v1 with the scripted expert (3 rounds)"
+	@$(IMITATION) train dagger --env CartPole-v1 --expert scripted --rounds 3 --episodes-per-round 3 --epochs 30 --out $(DEMO_OUT)/dagger-cartpole --quiet
+	@echo; echo "== PPO on CartPole-v1 (100k steps)"
+	@$(IMITATION) train ppo --env CartPole-v1 --steps 100000 --out $(DEMO_OUT)/ppo-cartpole --quiet
+	@$(IMITATION) eval policy $(DEMO_OUT)/ppo-cartpole --env CartPole-v1 --episodes 10
 
 # pytest exits 5 when it collects nothing; that is not a pass, but not a crash either: say so.
 test: venv
