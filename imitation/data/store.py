@@ -295,7 +295,6 @@ class DemoWriter:
         """Append one episode; returns its facts (its index in this file, return, time range)."""
         check_fits_space(episode.observations, self.observation_space, "observations")
         check_fits_space(episode.actions, self.action_space, "actions")
-        steps = len(episode)
         rewards = np.asarray(episode.rewards, dtype=np.float64)
         if not np.all(np.isfinite(rewards)):
             raise ImitationError(f"episode {len(self._facts)}: rewards contain NaN or infinity")

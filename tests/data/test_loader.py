@@ -30,7 +30,7 @@ def test_transitions_line_up_with_their_episodes(demo_paths) -> None:
     assert len(transitions) == 18
     np.testing.assert_array_equal(transitions.episode_index, np.repeat([0, 1, 2, 3], [4, 6, 3, 5]))
     start = 0
-    for k, episode in enumerate(episodes):
+    for episode in episodes:
         end = start + len(episode)
         np.testing.assert_array_equal(transitions.observations[start:end], episode.observations[:-1])
         np.testing.assert_array_equal(transitions.next_observations[start:end], episode.observations[1:])
