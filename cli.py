@@ -184,6 +184,13 @@ def cmd_eval_policy(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_run_output(parser: argparse.ArgumentParser) -> None:
+    """--out, --json and --quiet, shared by every `train` command."""
+    parser.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory to write (replaced only when the run completes)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object with the results")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="imitation",
@@ -235,9 +242,7 @@ def build_parser() -> argparse.ArgumentParser:
     ppo.add_argument("--seed", type=int, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
     ppo.add_argument("--device", metavar="auto|cpu|cuda", help="where the networks run (default: auto)")
     ppo.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (default: 1, fastest for small networks)")
-    ppo.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory to write (replaced only when the run completes)")
-    ppo.add_argument("--json", action="store_true", help="print one JSON object with the results")
-    ppo.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_run_output(ppo)
     ppo.set_defaults(handler=cmd_train_ppo)
 
     bc = algorithms.add_parser(
@@ -260,9 +265,7 @@ def build_parser() -> argparse.ArgumentParser:
     bc.add_argument("--patience", type=int, default=50, metavar="N", help="epochs without a better validation loss before stopping (default: 50)")
     bc.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     bc.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
-    bc.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory to write")
-    bc.add_argument("--json", action="store_true", help="print one JSON object with the results")
-    bc.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_run_output(bc)
     bc.set_defaults(handler=cmd_train_bc)
 
     dagger = algorithms.add_parser(
@@ -283,9 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
     dagger.add_argument("--hidden", type=_hidden_sizes, default=[256, 256], metavar="256,256", help="MLP layer widths (default: 256,256)")
     dagger.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     dagger.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
-    dagger.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory to write")
-    dagger.add_argument("--json", action="store_true", help="print one JSON object with the results")
-    dagger.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_run_output(dagger)
     dagger.set_defaults(handler=cmd_train_dagger)
 
     evaluate = commands.add_parser("eval", help="evaluate a policy or a recovered reward", description="Evaluate a trained policy or reward.")

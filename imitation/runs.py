@@ -123,7 +123,17 @@ class RunWriter:
         self._close_logs()
         shutil.rmtree(self.partial, ignore_errors=True)
 
+    def __enter__(self) -> RunWriter:
+        return self
+
+    def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: Any) -> None:
+        # A run that failed or was interrupted leaves nothing behind; a finished one is in place.
+        if exc_type is not None:
+            self.abort()
+
     def _close_logs(self) -> None:
+        if self._csv_file.closed:
+            return
         self._csv_file.close()
         if self._tensorboard is not None:
             self._tensorboard.close()

@@ -6,6 +6,7 @@ The CLI calls these; learners in imitation.algorithms know nothing of run direct
 from __future__ import annotations
 
 import os
+from contextlib import closing
 from typing import Any
 
 import gymnasium as gym
@@ -64,12 +65,11 @@ def bc_job(demos: list[str], env_id: str, config: BCConfig, out: str | os.PathLi
     def env_return(candidate: ActorCritic) -> float:
         return evaluate_policy(SingleObservationPolicy(candidate), env, episodes=5, seed=EVAL_SEED)["mean_return"]
 
-    run = RunWriter(out, config={
+    with closing(env), RunWriter(out, config={
         "kind": "bc", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "demos": [str(p) for p in demos],
         "bc": vars(config).copy(), "policy": policy.config.to_json(),
         "split": {"train_episodes": train_ids, "validation_episodes": validation_ids},
-    }, x_axis="epoch")
-    try:
+    }, x_axis="epoch") as run:
         result = train_bc(policy, train, validation, config, evaluate=env_return, log=run.log, progress=progress)
         run.save_weights(policy_tensors(result.policy.cpu()))
         plot_curve(run.file("loss_curve.png"), run.history, x="epoch", ys=["train_loss", "validation_loss"], title=f"BC on {env_id}: loss")
@@ -86,11 +86,6 @@ def bc_job(demos: list[str], env_id: str, config: BCConfig, out: str | os.PathLi
             "eval": _final_evaluation(result.policy.cpu(), env),
         }
         run.finish(metrics)
-    except BaseException:
-        run.abort()
-        raise
-    finally:
-        env.close()
     return {"run": str(run.path), **metrics}
 
 
@@ -109,11 +104,10 @@ def dagger_job(
     def env_return(candidate: ActorCritic) -> float:
         return evaluate_policy(SingleObservationPolicy(candidate), env, episodes=5, seed=EVAL_SEED)["mean_return"]
 
-    run = RunWriter(out, config={
+    with closing(env), RunWriter(out, config={
         "kind": "dagger", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "expert": expert_spec,
         "demos": [str(p) for p in demos], "dagger": {**vars(config), "bc": vars(config.bc).copy()}, "policy": policy.config.to_json(),
-    }, x_axis="round")
-    try:
+    }, x_axis="round") as run:
         bar = tqdm(total=config.rounds, desc="dagger", unit="round", disable=None if progress else True, dynamic_ncols=True)
 
         def log(row: dict[str, float]) -> None:
@@ -135,11 +129,6 @@ def dagger_job(
             "eval": _final_evaluation(result.policy.cpu(), env),
         }
         run.finish(metrics)
-    except BaseException:
-        run.abort()
-        raise
-    finally:
-        env.close()
     return {"run": str(run.path), "round_files": [str(run.path / "rounds" / p.name) for p in result.round_files], **metrics}
 
 
@@ -154,8 +143,7 @@ def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True)
         def wrap(env: gym.Env) -> gym.Env:
             return LearnedReward(env, reward_model, where=f"--reward {config.reward_run}")
 
-    run = RunWriter(out, config={"kind": "ppo", "env_id": config.env_id, "creator": f"imitation-mcap {__version__}", "ppo": vars(config).copy()})
-    try:
+    with RunWriter(out, config={"kind": "ppo", "env_id": config.env_id, "creator": f"imitation-mcap {__version__}", "ppo": vars(config).copy()}) as run:
         result = train_ppo(config, wrap_env=wrap, log=run.log, progress=progress)
         tensors = policy_tensors(result.policy)
         if result.reward_scaler is not None:
@@ -176,7 +164,4 @@ def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True)
         }
         env.close()
         run.finish(metrics)
-    except BaseException:
-        run.abort()
-        raise
     return {"run": str(run.path), **metrics}
