@@ -27,15 +27,15 @@ def _print_json(data: dict[str, Any]) -> None:
 def cmd_record(args: argparse.Namespace) -> int:
     from imitation.data.recorder import RecordEpisodes, run_episodes
     from imitation.data.store import DemoWriter
-    from imitation.envs.make import control_period, make_env
-    from imitation.experts.load import load_expert
+    from imitation.envs.make import control_period
+    from imitation.experts.load import load_expert, make_env_for_expert
 
     out = Path(args.out)
     if out.is_dir():
         raise ImitationError(f"--out {out}: is a directory; give a file name such as {out / 'demos.mcap'}")
     if args.episodes < 1:
         raise ImitationError(f"--episodes must be at least 1, got {args.episodes}")
-    env = make_env(args.env)
+    env = make_env_for_expert(args.env, args.expert)
     policy = load_expert(args.expert, env, seed=args.seed)
     writer = DemoWriter(
         out,
@@ -206,7 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
         "demo file as it ends (while recording the file is named F.mcap.partial; Ctrl-C keeps the finished episodes).",
     )
     record.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id, e.g. CartPole-v1")
-    record.add_argument("--expert", default="scripted", metavar="SPEC", help="scripted (hand-written controller), random, a run directory with a policy, or sb3:ZIP (a stable-baselines3 policy, read without unpickling) (default: scripted)")
+    record.add_argument("--expert", default="scripted", metavar="SPEC", help="scripted (hand-written controller), random, keyboard (you play, discrete actions), a run directory with a policy, or sb3:ZIP (a stable-baselines3 policy, read without unpickling) (default: scripted)")
     record.add_argument("--episodes", type=int, default=10, metavar="N", help="number of episodes (default: 10)")
     record.add_argument("--seed", type=int, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
     record.add_argument("--out", required=True, metavar="F.mcap", help="output demo file")
@@ -275,7 +275,7 @@ def build_parser() -> argparse.ArgumentParser:
         "expert's action, writes the round as RUN_DIR/rounds/round-NN.mcap and retrains BC on everything so far.",
     )
     dagger.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
-    dagger.add_argument("--expert", required=True, metavar="SPEC", help="scripted, a run directory, or sb3:ZIP")
+    dagger.add_argument("--expert", required=True, metavar="SPEC", help="scripted, keyboard, a run directory, or sb3:ZIP")
     dagger.add_argument("--demos", nargs="+", metavar="F.mcap", help="expert demos to start from (optional)")
     dagger.add_argument("--rounds", type=int, default=5, metavar="R", help="rounds (default: 5)")
     dagger.add_argument("--episodes-per-round", type=int, default=5, metavar="N", help="rollouts per round (default: 5)")

@@ -22,7 +22,7 @@ from imitation.data.store import DemoDataset
 from imitation.envs.make import make_env
 from imitation.errors import ImitationError
 from imitation.evaluation.policy import evaluate_policy
-from imitation.experts.load import load_expert
+from imitation.experts.load import load_expert, make_env_for_expert
 from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy, policy_tensors
 from imitation.rewards import LearnedReward, load_reward
 from imitation.runs import RunWriter, plot_curve
@@ -94,7 +94,7 @@ def dagger_job(
 ) -> dict[str, Any]:
     """DAgger with `expert_spec` into run directory `out`; each round's labelled rollouts are
     written to `out/rounds/round-NN.mcap`."""
-    env = make_env(env_id)
+    env = make_env_for_expert(env_id, expert_spec)
     expert = load_expert(expert_spec, env, seed=config.seed)
     if demos:
         _check_demos_fit_env(DemoDataset(demos), env)

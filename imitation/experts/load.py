@@ -7,13 +7,19 @@ from typing import Any, Callable
 
 import gymnasium as gym
 
+from imitation.envs.make import make_env
 from imitation.errors import ImitationError
 from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
 from imitation.experts.sb3 import load_sb3_policy
 from imitation.experts.scripted import scripted_expert
 
 Policy = Callable[[Any], Any]
-EXPERT_SPECS = ("scripted", "random", "RUN_DIR", "sb3:PATH")
+EXPERT_SPECS = ("scripted", "random", "keyboard", "RUN_DIR", "sb3:PATH")
+
+
+def make_env_for_expert(env_id: str, spec: str) -> gym.Env:
+    """The env an expert acts in: rendered to frames when a human must see it."""
+    return make_env(env_id, render_mode="rgb_array") if spec == "keyboard" else make_env(env_id)
 
 
 def load_expert(spec: str, env: gym.Env, *, seed: int) -> Policy:
@@ -21,7 +27,8 @@ def load_expert(spec: str, env: gym.Env, *, seed: int) -> Policy:
     action space, seeded with `seed` so recordings are reproducible; a run directory: its saved
     policy (PPO, BC, DAgger), acting deterministically; `sb3:PATH`: the policy in a
     stable-baselines3 PPO/A2C zip, read without unpickling (see `imitation.experts.sb3`), acting
-    deterministically."""
+    deterministically; `keyboard`: a human (see `imitation.experts.keyboard`; the env must come
+    from `make_env_for_expert`)."""
     if Path(spec).is_dir():
         policy = load_policy(spec)
         check_policy_fits_env(policy, env, f"--expert {spec}")
@@ -32,6 +39,10 @@ def load_expert(spec: str, env: gym.Env, *, seed: int) -> Policy:
         return SingleObservationPolicy(policy)
     if spec == "scripted":
         return scripted_expert(env.spec.id if env.spec else "")
+    if spec == "keyboard":
+        from imitation.experts.keyboard import KeyboardExpert  # pygame only when a human plays
+
+        return KeyboardExpert(env)
     if spec == "random":
         action_space = env.action_space
         action_space.seed(seed)
