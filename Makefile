@@ -32,10 +32,12 @@ test: venv
 test-all: venv
 	@$(PY) -m pytest -q -m "slow or not slow"
 
-# Peers (stable-baselines3, LeRobot's dataset paths) are measured side by side; SB3 gets its own venv.
+# Peers (LeRobot, stable-baselines3, HumanCompatibleAI/imitation) are measured side by side, each peer in its own venv under bench/
 bench: venv
 	$(PY) bench/load.py
 	$(PY) bench/ppo.py
+	$(PY) bench/bc.py
+	$(PY) bench/dagger_vs_bc.py
 
 datasets: venv
 	$(IMITATION) record --env CartPole-v1 --expert scripted --episodes 25 --seed $(DATASET_SEED) --out datasets/CartPole-v1.mcap
