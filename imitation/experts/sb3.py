@@ -30,8 +30,7 @@ import base64
 import io
 import json
 import os
-import pickle
-import pickletools
+from pickletools import genops  # disassembles a pickle without running it
 import re
 import zipfile
 import zlib
@@ -96,8 +95,8 @@ def _read_zip(file: str) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
         raise ImitationError(f"{file}: cannot read as a stable-baselines3 zip ({error})") from None
     try:
         weights = torch.load(io.BytesIO(weights_bytes), weights_only=True, map_location="cpu")
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError) as error:
-        # weights_only refuses anything but tensors and plain containers: an UnpicklingError here
+    except Exception as error:  # noqa: BLE001 - any failure of a stranger's file is one line
+        # weights_only refuses anything but tensors and plain containers: an unpickling error here
         # may also mean the file tried to import code.
         raise ImitationError(f"{file}: policy.pth is not a plain PyTorch state dict ({str(error).splitlines()[0]})") from None
     if not isinstance(weights, dict) or not all(isinstance(v, torch.Tensor) for v in weights.values()):
@@ -208,7 +207,7 @@ def _pickle_globals(payload: bytes) -> Iterator[tuple[str, str]]:
     pushes are tracked: any other push is recorded as None, which is all STACK_GLOBAL needs."""
     memo: dict[int, Any] = {}
     pushed: list[Any] = []
-    for opcode, arg, _ in pickletools.genops(payload):
+    for opcode, arg, _ in genops(payload):
         if opcode.name == "GLOBAL":
             module, name = arg.split(" ", 1)
             yield module, name
