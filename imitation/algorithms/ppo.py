@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from typing import Any, Callable
 
 import gymnasium as gym
@@ -441,7 +441,3 @@ def _train(config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, 
         bar.set_postfix(ret=f"{row['return']:.1f}", sps=f"{row['steps_per_second']:.0f}")
     bar.close()
     return PPOResult(policy=policy, history=history, reward_scaler=reward_scaler, steps=global_step, seconds=time.perf_counter() - started)
-
-
-def config_to_json(config: PPOConfig) -> dict[str, Any]:
-    return asdict(config)
