@@ -26,7 +26,7 @@ import torch
 from torch import nn
 from torch.distributions import Categorical, Distribution, Normal
 
-from imitation.data.spaces import describe_space, space_from_json, space_to_json, spaces_compatible
+from imitation.data.spaces import check_spaces_fit, space_from_json, space_to_json
 from imitation.errors import ImitationError
 from imitation.runs import read_run
 
@@ -265,11 +265,4 @@ def load_policy(path: str | os.PathLike) -> ActorCritic:
 
 def check_policy_fits_env(policy: ActorCritic, env: gym.Env, where: str) -> None:
     """One-line error when a saved policy was trained for other spaces than env's."""
-    for name, mine, theirs in (
-        ("observation", policy.observation_space, env.observation_space),
-        ("action", policy.action_space, env.action_space),
-    ):
-        if not spaces_compatible(mine, theirs):
-            raise ImitationError(
-                f"{where}: the policy's {name} space {describe_space(mine)} does not match the env's {describe_space(theirs)}"
-            )
+    check_spaces_fit("policy's", policy.observation_space, policy.action_space, env, where=where)

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from imitation.data.spaces import describe_space, space_from_json, space_to_json, spaces_compatible
+from imitation.data.spaces import check_spaces_fit, space_from_json, space_to_json
 from imitation.errors import ImitationError
 from imitation.policies import ACTIVATIONS, observation_size
 from imitation.runs import read_run
@@ -97,14 +97,7 @@ class LearnedReward(gym.Wrapper):
 
     def __init__(self, env: gym.Env, model: RewardNet, *, where: str = "--reward") -> None:
         super().__init__(env)
-        for name, theirs, mine in (
-            ("observation", env.observation_space, model.observation_space),
-            ("action", env.action_space, model.action_space),
-        ):
-            if not spaces_compatible(mine, theirs):
-                raise ImitationError(
-                    f"{where}: the reward model's {name} space {describe_space(mine)} does not match the env's {describe_space(theirs)}"
-                )
+        check_spaces_fit("reward model's", model.observation_space, model.action_space, env, where=where)
         self.model = model
         self._observation: Any = None
 

@@ -17,7 +17,7 @@ from imitation.algorithms.bc import BCConfig, policy_options, train_bc
 from imitation.algorithms.dagger import DAggerConfig, train_dagger
 from imitation.algorithms.ppo import PPOConfig, train_ppo
 from imitation.data.loader import load_transitions, split_episodes, transitions_to_torch
-from imitation.data.spaces import describe_space, spaces_compatible
+from imitation.data.spaces import check_spaces_fit
 from imitation.data.store import DemoDataset
 from imitation.envs.make import make_env
 from imitation.errors import ImitationError
@@ -41,14 +41,7 @@ def _check_demos_fit_env(dataset: DemoDataset, env: gym.Env) -> None:
     first = dataset.files[0].path
     if dataset.num_transitions == 0:
         raise ImitationError(f"{first}: the demos hold no transitions (no episode, or only empty ones)")
-    for name, theirs, mine in (
-        ("observation", dataset.observation_space, env.observation_space),
-        ("action", dataset.action_space, env.action_space),
-    ):
-        if not spaces_compatible(theirs, mine):
-            raise ImitationError(
-                f"{first}: the demos' {name} space {describe_space(theirs)} does not match {env.spec.id if env.spec else 'the env'}'s {describe_space(mine)}"
-            )
+    check_spaces_fit("demos'", dataset.observation_space, dataset.action_space, env, where=str(first))
 
 
 def bc_job(demos: list[str], env_id: str, config: BCConfig, out: str | os.PathLike, *, progress: bool = True) -> dict[str, Any]:
@@ -138,7 +131,8 @@ def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True)
     wrap = None
     if config.reward_run is not None:
         reward_model = load_reward(config.reward_run)
-        LearnedReward(make_env(config.env_id), reward_model, where=f"--reward {config.reward_run}")  # spaces check, one line
+        with closing(make_env(config.env_id)) as env:  # fail before training, with one line
+            check_spaces_fit("reward model's", reward_model.observation_space, reward_model.action_space, env, where=f"--reward {config.reward_run}")
 
         def wrap(env: gym.Env) -> gym.Env:
             return LearnedReward(env, reward_model, where=f"--reward {config.reward_run}")

@@ -101,6 +101,14 @@ def spaces_compatible(a: gym.Space, b: gym.Space) -> bool:
     return json.dumps(strip(space_to_json(a)), sort_keys=True) == json.dumps(strip(space_to_json(b)), sort_keys=True)
 
 
+def check_spaces_fit(owner: str, observation_space: gym.Space, action_space: gym.Space, env: gym.Env, *, where: str) -> None:
+    """One-line SpaceError unless a model's (or demos') spaces are compatible with env's, e.g.
+    `<where>: the policy's observation space Box(float32, (3,)) does not match the env's ...`."""
+    for name, mine, theirs in (("observation", observation_space, env.observation_space), ("action", action_space, env.action_space)):
+        if not spaces_compatible(mine, theirs):
+            raise SpaceError(f"{where}: the {owner} {name} space {describe_space(mine)} does not match the env's {describe_space(theirs)}")
+
+
 def describe_space(space: gym.Space) -> str:
     """A short human-readable form, e.g. `Box(float32, (4,))` or `Discrete(2)`."""
     if isinstance(space, gym.spaces.Box):
