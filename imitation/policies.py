@@ -209,6 +209,12 @@ class ActorCritic(nn.Module):
         log_prob, _ = self.log_prob_and_entropy(distribution, action)
         return action, log_prob, self.value(features)
 
+    def from_env_action(self, actions: torch.Tensor) -> torch.Tensor:
+        """Env actions (e.g. from demos) → the policy's own action values, for log π(a|s)."""
+        if self.is_continuous:
+            return actions.float()
+        return actions.long() - int(self.action_space.start)
+
     def to_env_action(self, actions: torch.Tensor) -> np.ndarray:
         """Policy actions → what env.step takes: Box actions clipped to the bounds and shaped."""
         if self.is_continuous:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import asdict, dataclass, field
-from typing import Any, SupportsFloat
+from typing import TYPE_CHECKING, Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -21,6 +21,9 @@ from imitation.data.spaces import check_spaces_fit, space_from_json, space_to_js
 from imitation.errors import ImitationError
 from imitation.policies import ACTIVATIONS, observation_size
 from imitation.runs import read_run
+
+if TYPE_CHECKING:
+    from imitation.algorithms.ppo import Rollout
 
 REWARD_INPUTS = ("s", "sa", "sas")
 REWARD_PREFIX = "reward."
@@ -33,6 +36,12 @@ class RewardConfig:
     inputs: str = "s"
     hidden_sizes: list[int] = field(default_factory=lambda: [64, 64])
     activation: str = "relu"
+    # Tabular MDPs: r is computed on a per-state feature vector x(s) of this width, looked up
+    # in a (states, width) table that is saved with the weights (None: on the state itself).
+    state_features: int | None = None
+    # Box observations: standardised by fixed statistics (set once, e.g. from the demos, and
+    # saved with the weights).
+    normalize_observations: bool = False
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -55,6 +64,17 @@ class RewardNet(nn.Module):
         self.observation_space = space_from_json(config.observation_space)
         self.action_space = space_from_json(config.action_space)
         size = observation_size(self.observation_space)
+        if config.state_features is not None:
+            if not isinstance(self.observation_space, gym.spaces.Discrete) or config.inputs != "s":
+                raise ImitationError("a per-state feature table needs Discrete observations and a reward on s alone")
+            self.register_buffer("state_features", torch.zeros(int(self.observation_space.n), config.state_features))
+            size = config.state_features
+        if config.normalize_observations:
+            if not isinstance(self.observation_space, gym.spaces.Box):
+                raise ImitationError("reward observation normalisation needs Box observations")
+            flat = observation_size(self.observation_space)
+            self.register_buffer("observation_mean", torch.zeros(flat))
+            self.register_buffer("observation_std", torch.ones(flat))
         if "a" in config.inputs:
             size += observation_size(self.action_space)
         if config.inputs == "sas":
@@ -66,13 +86,48 @@ class RewardNet(nn.Module):
         layers.append(nn.Linear(size, 1))
         self.net = nn.Sequential(*layers)
 
-    def forward(self, observations: torch.Tensor, actions: torch.Tensor, next_observations: torch.Tensor) -> torch.Tensor:
-        parts = [_one_hot_or_flat(observations, self.observation_space)]
+    def set_observation_statistics(self, observations: torch.Tensor, *others: torch.Tensor) -> None:
+        """Centre observations on the mean of `observations` and scale them by the largest std
+        of it and `others` per dimension (floored at 1e-3): scaled by the demos alone, which
+        span a sliver of the space, everything the demos never visit would look alike."""
+        def flat(tensor: torch.Tensor) -> torch.Tensor:
+            return tensor.reshape(tensor.shape[0], -1).float()
+
+        self.observation_mean.copy_(flat(observations).mean(0))
+        spreads = torch.stack([flat(t).std(0) for t in (observations, *others)])
+        self.observation_std.copy_(spreads.max(0).values.clamp_min(1e-3))
+
+    def _encode_observations(self, observations: torch.Tensor) -> torch.Tensor:
+        encoded = _one_hot_or_flat(observations, self.observation_space)
+        if self.config.normalize_observations:
+            encoded = (encoded - self.observation_mean) / self.observation_std
+        return encoded
+
+    def inputs(self, observations: torch.Tensor, actions: torch.Tensor, next_observations: torch.Tensor) -> torch.Tensor:
+        """The network's input vector: encoded (normalised, one-hot) s, and a and s' if used."""
+        if self.config.state_features is not None:
+            return self.state_features[observations.long().reshape(-1) - int(self.observation_space.start)]
+        parts = [self._encode_observations(observations)]
         if "a" in self.config.inputs:
             parts.append(_one_hot_or_flat(actions, self.action_space))
         if self.config.inputs == "sas":
-            parts.append(_one_hot_or_flat(next_observations, self.observation_space))
-        return self.net(torch.cat(parts, dim=-1)).squeeze(-1)
+            parts.append(self._encode_observations(next_observations))
+        return torch.cat(parts, dim=-1)
+
+    def forward(self, observations: torch.Tensor, actions: torch.Tensor, next_observations: torch.Tensor) -> torch.Tensor:
+        return self.net(self.inputs(observations, actions, next_observations)).squeeze(-1)
+
+
+def flat_batch(tensor: torch.Tensor, leading_dims: int) -> torch.Tensor:
+    return tensor.reshape(-1, *tensor.shape[leading_dims:])
+
+
+def relabel_rollout(model: RewardNet, rollout: Rollout) -> torch.Tensor:
+    """r_φ(s_t, a_t, s_{t+1}) for every step of a PPO rollout, shape (T, n_envs)."""
+    steps, n_envs = rollout.env_rewards.shape
+    with torch.no_grad():
+        rewards = model(flat_batch(rollout.observations, 2), flat_batch(rollout.env_actions, 2), flat_batch(rollout.next_observations, 2))
+    return rewards.reshape(steps, n_envs)
 
 
 def reward_tensors(model: RewardNet) -> dict[str, torch.Tensor]:
@@ -117,5 +172,13 @@ class LearnedReward(gym.Wrapper):
         return next_observation, learned, terminated, truncated, {**info, "true_reward": float(true_reward)}
 
 
-def make_reward_model(observation_space: gym.Space, action_space: gym.Space, **options: Any) -> RewardNet:
-    return RewardNet(RewardConfig(observation_space=space_to_json(observation_space), action_space=space_to_json(action_space), **options))
+def make_reward_model(
+    observation_space: gym.Space, action_space: gym.Space, *, feature_table: np.ndarray | None = None, **options: Any
+) -> RewardNet:
+    """A fresh reward model; `feature_table` (states × d) makes r a function of x(s)."""
+    if feature_table is not None:
+        options["state_features"] = int(feature_table.shape[1])
+    model = RewardNet(RewardConfig(observation_space=space_to_json(observation_space), action_space=space_to_json(action_space), **options))
+    if feature_table is not None:
+        model.state_features.copy_(torch.as_tensor(feature_table, dtype=torch.float32))
+    return model

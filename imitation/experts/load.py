@@ -8,10 +8,12 @@ from typing import Any, Callable
 import gymnasium as gym
 
 from imitation.envs.make import make_env
+from imitation.envs.tabular import TabularEnv
 from imitation.errors import ImitationError
 from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
 from imitation.experts.sb3 import load_sb3_policy
 from imitation.experts.scripted import scripted_expert
+from imitation.experts.tabular import SoftOptimalExpert
 
 Policy = Callable[[Any], Any]
 EXPERT_SPECS = ("scripted", "random", "keyboard", "RUN_DIR", "sb3:PATH")
@@ -23,7 +25,8 @@ def make_env_for_expert(env_id: str, spec: str) -> gym.Env:
 
 
 def load_expert(spec: str, env: gym.Env, *, seed: int) -> Policy:
-    """`scripted`: the hand-written controller for env's id; `random`: uniform actions from the
+    """`scripted`: the hand-written controller for env's id (for a tabular MDP: its soft-optimal
+    policy, see `imitation.experts.tabular`); `random`: uniform actions from the
     action space, seeded with `seed` so recordings are reproducible; a run directory: its saved
     policy (PPO, BC, DAgger), acting deterministically; `sb3:PATH`: the policy in a
     stable-baselines3 PPO/A2C zip, read without unpickling (see `imitation.experts.sb3`), acting
@@ -38,6 +41,8 @@ def load_expert(spec: str, env: gym.Env, *, seed: int) -> Policy:
         check_policy_fits_env(policy, env, f"--expert {spec}")
         return SingleObservationPolicy(policy)
     if spec == "scripted":
+        if isinstance(env.unwrapped, TabularEnv):
+            return SoftOptimalExpert(env, seed=seed)
         return scripted_expert(env.spec.id if env.spec else "")
     if spec == "keyboard":
         from imitation.experts.keyboard import KeyboardExpert  # pygame only when a human plays

@@ -34,9 +34,10 @@ def cartpole(obs: np.ndarray) -> int:
 
     The θ and θ̇ terms move the cart under the falling pole, which keeps it upright; the small
     x and ẋ terms tilt the pole slightly towards the centre so the cart drifts back instead of
-    leaving |x| < 2.4 (it stays within about 0.15 of the centre).
+    leaving |x| < 2.4 (it stays within about 0.15 of the centre). Extra observation entries
+    (the failure flag of imitation/CartPoleFixedHorizon-v0) are ignored.
     """
-    return int(float(_CARTPOLE_GAINS @ np.asarray(obs, dtype=np.float64)) > 0.0)
+    return int(float(_CARTPOLE_GAINS @ np.asarray(obs, dtype=np.float64)[:4]) > 0.0)
 
 
 def mountain_car(obs: np.ndarray) -> int:
@@ -70,6 +71,7 @@ def pendulum(obs: np.ndarray) -> np.ndarray:
 
 SCRIPTED_EXPERTS: dict[str, Callable[[np.ndarray], Any]] = {
     "CartPole-v1": cartpole,
+    "imitation/CartPoleFixedHorizon-v0": cartpole,
     "MountainCar-v0": mountain_car,
     "Pendulum-v1": pendulum,
 }

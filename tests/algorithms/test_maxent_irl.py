@@ -1,0 +1,178 @@
+"""Tabular MaxEnt / MCE IRL: the two passes, the gradient of notes §5.3.3, recovery from demos."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+import imitation.envs  # noqa: F401  (registers the ids)
+from imitation.algorithms.maxent_irl import (
+    DenseDynamics, Dynamics, MaxEntIRLConfig, SparseDynamics, all_state_rewards, demo_visitation, expected_return,
+    soft_value_iteration, state_visitation, train_maxent_irl,
+)
+from imitation.data.recorder import RecordEpisodes, run_episodes
+from imitation.data.store import DemoDataset, DemoWriter
+from imitation.data.types import episodes_to_transitions
+from imitation.envs.tabular import TabularMDP, gridworld, random_mdp
+from imitation.errors import ImitationError
+from imitation.experts.load import load_expert
+from imitation.experts.tabular import soft_optimal_policy
+from imitation.rewards import make_reward_model
+
+
+def _model(mdp: TabularMDP, hidden_sizes: list[int] = ()) -> torch.nn.Module:
+    torch.manual_seed(0)
+    return make_reward_model(gym.spaces.Discrete(mdp.n_states), gym.spaces.Discrete(mdp.n_actions), feature_table=mdp.features, hidden_sizes=list(hidden_sizes))
+
+
+def _exact_expert_visitation(mdp: TabularMDP, discount: float = 1.0) -> np.ndarray:
+    return state_visitation(Dynamics.of(mdp.transition), mdp.initial, soft_optimal_policy(mdp, discount=discount), horizon=mdp.horizon, discount=discount)
+
+
+@pytest.mark.parametrize("discount", [1.0, 0.99, 0.9, 0.5])
+def test_visitation_sums_to_the_discounted_horizon_plus_one(discount: float) -> None:
+    mdp = random_mdp(seed=1)
+    dynamics = Dynamics.of(mdp.transition)
+    policy, _ = soft_value_iteration(dynamics, mdp.reward, horizon=mdp.horizon, discount=discount)
+    assert np.allclose(policy.sum(-1), 1.0)
+    occupancy = state_visitation(dynamics, mdp.initial, policy, horizon=mdp.horizon, discount=discount)
+    expected = mdp.horizon + 1 if discount == 1.0 else (1 - discount ** (mdp.horizon + 1)) / (1 - discount)
+    assert occupancy.sum() == pytest.approx(expected, rel=1e-12)
+
+
+@pytest.mark.parametrize("discount", [0.9, 0.5])
+def test_infinite_horizon_visitation_sums_to_one_over_one_minus_discount(discount: float) -> None:
+    mdp = random_mdp(seed=2)
+    dynamics = Dynamics.of(mdp.transition)
+    policy, _ = soft_value_iteration(dynamics, mdp.reward, horizon=None, discount=discount)
+    assert policy.shape == (mdp.n_states, mdp.n_actions)
+    assert state_visitation(dynamics, mdp.initial, policy, horizon=None, discount=discount).sum() == pytest.approx(1 / (1 - discount), rel=1e-9)
+
+
+def test_infinite_horizon_without_discount_is_refused() -> None:
+    mdp = random_mdp(seed=0)
+    with pytest.raises(ImitationError, match="infinite horizon needs a discount below 1"):
+        soft_value_iteration(Dynamics.of(mdp.transition), mdp.reward, horizon=None, discount=1.0)
+    with pytest.raises(ImitationError, match="infinite horizon"):
+        train_maxent_irl(
+            TabularMDP(transition=mdp.transition, initial=mdp.initial, features=mdp.features, reward=mdp.reward, horizon=None),
+            np.ones(mdp.n_states), _model(mdp), MaxEntIRLConfig(),
+        )
+
+
+def test_dense_and_sparse_dynamics_agree() -> None:
+    mdp = random_mdp(seed=3, n_states=300)
+    dense, sparse = DenseDynamics(mdp.transition), SparseDynamics(mdp.transition, width=4)
+    values = np.random.default_rng(0).normal(size=mdp.n_states)
+    assert np.allclose(dense.expectation(values), sparse.expectation(values))
+    assert np.allclose(dense.log_expectation_of_exp(values), sparse.log_expectation_of_exp(values))
+    mass = np.random.default_rng(1).random((mdp.n_states, mdp.n_actions))
+    assert np.allclose(dense.propagate(mass), sparse.propagate(mass))
+    assert isinstance(Dynamics.of(mdp.transition), SparseDynamics) and isinstance(Dynamics.of(gridworld().transition), DenseDynamics)
+
+
+def test_backward_pass_by_hand() -> None:
+    """Two states, two actions, H = 1: action 0 stays, action 1 swaps; r = (0, 1); start in s0.
+    V_1 = r; Q_0(s0, ·) = r(s0) + (V_1(s0), V_1(s1)) = (0, 1); π_0(·|s0) = softmax(0, 1)."""
+    transition = np.array([[[1.0, 0.0], [0.0, 1.0]], [[0.0, 1.0], [1.0, 0.0]]])
+    dynamics = Dynamics.of(transition)
+    policy, values = soft_value_iteration(dynamics, np.array([0.0, 1.0]), horizon=1, discount=1.0)
+    assert np.allclose(policy[0, 0], np.exp([0, 1]) / np.exp([0, 1]).sum())
+    assert values[0] == pytest.approx(np.log(1 + np.e))
+    occupancy = state_visitation(dynamics, np.array([1.0, 0.0]), policy, horizon=1, discount=1.0)
+    assert np.allclose(occupancy, [1 + 1 / (1 + np.e), np.e / (1 + np.e)])
+
+
+def test_maxent_and_mce_coincide_on_deterministic_dynamics() -> None:
+    mdp = gridworld()
+    dynamics = Dynamics.of(mdp.transition)
+    mce, _ = soft_value_iteration(dynamics, mdp.reward, horizon=mdp.horizon, discount=1.0, method="mce")
+    maxent, _ = soft_value_iteration(dynamics, mdp.reward, horizon=mdp.horizon, discount=1.0, method="maxent")
+    assert np.allclose(mce, maxent)
+    slippery = Dynamics.of(gridworld(slip=0.2).transition)
+    assert not np.allclose(
+        soft_value_iteration(slippery, mdp.reward, horizon=mdp.horizon, discount=1.0, method="mce")[0],
+        soft_value_iteration(slippery, mdp.reward, horizon=mdp.horizon, discount=1.0, method="maxent")[0],
+    )
+
+
+def test_the_gradient_is_demo_minus_learner_feature_counts_and_that_of_the_likelihood() -> None:
+    """Notes §5.3.3: ∇L(w) = μ̃ - Σ_s D(s) x(s); L(w) = μ̃ᵀr - E_ρ₀[V_0] (the causal log-likelihood up
+    to terms free of w), checked against finite differences."""
+    mdp = random_mdp(seed=5)
+    dynamics = Dynamics.of(mdp.transition)
+    target = _exact_expert_visitation(mdp)
+    w = np.random.default_rng(0).normal(size=mdp.features.shape[1])
+
+    def likelihood(weights: np.ndarray) -> float:
+        reward = mdp.features @ weights
+        _, values = soft_value_iteration(dynamics, reward, horizon=mdp.horizon, discount=1.0)
+        return float(target @ reward - mdp.initial @ values)
+
+    policy, _ = soft_value_iteration(dynamics, mdp.features @ w, horizon=mdp.horizon, discount=1.0)
+    learner = state_visitation(dynamics, mdp.initial, policy, horizon=mdp.horizon, discount=1.0)
+    analytic = target @ mdp.features - learner @ mdp.features
+    step = 1e-6
+    numeric = np.array([(likelihood(w + step * e) - likelihood(w - step * e)) / (2 * step) for e in np.eye(len(w))])
+    assert np.allclose(analytic, numeric, atol=1e-5)
+
+
+@pytest.mark.parametrize(("slip", "method"), [(0.0, "maxent"), (0.0, "mce"), (0.2, "mce")])
+def test_linear_reward_matches_the_experts_exact_occupancy(slip: float, method: str) -> None:
+    mdp = gridworld(slip=slip)
+    target = _exact_expert_visitation(mdp)
+    result = train_maxent_irl(mdp, target, _model(mdp), MaxEntIRLConfig(method=method, iterations=1000, learning_rate=0.2, tolerance=1e-3))
+    assert np.abs(result.occupancy - target).max() <= 1e-3
+    assert result.history[-1]["occupancy_error"] <= 1e-3 and len(result.history) < 1000
+
+
+def test_maxent_on_stochastic_dynamics_is_refused() -> None:
+    mdp = gridworld(slip=0.2)
+    with pytest.raises(ImitationError, match="deterministic dynamics.*use --method mce"):
+        train_maxent_irl(mdp, _exact_expert_visitation(mdp), _model(mdp), MaxEntIRLConfig(method="maxent"))
+
+
+def _record(env_id: str, path, episodes: int = 50) -> DemoDataset:
+    env = gym.make(env_id)
+    with DemoWriter(path, env_id=env_id, observation_space=env.observation_space, action_space=env.action_space) as writer:
+        run_episodes(RecordEpisodes(env, writer), load_expert("scripted", env, seed=0), episodes=episodes, seed=0, progress=False)
+    return DemoDataset([path])
+
+
+@pytest.mark.parametrize(("env_id", "hidden_sizes"), [
+    ("imitation/GridWorld8x8-v0", []), ("imitation/GridWorld8x8Slippery-v0", []), ("imitation/GridWorld8x8Slippery-v0", [32, 32]),
+])
+def test_reward_from_50_recorded_episodes_earns_nine_tenths_of_the_experts_return(env_id: str, hidden_sizes: list[int], tmp_path) -> None:
+    env = gym.make(env_id)
+    mdp = env.unwrapped.mdp
+    dataset = _record(env_id, tmp_path / "demos.mcap")
+    target = demo_visitation(dataset.read_episodes(), n_states=mdp.n_states, horizon=mdp.horizon, discount=1.0)
+    model = _model(mdp, hidden_sizes)
+    train_maxent_irl(mdp, target, model, MaxEntIRLConfig(iterations=300))
+    learned = all_state_rewards(model, mdp.n_states).detach().double().numpy()
+    dynamics = Dynamics.of(mdp.transition)
+    returns = [expected_return(dynamics, mdp, policy) for policy in (
+        soft_optimal_policy(mdp, learned), soft_optimal_policy(mdp), np.full((mdp.horizon, mdp.n_states, mdp.n_actions), 0.25),
+    )]
+    assert (returns[0] - returns[2]) / (returns[1] - returns[2]) >= 0.9
+
+
+def test_episodes_transitions_and_a_loader_give_the_same_demo_visitation(tmp_path) -> None:
+    mdp = gridworld()
+    dataset = _record("imitation/GridWorld8x8-v0", tmp_path / "demos.mcap", episodes=7)
+    episodes = dataset.read_episodes()
+    from_episodes = demo_visitation(episodes, n_states=mdp.n_states, horizon=mdp.horizon, discount=1.0)
+    from_transitions = demo_visitation(episodes_to_transitions(episodes), n_states=mdp.n_states, horizon=mdp.horizon, discount=1.0)
+    from_loader = demo_visitation(iter(dataset), n_states=mdp.n_states, horizon=mdp.horizon, discount=1.0)
+    assert np.allclose(from_episodes, from_transitions) and np.allclose(from_episodes, from_loader)
+    assert from_episodes.sum() == pytest.approx(mdp.horizon + 1)
+    with pytest.raises(ImitationError, match="no time index"):
+        demo_visitation(episodes_to_transitions(episodes), n_states=mdp.n_states, horizon=mdp.horizon, discount=0.9)
+
+
+def test_demo_episodes_of_the_wrong_length_are_refused(tmp_path) -> None:
+    episodes = _record("imitation/GridWorld8x8-v0", tmp_path / "demos.mcap", episodes=2).read_episodes()
+    with pytest.raises(ImitationError, match="demo episode 0 has 30 steps, but the MDP's horizon is 20"):
+        demo_visitation(episodes, n_states=64, horizon=20, discount=1.0)

@@ -1,0 +1,37 @@
+"""CartPoleFixedHorizon: always 500 steps, +1 while within CartPole's limits, absorbing failure."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+
+import imitation.envs  # noqa: F401  (registers the ids)
+from imitation.envs.rollout import play_episode
+from imitation.experts.scripted import cartpole
+
+ENV_ID = "imitation/CartPoleFixedHorizon-v0"
+
+
+def test_a_failing_policy_still_runs_500_steps_and_freezes_after_the_fall() -> None:
+    env = gym.make(ENV_ID)
+    observation, _ = env.reset(seed=0)
+    rewards, observations = [], [observation]
+    for _ in range(500):
+        observation, reward, terminated, truncated, _ = env.step(1)  # always push right: falls
+        assert not terminated
+        rewards.append(reward)
+        observations.append(observation)
+    assert truncated
+    fell_at = rewards.index(0.0)
+    assert 5 < fell_at < 40 and set(rewards[:fell_at]) == {1.0} and set(rewards[fell_at:]) == {0.0}
+    frozen = np.array(observations[fell_at + 1 :])
+    assert (frozen == frozen[0]).all() and frozen[0][4] == 1.0
+    assert all(o[4] == 0.0 for o in observations[: fell_at + 1])
+    assert abs(frozen[0][2]) > 12 * np.pi / 180 or abs(frozen[0][0]) > 2.4
+
+
+def test_the_scripted_expert_earns_the_full_horizon_and_a_constant_reward_teaches_nothing() -> None:
+    env = gym.make(ENV_ID)
+    assert play_episode(env, cartpole, seed=1000) == (500.0, 500)
+    # Every policy's episode lasts 500 steps, so a constant reward pays them all the same.
+    assert play_episode(env, lambda o: 1, seed=1000)[1] == 500
