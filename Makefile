@@ -43,6 +43,9 @@ datasets: venv
 	$(IMITATION) record --env CartPole-v1 --expert scripted --episodes 25 --seed $(DATASET_SEED) --out datasets/CartPole-v1.mcap
 	$(IMITATION) record --env MountainCar-v0 --expert scripted --episodes 50 --seed $(DATASET_SEED) --out datasets/MountainCar-v0.mcap
 	$(IMITATION) record --env Pendulum-v1 --expert scripted --episodes 50 --seed $(DATASET_SEED) --out datasets/Pendulum-v1.mcap
+	$(IMITATION) record --env imitation/CartPoleFixedHorizon-v0 --expert scripted --episodes 25 --seed $(DATASET_SEED) --out datasets/CartPoleFixedHorizon-v0.mcap
+	$(IMITATION) record --env imitation/GridWorld8x8-v0 --expert scripted --episodes 50 --seed $(DATASET_SEED) --out datasets/GridWorld8x8-v0.mcap
+	$(IMITATION) record --env imitation/GridWorld8x8Slippery-v0 --expert scripted --episodes 50 --seed $(DATASET_SEED) --out datasets/GridWorld8x8Slippery-v0.mcap
 
 clean:
 	rm -rf $(DEMO_OUT) .pytest_cache

@@ -115,6 +115,8 @@ def cmd_train_ppo(args: argparse.Namespace) -> int:
 
 
 def _hidden_sizes(text: str) -> list[int]:
+    if text == "linear":
+        return []
     try:
         sizes = [int(part) for part in text.split(",") if part.strip()]
     except ValueError:
@@ -162,6 +164,48 @@ def cmd_train_dagger(args: argparse.Namespace) -> int:
         returns = ", ".join(f"{value:.1f}" for value in result["round_returns"])
         print(f"DAgger on {args.env} with expert {args.expert}: {result['rounds']} rounds, {result['expert_labels']} expert labels; "
               f"return by round: {returns}; eval return {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f}; run: {result['run']}")
+    return 0
+
+
+def cmd_train_irl(args: argparse.Namespace) -> int:
+    from imitation.algorithms.maxent_irl import MaxEntIRLConfig
+    from imitation.training import tabular_irl_job
+
+    if args.method == "gcl":
+        return _train_gcl(args)
+    config = MaxEntIRLConfig(
+        method=args.method, discount=args.discount, iterations=args.iterations, learning_rate=args.lr if args.lr is not None else 0.05,
+        tolerance=args.tolerance, hidden_sizes=args.hidden if args.hidden is not None else [], seed=args.seed,
+    )
+    result = tabular_irl_job(args.demos, args.env, config, args.out, progress=not args.quiet)
+    if args.json:
+        _print_json(result)
+    else:
+        print(f"{args.method} IRL on {args.env}: {result['iterations']} iterations, occupancy error {result['occupancy_error']:.2e}; "
+              f"the soft-optimal policy for the learned reward earns {result['learned_policy_return']:.2f} (expert {result['expert_return']:.2f}, "
+              f"random {result['random_return']:.2f}, normalised {result['normalized_return']:.3f}); run: {result['run']}")
+    return 0
+
+
+def _train_gcl(args: argparse.Namespace) -> int:
+    from imitation.algorithms.gcl import GCLConfig
+    from imitation.algorithms.ppo import PPOConfig, gcl_ppo_defaults
+    from imitation.envs.make import make_env
+    from imitation.training import gcl_job
+
+    with make_env(args.env) as env:
+        settings = gcl_ppo_defaults(args.env, env.action_space)
+    config = GCLConfig(hidden_sizes=args.hidden if args.hidden is not None else [64, 64], seed=args.seed,
+                       **({"learning_rate": args.lr} if args.lr is not None else {}))
+    ppo_config = PPOConfig(env_id=args.env, total_steps=args.steps, seed=args.seed, **settings)
+    result = gcl_job(args.demos, args.env, config, ppo_config, args.out, progress=not args.quiet)
+    if args.json:
+        _print_json(result)
+    else:
+        evaluation = result["eval"]
+        print(f"GCL on {args.env}: {result['steps']} PPO steps in {result['seconds']:.0f} s; the policy trained alongside earns "
+              f"{evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f} (demos {result['demo_return']:.1f}); "
+              f"reward model for `train ppo --reward`: {result['run']}")
     return 0
 
 
@@ -288,6 +332,27 @@ def build_parser() -> argparse.ArgumentParser:
     dagger.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
     _add_run_output(dagger)
     dagger.set_defaults(handler=cmd_train_dagger)
+
+    irl = algorithms.add_parser(
+        "irl",
+        help="maximum-entropy IRL: recover a reward from demos (tabular maxent/mce, continuous gcl)",
+        description="Maximum-entropy inverse RL. maxent (Ziebart 2008, deterministic dynamics) and mce (maximum causal "
+        "entropy, any dynamics) need a tabular env with known dynamics (imitation/GridWorld8x8-v0, ...); gcl (guided cost "
+        "learning) works on continuous envs and trains PPO on the reward as it learns it. The run directory holds the "
+        "reward model, for `train ppo --reward RUN_DIR`.",
+    )
+    irl.add_argument("--method", choices=["maxent", "mce", "gcl"], default="mce", help="the IRL algorithm (default: mce)")
+    irl.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
+    irl.add_argument("--demos", required=True, nargs="+", metavar="F.mcap", help="expert demo files of that env")
+    irl.add_argument("--iterations", type=int, default=2000, metavar="N", help="tabular: most gradient steps (default: 2000)")
+    irl.add_argument("--tolerance", type=float, default=1e-4, metavar="E", help="tabular: stop when the visitation error (L∞) is below E (default: 1e-4)")
+    irl.add_argument("--discount", type=float, default=1.0, metavar="G", help="tabular: discount γ of the visitation counts (default: 1)")
+    irl.add_argument("--lr", type=float, metavar="LR", help="Adam learning rate of the reward (default: 0.05 tabular, 3e-4 gcl)")
+    irl.add_argument("--hidden", type=_hidden_sizes, metavar="32,32", help="reward MLP widths, or 'linear' (default: linear tabular, 64,64 gcl)")
+    irl.add_argument("--steps", type=int, default=200_000, metavar="N", help="gcl: PPO environment steps in total (default: 200000)")
+    irl.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
+    _add_run_output(irl)
+    irl.set_defaults(handler=cmd_train_irl)
 
     evaluate = commands.add_parser("eval", help="evaluate a policy or a recovered reward", description="Evaluate a trained policy or reward.")
     targets = evaluate.add_subparsers(dest="target", required=True, metavar="TARGET")

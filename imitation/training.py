@@ -10,21 +10,30 @@ from contextlib import closing
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
+import torch
 from tqdm import tqdm
 
 from imitation import __version__
 from imitation.algorithms.bc import BCConfig, policy_options, train_bc
 from imitation.algorithms.dagger import DAggerConfig, train_dagger
-from imitation.algorithms.ppo import PPOConfig, train_ppo
+from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning
+from imitation.algorithms.maxent_irl import (
+    MaxEntIRLConfig, Dynamics, all_state_rewards, demo_visitation, expected_return, train_maxent_irl,
+)
+from imitation.algorithms.ppo import PPOConfig, Rollout, train_ppo
 from imitation.data.loader import load_transitions, split_episodes, transitions_to_torch
 from imitation.data.spaces import check_spaces_fit
 from imitation.data.store import DemoDataset
 from imitation.envs.make import make_env
+from imitation.envs.tabular import TabularMDP, tabular_mdp_of
 from imitation.errors import ImitationError
+from imitation.evaluation.plots import plot_grid_maps
 from imitation.evaluation.policy import evaluate_policy
 from imitation.experts.load import load_expert, make_env_for_expert
+from imitation.experts.tabular import soft_optimal_policy
 from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy, policy_tensors
-from imitation.rewards import LearnedReward, load_reward
+from imitation.rewards import load_reward, make_reward_model, relabel_rollout, reward_tensors
 from imitation.runs import RunWriter, plot_curve
 
 EVAL_SEED = 10_000  # evaluation episodes start here, away from training and demo seeds
@@ -128,17 +137,17 @@ def dagger_job(
 def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True) -> dict[str, Any]:
     """Train PPO into run directory `out`; returns the metrics also written to metrics.json."""
     config.validate()
-    wrap = None
+    rollout_rewards = None
     if config.reward_run is not None:
         reward_model = load_reward(config.reward_run)
         with closing(make_env(config.env_id)) as env:  # fail before training, with one line
             check_spaces_fit("reward model's", reward_model.observation_space, reward_model.action_space, env, where=f"--reward {config.reward_run}")
 
-        def wrap(env: gym.Env) -> gym.Env:
-            return LearnedReward(env, reward_model, where=f"--reward {config.reward_run}")
+        def rollout_rewards(rollout: Rollout, policy: ActorCritic) -> torch.Tensor:
+            return relabel_rollout(reward_model, rollout)
 
     with RunWriter(out, config={"kind": "ppo", "env_id": config.env_id, "creator": f"imitation-mcap {__version__}", "ppo": vars(config).copy()}) as run:
-        result = train_ppo(config, wrap_env=wrap, log=run.log, progress=progress)
+        result = train_ppo(config, rollout_rewards=rollout_rewards, log=run.log, progress=progress)
         tensors = policy_tensors(result.policy)
         if result.reward_scaler is not None:
             tensors |= {f"reward_scaler.{name}": t for name, t in result.reward_scaler.stats.state_dict().items()}
@@ -157,5 +166,117 @@ def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True)
             "eval": _final_evaluation(result.policy.cpu(), env),
         }
         env.close()
+        run.finish(metrics)
+    return {"run": str(run.path), **metrics}
+
+
+def tabular_irl_job(demos: list[str], env_id: str, config: MaxEntIRLConfig, out: str | os.PathLike, *, progress: bool = True) -> dict[str, Any]:
+    """Tabular MaxEnt or MCE IRL on `demos` of a tabular env into run directory `out`.
+
+    The reward is judged by the true return of the policy that is soft-optimal for it, computed
+    exactly from the known dynamics and normalised between the uniform random policy (0) and
+    the soft-optimal policy for the true reward (1)."""
+    config.validate()
+    with closing(make_env(env_id)) as env:
+        mdp = tabular_mdp_of(env, where=f"--method {config.method}")
+        dataset = DemoDataset(demos)
+        _check_demos_fit_env(dataset, env)
+        observation_space, action_space = env.observation_space, env.action_space
+    occupancy_target = demo_visitation(dataset.read_episodes(), n_states=mdp.n_states, horizon=mdp.horizon, discount=config.discount)
+    model = make_reward_model(observation_space, action_space, feature_table=mdp.features, hidden_sizes=list(config.hidden_sizes))
+
+    with RunWriter(out, config={
+        "kind": "reward", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "demos": [str(p) for p in demos],
+        "irl": {"method": config.method, **vars(config)}, "reward": model.config.to_json(),
+    }, x_axis="iteration") as run:
+        bar = tqdm(total=config.iterations, desc=f"irl {config.method}", unit="it", disable=None if progress else True, dynamic_ncols=True)
+
+        def log(row: dict[str, float]) -> None:
+            run.log(row)
+            bar.update()
+            bar.set_postfix(error=f"{row['occupancy_error']:.2e}", loss=f"{row['loss']:.3f}")
+
+        with bar:
+            result = train_maxent_irl(mdp, occupancy_target, model, config, log=log)
+        run.save_weights(reward_tensors(model))
+        learned_reward = all_state_rewards(model, mdp.n_states).detach().double().numpy()
+        returns = _tabular_returns(mdp, learned_reward, discount=config.discount)
+        plot_curve(run.file("irl_curve.png"), run.history, x="iteration", ys=["loss", "occupancy_error"], title=f"{config.method} IRL on {env_id}")
+        if mdp.grid_shape is not None:
+            plot_grid_maps(run.file("reward_maps.png"), {"true reward": mdp.reward, "learned reward": learned_reward}, grid_shape=mdp.grid_shape, title=env_id)
+            plot_grid_maps(run.file("occupancy_maps.png"), {"demos' visitation": occupancy_target, "learned visitation": result.occupancy}, grid_shape=mdp.grid_shape, title=env_id)
+        last = result.history[-1]
+        metrics = {
+            "env_id": env_id,
+            "method": config.method,
+            "demo_episodes": len(dataset),
+            "iterations": len(result.history),
+            "occupancy_error": last["occupancy_error"],
+            "loss": last["loss"],
+            "seconds": result.seconds,
+            "seconds_per_iteration": result.seconds / len(result.history),
+            **returns,
+        }
+        run.finish(metrics)
+    return {"run": str(run.path), **metrics}
+
+
+def _tabular_returns(mdp: TabularMDP, learned_reward: np.ndarray, *, discount: float) -> dict[str, float]:
+    """True expected returns of the policies soft-optimal for the learned and the true reward,
+    of the uniform policy, and the learned one normalised between them."""
+    dynamics = Dynamics.of(mdp.transition)
+    learned = expected_return(dynamics, mdp, soft_optimal_policy(mdp, learned_reward, discount=discount))
+    expert = expected_return(dynamics, mdp, soft_optimal_policy(mdp, discount=discount))
+    random = expected_return(dynamics, mdp, np.full((mdp.horizon, mdp.n_states, mdp.n_actions), 1.0 / mdp.n_actions))
+    return {"learned_policy_return": learned, "expert_return": expert, "random_return": random, "normalized_return": (learned - random) / (expert - random)}
+
+
+def gcl_job(
+    demos: list[str], env_id: str, config: GCLConfig, ppo_config: PPOConfig, out: str | os.PathLike, *, progress: bool = True
+) -> dict[str, Any]:
+    """Guided cost learning on `demos` into run directory `out`: the reward model (for `train ppo
+    --reward`) and the PPO policy trained alongside it."""
+    ppo_config.validate()
+    with closing(make_env(env_id)) as env:
+        dataset = DemoDataset(demos)
+        _check_demos_fit_env(dataset, env)
+        observation_space, action_space = env.observation_space, env.action_space
+    transitions = transitions_to_torch(load_transitions(dataset, next_observations=True))
+    torch.manual_seed(config.seed)
+    reward = make_reward_model(
+        observation_space, action_space, hidden_sizes=list(config.hidden_sizes), inputs=config.inputs,
+        normalize_observations=isinstance(observation_space, gym.spaces.Box),
+    )
+    learner = GuidedCostLearning(reward, transitions, config, updates=-(-ppo_config.total_steps // (ppo_config.n_steps * ppo_config.n_envs)))
+
+    with RunWriter(out, config={
+        "kind": "reward", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "demos": [str(p) for p in demos],
+        "irl": {"method": "gcl", **vars(config)}, "ppo": vars(ppo_config).copy(), "reward": reward.config.to_json(),
+    }) as run:
+
+        def log(row: dict[str, float]) -> None:
+            run.log({**row, **learner.history[-1]})
+
+        result = train_ppo(ppo_config, rollout_rewards=learner, log=log, progress=progress)
+        run.save_weights(reward_tensors(reward) | policy_tensors(result.policy))
+        run.update_config(policy=result.policy.config.to_json())
+        plot_curve(run.file("learning_curve.png"), run.history, x="step", ys=["return", "optimised_return"], title=f"GCL on {env_id}: PPO's returns")
+        plot_curve(run.file("reward_curve.png"), run.history, x="step", ys=["reward_loss", "demo_accuracy", "sample_accuracy"], title=f"GCL on {env_id}: reward learning")
+        with closing(make_env(env_id)) as env:
+            evaluation = _final_evaluation(result.policy.cpu(), env)
+        last = run.history[-1]
+        metrics = {
+            "env_id": env_id,
+            "method": "gcl",
+            "demo_episodes": len(dataset),
+            "demo_return": float(np.mean([facts.episode_return for facts in dataset.episodes])),
+            "steps": result.steps,
+            "seconds": result.seconds,
+            "reward_loss": last["reward_loss"],
+            "demo_accuracy": last["demo_accuracy"],
+            "sample_accuracy": last["sample_accuracy"],
+            "final_train_return": last["return"],
+            "eval": evaluation,
+        }
         run.finish(metrics)
     return {"run": str(run.path), **metrics}

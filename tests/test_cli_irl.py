@@ -1,0 +1,68 @@
+"""`train irl` (tabular maxent/mce and continuous gcl) from the command line, feeding `train ppo --reward`."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from support import DATASETS, run_cli
+from test_cli import assert_one_line_error, last_json
+
+GRID = "imitation/GridWorld8x8Slippery-v0"
+
+
+@pytest.fixture(scope="module")
+def grid_demos(tmp_path_factory):
+    path = tmp_path_factory.mktemp("grid") / "slippery.mcap"
+    last_json(run_cli("record", "--env", GRID, "--expert", "scripted", "--episodes", "50", "--out", str(path), "--json"))
+    return path
+
+
+@pytest.fixture(scope="module")
+def mce_run(grid_demos, tmp_path_factory):
+    out = tmp_path_factory.mktemp("irl") / "mce"
+    return out, last_json(run_cli("train", "irl", "--method", "mce", "--env", GRID, "--demos", str(grid_demos), "--iterations", "300", "--out", str(out), "--json"))
+
+
+def test_mce_irl_recovers_a_reward_worth_nine_tenths_of_the_expert(mce_run) -> None:
+    out, result = mce_run
+    assert result["method"] == "mce" and result["demo_episodes"] == 50 and result["iterations"] == 300
+    assert result["normalized_return"] >= 0.9
+    assert {"config.json", "model.safetensors", "metrics.json", "progress.csv", "irl_curve.png", "reward_maps.png", "occupancy_maps.png"} <= {p.name for p in out.iterdir()}
+    config = json.loads((out / "config.json").read_text())
+    assert config["kind"] == "reward" and config["reward"]["state_features"] == 3
+    rows = (out / "progress.csv").read_text().splitlines()
+    assert rows[0].startswith("iteration,loss,occupancy_error") and len(rows) == 301
+
+
+def test_ppo_optimises_the_recovered_tabular_reward(mce_run, tmp_path) -> None:
+    out, _ = mce_run
+    result = last_json(run_cli("train", "ppo", "--env", GRID, "--reward", str(out), "--steps", "2048", "--out", str(tmp_path / "ppo"), "--json", timeout=300))
+    assert result["steps"] >= 2048 and "mean_return" in result["eval"]
+
+
+def test_gcl_writes_a_reward_model_that_ppo_consumes(tmp_path) -> None:
+    env_id, demos = "imitation/CartPoleFixedHorizon-v0", str(DATASETS / "CartPoleFixedHorizon-v0.mcap")
+    gcl = tmp_path / "gcl"
+    result = last_json(run_cli("train", "irl", "--method", "gcl", "--env", env_id, "--demos", demos, "--steps", "2048", "--out", str(gcl), "--json", timeout=300))
+    assert result["method"] == "gcl" and result["steps"] == 2048 and result["demo_return"] == 500.0
+    assert 0.0 <= result["demo_accuracy"] <= 1.0 and "mean_return" in result["eval"]
+    config = json.loads((gcl / "config.json").read_text())
+    assert config["kind"] == "reward" and config["reward"]["normalize_observations"] and "policy" in config
+    assert {"learning_curve.png", "reward_curve.png"} <= {p.name for p in gcl.iterdir()}
+    last_json(run_cli("train", "ppo", "--env", env_id, "--reward", str(gcl), "--steps", "2048", "--out", str(tmp_path / "ppo"), "--json", timeout=300))
+    last_json(run_cli("eval", "policy", str(gcl), "--env", env_id, "--episodes", "1", "--json"))
+
+
+def test_bad_irl_input(grid_demos, tmp_path) -> None:
+    cartpole = str(DATASETS / "CartPole-v1.mcap")
+    assert_one_line_error(run_cli("train", "irl", "--env", GRID, "--demos", cartpole, "--out", str(tmp_path / "a")), "CartPole-v1.mcap")
+    assert_one_line_error(run_cli("train", "irl", "--method", "mce", "--env", "CartPole-v1", "--demos", cartpole, "--out", str(tmp_path / "b")), "not a tabular MDP")
+    assert_one_line_error(run_cli("train", "irl", "--method", "maxent", "--env", GRID, "--demos", str(grid_demos), "--out", str(tmp_path / "c")), "deterministic dynamics")
+    assert_one_line_error(run_cli("train", "irl", "--method", "gcl", "--env", GRID, "--demos", cartpole, "--out", str(tmp_path / "d")), "CartPole-v1.mcap")
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_reward_model_of_another_env_is_refused(mce_run, tmp_path) -> None:
+    out, _ = mce_run
+    assert_one_line_error(run_cli("train", "ppo", "--env", "CartPole-v1", "--reward", str(out), "--steps", "2048", "--out", str(tmp_path / "p")), "reward model")
