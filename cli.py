@@ -91,12 +91,12 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_train_ppo(args: argparse.Namespace) -> int:
-    from imitation.algorithms.ppo import PPOConfig, ppo_defaults
+    from imitation.algorithms.ppo import PPOConfig, learned_reward_ppo_defaults, ppo_defaults
     from imitation.envs.make import make_env
     from imitation.training import ppo_job
 
     env = make_env(args.env)
-    settings = ppo_defaults(args.env, env.action_space)
+    settings = (learned_reward_ppo_defaults if args.reward else ppo_defaults)(args.env, env.action_space)
     env.close()
     for name in ("n_envs", "objective", "seed", "device", "threads"):
         if getattr(args, name) is not None:
@@ -189,12 +189,12 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
 
 def _train_gcl(args: argparse.Namespace) -> int:
     from imitation.algorithms.gcl import GCLConfig
-    from imitation.algorithms.ppo import PPOConfig, gcl_ppo_defaults
+    from imitation.algorithms.ppo import PPOConfig, learned_reward_ppo_defaults
     from imitation.envs.make import make_env
     from imitation.training import gcl_job
 
     with make_env(args.env) as env:
-        settings = gcl_ppo_defaults(args.env, env.action_space)
+        settings = learned_reward_ppo_defaults(args.env, env.action_space)
     config = GCLConfig(hidden_sizes=args.hidden if args.hidden is not None else [64, 64], seed=args.seed,
                        **({"learning_rate": args.lr} if args.lr is not None else {}))
     ppo_config = PPOConfig(env_id=args.env, total_steps=args.steps, seed=args.seed, **settings)

@@ -7,7 +7,8 @@ peer (bench/irl_peer.py, in bench/.venv-imitation) builds the MDP and saves its 
 ours runs on exactly those arrays. Reported per size:
 
 - seconds per iteration (one backward pass, one forward pass, one Adam step), timed over N
-  iterations after a warm-up run that pays torch's lazy initialisation, one torch thread;
+  iterations after a warm-up run that pays torch's lazy initialisation, the median of `repeats`
+  fresh runs (this VM's timings wander by ±20 % from run to run), one torch thread;
 - iterations until the learned occupancy is within 1e-3 (L∞) of the expert's, at Adam lr 0.1
   for both (imitation's default 1e-2 needs ~3× more iterations, and so does ours). Each side
   imitates the soft-optimal expert of its own model: imitation's planner leaves the reward of
@@ -39,8 +40,8 @@ from imitation.experts.tabular import soft_optimal_policy
 from imitation.rewards import make_reward_model
 
 CASES = (
-    {"width": 7, "height": 4, "horizon": 40, "iterations": 300, "convergence_max_iter": 20_000},
-    {"width": 100, "height": 20, "horizon": 110, "iterations": 10, "convergence_max_iter": 0},
+    {"width": 7, "height": 4, "horizon": 40, "iterations": 300, "repeats": 5, "convergence_max_iter": 20_000},
+    {"width": 100, "height": 20, "horizon": 110, "iterations": 10, "repeats": 1, "convergence_max_iter": 0},
 )
 LEARNING_RATE = 0.1
 OUR_CONVERGENCE_CAP = 20_000
@@ -66,7 +67,7 @@ def load_mdp(path: Path) -> TabularMDP:
     )
 
 
-def run_ours(mdp: TabularMDP, iterations: int, count_convergence: bool) -> dict:
+def run_ours(mdp: TabularMDP, iterations: int, repeats: int, count_convergence: bool) -> dict:
     torch.set_num_threads(1)
     dynamics = Dynamics.of(mdp.transition)
     expert = state_visitation(dynamics, mdp.initial, soft_optimal_policy(mdp), horizon=mdp.horizon, discount=1.0)
@@ -76,10 +77,12 @@ def run_ours(mdp: TabularMDP, iterations: int, count_convergence: bool) -> dict:
         return make_reward_model(gym.spaces.Discrete(mdp.n_states), gym.spaces.Discrete(mdp.n_actions), feature_table=mdp.features, hidden_sizes=[])
 
     train_maxent_irl(mdp, expert, fresh_model(), MaxEntIRLConfig(iterations=3, tolerance=0.0))  # warm-up
-    started = time.perf_counter()
-    train_maxent_irl(mdp, expert, fresh_model(), MaxEntIRLConfig(iterations=iterations, tolerance=0.0, learning_rate=LEARNING_RATE))
-    seconds = (time.perf_counter() - started) / iterations
-    result = {"seconds_per_iteration": seconds, "iterations_to_1e-3": None, "final_linf": None}
+    timings = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        train_maxent_irl(mdp, expert, fresh_model(), MaxEntIRLConfig(iterations=iterations, tolerance=0.0, learning_rate=LEARNING_RATE))
+        timings.append((time.perf_counter() - started) / iterations)
+    result = {"seconds_per_iteration": float(np.median(timings)), "iterations_to_1e-3": None, "final_linf": None}
     if count_convergence:
         history = train_maxent_irl(mdp, expert, fresh_model(), MaxEntIRLConfig(iterations=OUR_CONVERGENCE_CAP, tolerance=1e-3, learning_rate=LEARNING_RATE)).history
         result["final_linf"] = history[-1]["occupancy_error"]
@@ -101,7 +104,7 @@ def main() -> None:
         for case in CASES:
             theirs, mdp_path = run_peer(python, case, Path(workdir))
             mdp = load_mdp(mdp_path)
-            ours = run_ours(mdp, case["iterations"], count_convergence=True)
+            ours = run_ours(mdp, case["iterations"], case["repeats"], count_convergence=True)
             mdp_path.unlink()
             ratio = ours["seconds_per_iteration"] / theirs["seconds_per_iteration"]
             name = f"{case['width']}×{case['height']} H={case['horizon']} ({mdp.n_states} s)"

@@ -5,7 +5,7 @@ HumanCompatibleAI's package, never ours: start it without our checkout on PYTHON
 `cd /tmp && /work/main/bench/.venv-imitation/bin/python /work/main/bench/irl_peer.py SPEC RESULT`.
 
 Usage: irl_peer.py SPEC.json RESULT.json. The spec holds width, height, horizon, discount (default
-1.0), iterations (N, the MCEIRL iterations timed), lr (Adam; imitation's default 1e-2 if absent),
+1.0), iterations (N, the MCEIRL iterations timed), repeats (timed runs, median reported; default 1), lr (Adam; imitation's default 1e-2 if absent),
 seed, mdp_out and, optionally, convergence_max_iter (default 5000; 0 skips that run). The script
 builds seals' CliffWorld with one-hot observations, saves its MDP and the expert's exact occupancy
 to mdp_out (an .npz our side runs on), times N iterations of MCEIRL as one train() call, then
@@ -96,15 +96,18 @@ def make_irl(
 
 
 def time_iterations(env: CliffWorldEnv, occupancy: np.ndarray, spec: dict[str, Any]) -> float:
-    """Seconds per iteration of one train(max_iter=N) call that cannot stop early, after a
-    3-iteration warm-up run that pays torch's one-time lazy initialisation (ours does the same)."""
+    """Seconds per iteration: the median over `repeats` train(max_iter=N) calls that cannot stop
+    early, each on a fresh MCEIRL, after a 3-iteration warm-up run that pays torch's one-time
+    lazy initialisation (ours does the same)."""
     make_irl(env, occupancy, spec, linf_eps=0.0).train(max_iter=3)
-    irl = make_irl(env, occupancy, spec, linf_eps=0.0)
-    started = time.perf_counter()
-    irl.train(max_iter=spec["iterations"])
-    elapsed = time.perf_counter() - started
-    assert irl.steps == spec["iterations"], f"stopped early after {irl.steps} iterations"
-    return elapsed / spec["iterations"]
+    timings = []
+    for _ in range(spec.get("repeats", 1)):
+        irl = make_irl(env, occupancy, spec, linf_eps=0.0)
+        started = time.perf_counter()
+        irl.train(max_iter=spec["iterations"])
+        timings.append((time.perf_counter() - started) / spec["iterations"])
+        assert irl.steps == spec["iterations"], f"stopped early after {irl.steps} iterations"
+    return float(np.median(timings))
 
 
 def iterations_to_converge(

@@ -187,7 +187,7 @@ def tabular_irl_job(demos: list[str], env_id: str, config: MaxEntIRLConfig, out:
 
     with RunWriter(out, config={
         "kind": "reward", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "demos": [str(p) for p in demos],
-        "irl": {"method": config.method, **vars(config)}, "reward": model.config.to_json(),
+        "irl": vars(config).copy(), "reward": model.config.to_json(),
     }, x_axis="iteration") as run:
         bar = tqdm(total=config.iterations, desc=f"irl {config.method}", unit="it", disable=None if progress else True, dynamic_ncols=True)
 

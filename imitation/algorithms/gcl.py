@@ -16,16 +16,21 @@ exactly the gradient of the logistic loss of the discriminator
     D_θ(s, a) = exp r_θ(s) / (exp r_θ(s) + π_k(a|s)),   logit D_θ = r_θ(s) - log π_k(a|s),
 
 trained to tell demo steps (label 1) from policy steps (label 0), with log Z absorbed into r_θ's
-bias. Each PPO rollout of the bundled trainer (1) joins a buffer of recent rollouts with the
-log π_k(a|s) it was sampled with, (2) `reward_steps` minibatch steps of that loss are taken,
-demo steps weighted against log π_k of the current policy, and (3) the rollout is relabelled
-with the updated r_θ and PPO updates on it. The recovered reward r_θ is what `train ppo
---reward` later optimises from scratch.
+bias (`objective="discriminator"`, the default). `objective="importance"` minimises the
+self-normalised estimate of L(θ) itself, -mean_demo r + log mean_{demo ∪ samples} exp(r - log q).
+
+Each PPO rollout of the bundled trainer (1) joins the pool of samples, every step with the
+log π_k(a|s) it was drawn with (by default the pool keeps all rollouts so far: GCL's mixture of
+past samplers, so states the policy has stopped visiting stay rated), (2) `reward_steps`
+minibatch steps of the loss are taken (`warmup_steps` more on the first rollout, the learning
+rate annealed to 0 so that PPO ends on a settled reward), demo steps weighted against log π_k of
+the current policy, and (3) r_θ is shifted to mean 0 over the demos and relabels the rollout,
+on which PPO then updates. A gradient penalty on r_θ's inputs keeps it smooth. The recovered
+r_θ is what `train ppo --reward` later optimises from scratch.
 """
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,8 +39,12 @@ from torch import nn
 
 from imitation.algorithms.ppo import Rollout
 from imitation.data.loader import TransitionTensors
+from imitation.errors import ImitationError
 from imitation.policies import ActorCritic
 from imitation.rewards import RewardNet, flat_batch, relabel_rollout
+
+
+OBJECTIVES = ("discriminator", "importance")
 
 
 @dataclass(kw_only=True)
@@ -45,17 +54,18 @@ class GCLConfig:
     learning_rate: float = 3e-4
     reward_steps: int = 8
     batch_size: int = 256
-    buffer_rollouts: int | None = None
+    # Policy steps kept as samples (None: all so far, GCL's mixture of every past policy).
+    buffer_steps: int | None = None
     gradient_penalty: float = 1.0
-    warmup_steps: int = 0
-    anneal_lr: bool = False
+    warmup_steps: int = 200
+    objective: str = "discriminator"
+    anneal_lr: bool = True
     seed: int = 0
 
 
 @dataclass
 class _Samples:
     observations: torch.Tensor
-    actions: torch.Tensor
     env_actions: torch.Tensor
     next_observations: torch.Tensor
     log_probs: torch.Tensor
@@ -66,29 +76,32 @@ class GuidedCostLearning:
     then returns the rollout's rewards under the updated r_θ."""
 
     def __init__(self, reward: RewardNet, demos: TransitionTensors, config: GCLConfig, *, updates: int) -> None:
+        if config.objective not in OBJECTIVES:
+            raise ImitationError(f"GCL objective must be one of {', '.join(OBJECTIVES)}, got {config.objective!r}")
         if demos.next_observations is None:
-            raise ValueError("GCL's demos need next observations")
+            raise ImitationError("GCL's demos need next observations (load them with next_observations=True)")
         self.reward = reward
         self.demos = demos
         self.config = config
         self.updates = updates
         self.optimizer = torch.optim.Adam(reward.parameters(), lr=config.learning_rate)
-        self.buffer: deque[_Samples] = deque(maxlen=config.buffer_rollouts)
         self.pool: _Samples | None = None
         self.generator = torch.Generator().manual_seed(config.seed)
         self.history: list[dict[str, float]] = []
 
     def __call__(self, rollout: Rollout, policy: ActorCritic) -> torch.Tensor:
-        if self.reward.config.normalize_observations and not self.buffer:
+        if self.reward.config.normalize_observations and self.pool is None:
             # Scaled to cover both the demos and where the first policy goes: the demos alone
             # span so little of the space that everything else would look alike.
             self.reward.set_observation_statistics(self.demos.observations, flat_batch(rollout.observations, 2))
-        self.buffer.append(_Samples(
-            observations=flat_batch(rollout.observations, 2), actions=flat_batch(rollout.actions, 2),
-            env_actions=flat_batch(rollout.env_actions, 2), next_observations=flat_batch(rollout.next_observations, 2),
-            log_probs=rollout.log_probs.reshape(-1),
-        ))
-        self.pool = _Samples(**{name: torch.cat([getattr(samples, name) for samples in self.buffer]) for name in _Samples.__dataclass_fields__})
+        new = _Samples(
+            observations=flat_batch(rollout.observations, 2), env_actions=flat_batch(rollout.env_actions, 2),
+            next_observations=flat_batch(rollout.next_observations, 2), log_probs=rollout.log_probs.reshape(-1),
+        )
+        keep = slice(-self.config.buffer_steps, None) if self.config.buffer_steps else slice(None)
+        self.pool = new if self.pool is None else _Samples(**{
+            name: torch.cat([getattr(self.pool, name), getattr(new, name)])[keep] for name in _Samples.__dataclass_fields__
+        })
         self.reward.train()
         if self.config.anneal_lr:
             self.optimizer.param_groups[0]["lr"] = self.config.learning_rate * max(0.0, 1.0 - len(self.history) / self.updates)
@@ -117,8 +130,12 @@ class GuidedCostLearning:
         rewards = self.reward.net(inputs).squeeze(-1)
         logits = rewards - torch.cat([demo_log_probs, samples.log_probs])
         demo_logits, sample_logits = logits[:size], logits[size:]
-        labels = torch.cat([torch.ones(size), torch.zeros(size)])
-        loss = nn.functional.binary_cross_entropy_with_logits(logits, labels)
+        if self.config.objective == "importance":
+            # -E_demo[r] + log (1/|B|) Σ_{j ∈ B} exp(r_j) / q(a_j|s_j), B = demos ∪ samples
+            loss = -rewards[:size].mean() + torch.logsumexp(logits, 0) - np.log(len(logits))
+        else:
+            labels = torch.cat([torch.ones(size), torch.zeros(size)])
+            loss = nn.functional.binary_cross_entropy_with_logits(logits, labels)
         if self.config.gradient_penalty > 0:
             # A smooth reward ranks states by how near they come to the demos' states, which is
             # what lets PPO find them from scratch; a sharp one is flat everywhere else.
@@ -140,7 +157,7 @@ class GuidedCostLearning:
         self.reward.net[-1].bias -= offset
 
     def _sample_batch(self, size: int) -> _Samples:
-        """`size` policy steps drawn uniformly from the rollouts in the buffer."""
+        """`size` policy steps drawn uniformly from the pool."""
         assert self.pool is not None
         index = torch.randint(len(self.pool.log_probs), (size,), generator=self.generator)
         return _Samples(**{name: getattr(self.pool, name)[index] for name in _Samples.__dataclass_fields__})

@@ -124,9 +124,9 @@ def ppo_defaults(env_id: str, action_space: gym.Space | None = None) -> dict[str
     return {}
 
 
-def gcl_ppo_defaults(env_id: str, action_space: gym.Space | None = None) -> dict[str, Any]:
-    """`ppo_defaults` for optimising a reward that is still being learned: rewards scaled by
-    their running return std, since the learned reward's scale drifts as it trains."""
+def learned_reward_ppo_defaults(env_id: str, action_space: gym.Space | None = None) -> dict[str, Any]:
+    """`ppo_defaults` for optimising a learned reward: rewards scaled by their running return
+    std, since a learned reward's scale is arbitrary (and drifts while it is being learned)."""
     return ppo_defaults(env_id, action_space) | {"normalize_rewards": True}
 
 

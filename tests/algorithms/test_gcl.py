@@ -1,0 +1,57 @@
+"""Guided cost learning's reward side, on PPO's rollouts of fixed-horizon CartPole."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from support import DATASETS
+
+import imitation.envs  # noqa: F401  (registers the ids)
+from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning
+from imitation.algorithms.ppo import PPOConfig, Rollout, ppo_defaults, train_ppo
+from imitation.data.loader import load_transitions, transitions_to_torch
+from imitation.data.store import DemoDataset
+from imitation.rewards import make_reward_model
+
+ENV_ID = "imitation/CartPoleFixedHorizon-v0"
+
+
+@pytest.mark.parametrize("objective", ["discriminator", "importance"])
+def test_reward_learns_to_rate_demo_states_above_policy_states(objective: str) -> None:
+    env = gym.make(ENV_ID)
+    demos = transitions_to_torch(load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True))
+    torch.manual_seed(0)
+    reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[32, 32], normalize_observations=True)
+    config = PPOConfig(env_id=ENV_ID, total_steps=8 * 256, **ppo_defaults(ENV_ID))
+    learner = GuidedCostLearning(reward, demos, GCLConfig(objective=objective, warmup_steps=300, learning_rate=1e-3), updates=8)
+    seen: list[tuple[Rollout, torch.Tensor]] = []
+
+    def hook(rollout: Rollout, policy) -> torch.Tensor:
+        rewards = learner(rollout, policy)
+        seen.append((rollout, rewards))
+        return rewards
+
+    train_ppo(config, rollout_rewards=hook, progress=False)
+    assert len(learner.history) == 8 and len(seen) == 8
+    rollout, rewards = seen[-1]
+    assert rewards.shape == rollout.env_rewards.shape == (32, 8)
+    with torch.no_grad():
+        on_demos = reward(demos.observations, demos.actions, demos.next_observations)
+        on_failures = reward(*(t.reshape(-1, *t.shape[2:]) for t in (rollout.observations, rollout.env_actions, rollout.next_observations)))
+    assert on_demos.mean().item() == pytest.approx(0.0, abs=1e-4)  # centred on the demos
+    failed = rollout.observations.reshape(-1, 5)[:, 4] == 1.0
+    assert failed.any() and on_failures[failed].mean() < on_demos.mean() - 0.5
+    assert torch.allclose(rewards.reshape(-1), on_failures)  # the rollout is relabelled with the updated reward
+
+
+def test_observation_statistics_span_the_demos_and_the_first_rollout() -> None:
+    env = gym.make(ENV_ID)
+    reward = make_reward_model(env.observation_space, env.action_space, normalize_observations=True)
+    demos = torch.zeros(100, 5) + torch.linspace(-0.01, 0.01, 100)[:, None]
+    wide = torch.linspace(-2.0, 2.0, 100)[:, None].repeat(1, 5)
+    reward.set_observation_statistics(demos, wide)
+    assert torch.allclose(reward.observation_mean, demos.mean(0))
+    assert torch.allclose(reward.observation_std, wide.std(0))
+    np.testing.assert_allclose(reward.inputs(wide[:1], wide[:1], wide[:1]).numpy(), ((wide[:1] - demos.mean(0)) / wide.std(0)).numpy(), rtol=1e-6)
