@@ -87,15 +87,19 @@ class RewardNet(nn.Module):
         self.net = nn.Sequential(*layers)
 
     def set_observation_statistics(self, observations: torch.Tensor, *others: torch.Tensor) -> None:
-        """Centre observations on the mean of `observations` and scale them by the largest std
-        of it and `others` per dimension (floored at 1e-3): scaled by the demos alone, which
-        span a sliver of the space, everything the demos never visit would look alike."""
+        """Centre observations on the mean of `observations`; scale each dimension by half the
+        observation space's range where it is finite, else by the largest std of `observations`
+        and `others` (floored at 1e-3). Scaled by the demos alone, which span a sliver of the
+        space, every state they never visit would sit far out, where a network extrapolates."""
         def flat(tensor: torch.Tensor) -> torch.Tensor:
             return tensor.reshape(tensor.shape[0], -1).float()
 
         self.observation_mean.copy_(flat(observations).mean(0))
-        spreads = torch.stack([flat(t).std(0) for t in (observations, *others)])
-        self.observation_std.copy_(spreads.max(0).values.clamp_min(1e-3))
+        spreads = torch.stack([flat(t).std(0) for t in (observations, *others)]).max(0).values.clamp_min(1e-3)
+        low = torch.as_tensor(self.observation_space.low, dtype=torch.float32).reshape(-1)
+        high = torch.as_tensor(self.observation_space.high, dtype=torch.float32).reshape(-1)
+        half_range = (high - low) / 2
+        self.observation_std.copy_(torch.where(torch.isfinite(half_range), half_range, spreads))
 
     def _encode_observations(self, observations: torch.Tensor) -> torch.Tensor:
         encoded = _one_hot_or_flat(observations, self.observation_space)

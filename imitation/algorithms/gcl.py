@@ -91,8 +91,7 @@ class GuidedCostLearning:
 
     def __call__(self, rollout: Rollout, policy: ActorCritic) -> torch.Tensor:
         if self.reward.config.normalize_observations and self.pool is None:
-            # Scaled to cover both the demos and where the first policy goes: the demos alone
-            # span so little of the space that everything else would look alike.
+            # Where the space is unbounded, the first policy's states widen the demos' spread.
             self.reward.set_observation_statistics(self.demos.observations, flat_batch(rollout.observations, 2))
         new = _Samples(
             observations=flat_batch(rollout.observations, 2), env_actions=flat_batch(rollout.env_actions, 2),

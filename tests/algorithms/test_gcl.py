@@ -46,12 +46,14 @@ def test_reward_learns_to_rate_demo_states_above_policy_states(objective: str) -
     assert torch.allclose(rewards.reshape(-1), on_failures)  # the rollout is relabelled with the updated reward
 
 
-def test_observation_statistics_span_the_demos_and_the_first_rollout() -> None:
-    env = gym.make(ENV_ID)
+def test_observation_scale_is_the_space_range_where_finite_else_the_widest_spread() -> None:
+    env = gym.make(ENV_ID)  # x, θ and the flag are bounded; the velocities are not
     reward = make_reward_model(env.observation_space, env.action_space, normalize_observations=True)
     demos = torch.zeros(100, 5) + torch.linspace(-0.01, 0.01, 100)[:, None]
     wide = torch.linspace(-2.0, 2.0, 100)[:, None].repeat(1, 5)
     reward.set_observation_statistics(demos, wide)
+    half_range = (env.observation_space.high - env.observation_space.low) / 2
+    expected = torch.tensor([half_range[0], wide[:, 1].std(), half_range[2], wide[:, 3].std(), 0.5])
     assert torch.allclose(reward.observation_mean, demos.mean(0))
-    assert torch.allclose(reward.observation_std, wide.std(0))
-    np.testing.assert_allclose(reward.inputs(wide[:1], wide[:1], wide[:1]).numpy(), ((wide[:1] - demos.mean(0)) / wide.std(0)).numpy(), rtol=1e-6)
+    assert torch.allclose(reward.observation_std, expected)
+    np.testing.assert_allclose(reward.inputs(wide[:1], wide[:1], wide[:1]).numpy(), ((wide[:1] - demos.mean(0)) / expected).numpy(), rtol=1e-6)

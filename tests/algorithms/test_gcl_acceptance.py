@@ -2,10 +2,10 @@
 the true return normalised between a random policy (0) and the demos (1). Slow (minutes a seed).
 
 Measured 2026-11-22 (seeds 0, 1, 2; GCL 200k/300k steps, retraining 300k): CartPoleFixedHorizon
-1.00, 0.22, 0.08; Pendulum 0.17, 0.64, 0.38 (the policies GCL trains alongside reach 1.01, 1.02,
-0.95 on Pendulum). The recovered rewards rank the expert far above the retrained policies, so
-PPO from scratch does not reliably find what they reward. Hence xfail, not skip: these keep
-measuring, and turn into passes when the pipeline gets there."""
+1.00, 1.00, 1.00 (a constant reward: 0.02); Pendulum 1.01, 0.05, 0.58. On Pendulum the recovered
+rewards rank the expert far above the retrained policies, so PPO from scratch does not reliably
+find what they reward; that test is xfail, not skip: it keeps measuring, and turns into a pass
+when the pipeline gets there."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from imitation.rewards import make_reward_model, reward_tensors
 from imitation.runs import RunWriter
 from imitation.training import gcl_job, ppo_job
 
-PENDING = pytest.mark.xfail(reason="PPO retrained from scratch on the GCL reward misses the target on some seeds (see the module docstring)", strict=False)
+PENDING = pytest.mark.xfail(reason="PPO retrained from scratch on the Pendulum GCL reward misses the target on some seeds (see the module docstring)", strict=False)
 
 
 def _random_return(env_id: str) -> float:
@@ -54,7 +54,6 @@ def _constant_reward_run(env_id: str, path) -> str:
 
 
 @pytest.mark.slow
-@PENDING
 def test_gcl_on_fixed_horizon_cartpole_retrains_to_nine_tenths_and_beats_a_constant_reward(tmp_path) -> None:
     env_id, demos = "imitation/CartPoleFixedHorizon-v0", str(DATASETS / "CartPoleFixedHorizon-v0.mcap")
     expert, random = 500.0, _random_return(env_id)
