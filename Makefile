@@ -27,7 +27,7 @@ demo: venv
 	@$(IMITATION) train irl --method mce --env imitation/GridWorld8x8Slippery-v0 --demos datasets/GridWorld8x8Slippery-v0.mcap --iterations 500 --out $(DEMO_OUT)/irl-gridworld --quiet
 	@echo; echo "== guided cost learning on the bundled fixed-horizon CartPole demos, then PPO from scratch on the recovered reward"
 	@$(IMITATION) train irl --method gcl --env imitation/CartPoleFixedHorizon-v0 --demos datasets/CartPoleFixedHorizon-v0.mcap --steps 200000 --out $(DEMO_OUT)/gcl-cartpole --quiet
-	@$(IMITATION) train ppo --env imitation/CartPoleFixedHorizon-v0 --reward $(DEMO_OUT)/gcl-cartpole --steps 200000 --out $(DEMO_OUT)/ppo-on-gcl-reward --quiet
+	@$(IMITATION) train ppo --env imitation/CartPoleFixedHorizon-v0 --reward $(DEMO_OUT)/gcl-cartpole --steps 300000 --out $(DEMO_OUT)/ppo-on-gcl-reward --quiet
 	@$(IMITATION) eval policy $(DEMO_OUT)/ppo-on-gcl-reward --env imitation/CartPoleFixedHorizon-v0 --episodes 10
 
 # pytest exits 5 when it collects nothing; that is not a pass, but not a crash either: say so.

@@ -2,8 +2,11 @@
 
 A reward run directory (written by the IRL learners) holds config.json with
 {"kind": "reward", "env_id": ..., "reward": RewardConfig} and model.safetensors with the
-weights under "reward.". `LearnedReward` swaps an env's reward for the model's and keeps the
-true one in info["true_reward"], so training on a recovered reward still reports true returns.
+weights under "reward." (with a tabular reward's per-state feature table and the fixed
+observation statistics, so evaluation sees what training saw). PPO optimises a learned reward by
+relabelling each rollout in one batched call (`relabel_rollout`); `LearnedReward` is the
+per-step gymnasium wrapper for any other use: it swaps an env's reward for the model's and keeps
+the true one in info["true_reward"].
 """
 
 from __future__ import annotations
@@ -123,6 +126,7 @@ class RewardNet(nn.Module):
 
 
 def flat_batch(tensor: torch.Tensor, leading_dims: int) -> torch.Tensor:
+    """The first `leading_dims` dimensions (e.g. time × envs) merged into one batch dimension."""
     return tensor.reshape(-1, *tensor.shape[leading_dims:])
 
 
