@@ -44,6 +44,8 @@ bench: venv
 	$(PY) bench/ppo.py
 	$(PY) bench/bc.py
 	$(PY) bench/dagger_vs_bc.py
+	$(PY) bench/irl.py
+	$(PY) bench/irl.py --continuous
 
 datasets: venv
 	$(IMITATION) record --env CartPole-v1 --expert scripted --episodes 25 --seed $(DATASET_SEED) --out datasets/CartPole-v1.mcap

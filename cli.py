@@ -174,8 +174,8 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
     if args.method == "gcl":
         return _train_gcl(args)
     config = MaxEntIRLConfig(
-        method=args.method, discount=args.discount, iterations=args.iterations, learning_rate=args.lr if args.lr is not None else 0.05,
-        tolerance=args.tolerance, hidden_sizes=args.hidden if args.hidden is not None else [], seed=args.seed,
+        method=args.method, discount=args.discount, iterations=args.iterations, tolerance=args.tolerance,
+        hidden_sizes=args.hidden if args.hidden is not None else [], seed=args.seed, **({"learning_rate": args.lr} if args.lr is not None else {}),
     )
     result = tabular_irl_job(args.demos, args.env, config, args.out, progress=not args.quiet)
     if args.json:

@@ -17,6 +17,12 @@ ours runs on exactly those arrays. Reported per size:
   iteration), so only ours is counted there.
 
 Target (issue): ours ≤ 0.3× imitation's time per iteration.
+
+`--continuous [--seeds 0 1 2] [--envs ...]` instead runs the continuous pipeline as a user
+would through the library's jobs: `train irl --method gcl` on the bundled demos, then `train ppo
+--reward` from scratch, then the deterministic evaluation on the true reward; it prints each
+stage's wall time and the true return normalised between a uniform random policy (0) and the
+demos (1). No peer: imitation has no continuous MaxEnt IRL.
 """
 
 from __future__ import annotations
@@ -33,17 +39,28 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from bc import BENCH, _peer_env, ensure_imitation_venv
+from bc import BENCH, ROOT, _peer_env, ensure_imitation_venv
+from imitation.algorithms.gcl import GCLConfig
 from imitation.algorithms.maxent_irl import Dynamics, MaxEntIRLConfig, state_visitation, train_maxent_irl
+from imitation.algorithms.ppo import PPOConfig, learned_reward_ppo_defaults
+from imitation.data.store import DemoDataset
+from imitation.envs.make import make_env
 from imitation.envs.tabular import TabularMDP
+from imitation.evaluation.policy import evaluate_policy
 from imitation.experts.tabular import soft_optimal_policy
 from imitation.rewards import make_reward_model
+from imitation.training import gcl_job, ppo_job
 
 CASES = (
     {"width": 7, "height": 4, "horizon": 40, "iterations": 300, "repeats": 5, "convergence_max_iter": 20_000},
     {"width": 100, "height": 20, "horizon": 110, "iterations": 10, "repeats": 1, "convergence_max_iter": 0},
 )
 LEARNING_RATE = 0.1
+# env id → (demo file, GCL steps, retraining steps): the settings of issue 5's acceptance runs.
+CONTINUOUS = {
+    "imitation/CartPoleFixedHorizon-v0": ("CartPoleFixedHorizon-v0.mcap", 200_000, 300_000),
+    "Pendulum-v1": ("Pendulum-v1.mcap", 300_000, 300_000),
+}
 OUR_CONVERGENCE_CAP = 20_000
 TARGET = 0.3
 
@@ -92,9 +109,45 @@ def run_ours(mdp: TabularMDP, iterations: int, repeats: int, count_convergence: 
     return result
 
 
+def run_continuous(env_id: str, seed: int, workdir: Path) -> dict:
+    demos, irl_steps, retrain_steps = CONTINUOUS[env_id]
+    demos = str(ROOT / "datasets" / demos)
+    started = time.perf_counter()
+    gcl_job([demos], env_id, GCLConfig(seed=seed), PPOConfig(env_id=env_id, total_steps=irl_steps, seed=seed, **learned_reward_ppo_defaults(env_id)),
+            workdir / "gcl", progress=False)
+    irl_seconds = time.perf_counter() - started
+    retrained = ppo_job(
+        PPOConfig(env_id=env_id, total_steps=retrain_steps, seed=seed, reward_run=str(workdir / "gcl"), **learned_reward_ppo_defaults(env_id)),
+        workdir / "ppo", progress=False,
+    )
+    env = make_env(env_id)
+    env.action_space.seed(0)
+    random = evaluate_policy(lambda observation: env.action_space.sample(), env, episodes=10, seed=0)["mean_return"]
+    expert = float(np.mean([facts.episode_return for facts in DemoDataset([demos]).episodes]))
+    learned = retrained["eval"]["mean_return"]
+    return {"irl_seconds": irl_seconds, "retrain_seconds": retrained["seconds"], "return": learned, "normalized": (learned - random) / (expert - random)}
+
+
+def main_continuous(env_ids: list[str], seeds: list[int]) -> None:
+    torch.set_num_threads(1)
+    print(f"{'env':>34} | seed | {'GCL s':>6} | {'retrain s':>9} | {'true return':>11} | normalised")
+    for env_id in env_ids:
+        for seed in seeds:
+            with tempfile.TemporaryDirectory(prefix="bench-gcl-") as workdir:
+                result = run_continuous(env_id, seed, Path(workdir))
+            print(f"{env_id:>34} | {seed:4d} | {result['irl_seconds']:6.0f} | {result['retrain_seconds']:9.0f} | {result['return']:11.1f} | {result['normalized']:.2f}")
+            sys.stdout.flush()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.parse_args()
+    parser.add_argument("--continuous", action="store_true", help="run GCL → PPO from scratch instead of the tabular comparison")
+    parser.add_argument("--envs", nargs="+", default=list(CONTINUOUS), choices=list(CONTINUOUS), help="continuous envs (default: both)")
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2], help="continuous seeds (default: 0 1 2)")
+    args = parser.parse_args()
+    if args.continuous:
+        main_continuous(args.envs, args.seeds)
+        return
     python, versions = ensure_imitation_venv()
     if python is None:
         raise SystemExit(f"bench/irl.py: no peer: {versions}")
