@@ -18,6 +18,7 @@ from typing import Any, Callable, Iterator, Sequence
 import numpy as np
 import torch
 
+from imitation.data.columns import read_transitions
 from imitation.data.store import DemoDataset
 from imitation.data.types import Episode, Transitions, episodes_to_transitions
 from imitation.errors import ImitationError
@@ -115,10 +116,15 @@ def load_transitions(
     the observations."""
     dataset = source if isinstance(source, DemoDataset) else DemoDataset(source)
     indices = sorted(set(int(k) for k in episodes)) if episodes is not None else list(range(len(dataset)))
-    selected = _read(dataset, indices)
-    if not selected or sum(len(episode) for episode in selected) == 0:
+    if indices and not 0 <= indices[0] <= indices[-1] < len(dataset):
+        raise ImitationError(f"episode indices must lie in [0, {len(dataset)}), got {indices[0]}..{indices[-1]}")
+    all_facts = dataset.episodes
+    if sum(all_facts[k].length for k in indices) == 0:
         raise ImitationError("no transitions to load: the demos hold no steps")
-    return episodes_to_transitions(selected, indices, next_observations=next_observations)
+    bulk = read_transitions(dataset, indices, next_observations=next_observations)
+    if bulk is not None:
+        return bulk
+    return episodes_to_transitions(_read(dataset, indices), indices, next_observations=next_observations)
 
 
 def split_episodes(num_episodes: int, *, validation_fraction: float, seed: int) -> tuple[list[int], list[int]]:

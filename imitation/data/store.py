@@ -865,11 +865,16 @@ def _records_with_offsets(buffer: bytes | memoryview, start: int, end: int) -> I
         offset = body_start + length
 
 
-def _decode_chunk(record: memoryview, out: memoryview | None = None) -> memoryview | bytes:
-    """The checked, decompressed content of one Chunk record (zstd, lz4 or none), decompressed
-    into `out` when given (it must hold exactly the uncompressed size).
+@dataclass(frozen=True)
+class _ChunkHeader:
+    compression: str
+    uncompressed_size: int
+    uncompressed_crc: int
+    payload: memoryview  # the compressed records
 
-    Decompression and CRC-32 release the GIL, so chunks decode in parallel threads."""
+
+def _chunk_header(record: memoryview) -> _ChunkHeader:
+    """Parse one Chunk record (opcode and length included) down to its compressed payload."""
     if len(record) < 9 or record[0] != _OP_CHUNK:
         raise _Damage("chunk index points at a non-chunk record")
     body = record[9:]
@@ -882,11 +887,23 @@ def _decode_chunk(record: memoryview, out: memoryview | None = None) -> memoryvi
         position += 8
     except (struct.error, UnicodeDecodeError) as error:
         raise _Damage(f"bad chunk header ({error})") from None
-    compressed = body[position : position + data_length]
-    if len(compressed) != data_length:
+    payload = body[position : position + data_length]
+    if len(payload) != data_length:
         raise _Damage("chunk data is truncated")
+    if compression not in ("zstd", "lz4", ""):
+        raise _Damage(f"unsupported chunk compression {compression!r}")
+    return _ChunkHeader(compression, uncompressed_size, uncompressed_crc, payload)
+
+
+def _decode_chunk(record: memoryview, out: memoryview | None = None) -> memoryview | bytes:
+    """The checked, decompressed content of one Chunk record (zstd, lz4 or none), decompressed
+    into `out` when given (it must hold exactly the uncompressed size).
+
+    Decompression and CRC-32 release the GIL, so chunks decode in parallel threads."""
+    header = _chunk_header(record)
+    compressed, uncompressed_size = header.payload, header.uncompressed_size
     content: memoryview | bytes
-    if compression == "zstd":
+    if header.compression == "zstd":
         try:
             if out is not None and len(out) == uncompressed_size:
                 content = _zstd_decompress_into(compressed, out)
@@ -894,20 +911,18 @@ def _decode_chunk(record: memoryview, out: memoryview | None = None) -> memoryvi
                 content = zstandard.ZstdDecompressor().decompress(compressed, max_output_size=uncompressed_size)
         except zstandard.ZstdError as error:
             raise _Damage(f"zstd cannot decompress it ({error})") from None
-    elif compression == "lz4":
+    elif header.compression == "lz4":
         import lz4.frame  # only files from other writers use lz4
 
         try:
             content = lz4.frame.decompress(bytes(compressed))
         except RuntimeError as error:
             raise _Damage(f"lz4 cannot decompress it ({error})") from None
-    elif compression == "":
-        content = compressed  # a view of the record's own buffer: no copy
     else:
-        raise _Damage(f"unsupported chunk compression {compression!r}")
+        content = compressed  # a view of the record's own buffer: no copy
     if len(content) != uncompressed_size:
         raise _Damage("decompressed size differs from the chunk header")
-    if uncompressed_crc != 0 and zlib.crc32(content) != uncompressed_crc:
+    if header.uncompressed_crc != 0 and zlib.crc32(content) != header.uncompressed_crc:
         raise _Damage("checksum mismatch: the chunk's bytes were altered")
     return content
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -127,3 +129,44 @@ def test_uncompressed_files_load_the_same(tmp_path) -> None:
     np.testing.assert_array_equal(packed.observations, plain.observations)
     np.testing.assert_array_equal(packed.next_observations, plain.next_observations)
     assert plain.observations.flags.owndata  # a copy: the mapped file may change after loading
+
+
+DICT_SPACE = gym.spaces.Dict({"pos": gym.spaces.Box(-1, 1, (2,), np.float32), "mode": gym.spaces.Discrete(3)})
+
+
+def _assert_transitions_equal(actual, expected) -> None:
+    for name in ("observations", "actions", "rewards", "next_observations", "terminated", "truncated", "episode_index"):
+        a, b = getattr(actual, name), getattr(expected, name)
+        if b is None:
+            assert a is None, name
+            continue
+        for key in a if isinstance(a, dict) else [None]:
+            x, y = (a[key], b[key]) if key is not None else (a, b)
+            assert x.dtype == y.dtype and x.shape == y.shape, name
+            np.testing.assert_array_equal(x, y, err_msg=name)
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+@pytest.mark.parametrize("timestamps", [False, True])
+def test_bulk_loading_equals_assembling_episodes(tmp_path, compression, timestamps) -> None:
+    """load_transitions places blocks straight into the flat arrays (imitation/data/columns.py);
+    with blocks that split episodes, episodes that span chunks, several files, subsets and
+    recordings with their own timestamps (the general path) it must equal flattening episodes."""
+    from imitation.data.columns import read_transitions
+    from imitation.data.types import episodes_to_transitions
+
+    episodes = [random_episode(DICT_SPACE, BOX, length, seed=i, terminated=i % 3 == 0) for i, length in enumerate([7, 0, 12, 5, 9, 1, 11])]
+    if timestamps:
+        episodes = [
+            dataclasses.replace(episode, timestamps=10**9 * i + np.cumsum(np.random.default_rng(i).integers(1, 50, len(episode) + 1)) * 10**6)
+            for i, episode in enumerate(episodes)
+        ]
+    options = dict(env_id="T", observation_space=DICT_SPACE, action_space=BOX, block_steps=4, chunk_size=300, compression=compression)
+    paths = [write_episodes(tmp_path / "a.mcap", episodes[:4], **options), write_episodes(tmp_path / "b.mcap", episodes[4:], **options)]
+    dataset = DemoDataset(paths)
+    for subset in (None, [2, 4, 5], [6]):
+        indices = list(range(len(dataset))) if subset is None else subset
+        for next_observations in (True, False):
+            expected = episodes_to_transitions(dataset.read_episodes(indices), indices, next_observations=next_observations)
+            assert (read_transitions(dataset, indices, next_observations=next_observations) is None) == timestamps
+            _assert_transitions_equal(load_transitions(dataset, episodes=subset, next_observations=next_observations), expected)
