@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, SupportsFloat
 
 import gymnasium as gym
@@ -190,3 +191,39 @@ def make_reward_model(
     if feature_table is not None:
         model.state_features.copy_(torch.as_tensor(feature_table, dtype=torch.float32))
     return model
+
+
+def _fresh_like(model: RewardNet) -> RewardNet:
+    """A new network of `model`'s configuration with its fixed buffers (feature table,
+    observation statistics) and freshly initialised weights."""
+    fresh = RewardNet(model.config)
+    fresh.load_state_dict({name: tensor for name, tensor in model.state_dict().items() if not name.startswith("net.")}, strict=False)
+    return fresh.eval()
+
+
+def random_reward_like(model: RewardNet, *, seed: int) -> RewardNet:
+    """A control: `model`'s architecture with random weights (PyTorch's default initialisation under `seed`)."""
+    with torch.random.fork_rng():
+        torch.manual_seed(seed)
+        return _fresh_like(model)
+
+
+def constant_reward_like(model: RewardNet, value: float = 1.0) -> RewardNet:
+    """A control: `model`'s architecture paying `value` everywhere (last layer zero, bias `value`)."""
+    constant = _fresh_like(model)
+    last = constant.net[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.fill_(value)
+    return constant
+
+
+def save_reward_run(model: RewardNet, path: str | os.PathLike, *, env_id: str, source: str) -> Path:
+    """A reward run directory holding only `model`: what `train ppo --reward` and `eval reward` read."""
+    from imitation import __version__
+    from imitation.runs import RunWriter
+
+    with RunWriter(path, config={"kind": "reward", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "source": source,
+                                 "reward": model.config.to_json()}, tensorboard=False) as run:
+        run.save_weights(reward_tensors(model))
+        return run.finish({"env_id": env_id, "source": source})

@@ -200,7 +200,7 @@ def tabular_irl_job(demos: list[str], env_id: str, config: MaxEntIRLConfig, out:
             result = train_maxent_irl(mdp, occupancy_target, model, config, log=log)
         run.save_weights(reward_tensors(model))
         learned_reward = all_state_rewards(model, mdp.n_states).detach().double().numpy()
-        returns = _tabular_returns(mdp, learned_reward, discount=config.discount)
+        returns = tabular_policy_returns(mdp, learned_reward, discount=config.discount)
         plot_curve(run.file("irl_curve.png"), run.history, x="iteration", ys=["loss", "occupancy_error"], title=f"{config.method} IRL on {env_id}")
         if mdp.grid_shape is not None:
             plot_grid_maps(run.file("reward_maps.png"), {"true reward": mdp.reward, "learned reward": learned_reward}, grid_shape=mdp.grid_shape, title=env_id)
@@ -221,7 +221,7 @@ def tabular_irl_job(demos: list[str], env_id: str, config: MaxEntIRLConfig, out:
     return {"run": str(run.path), **metrics}
 
 
-def _tabular_returns(mdp: TabularMDP, learned_reward: np.ndarray, *, discount: float) -> dict[str, float]:
+def tabular_policy_returns(mdp: TabularMDP, learned_reward: np.ndarray, *, discount: float) -> dict[str, float]:
     """True expected returns of the policies soft-optimal for the learned and the true reward,
     of the uniform policy, and the learned one normalised between them."""
     dynamics = Dynamics.of(mdp.transition)

@@ -1,0 +1,96 @@
+"""`eval reward`: the true reward scores EPIC ≈ 0 and retrains to ≈ 1; the controls do not."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from support import DATASETS, run_cli
+
+import imitation.envs  # noqa: F401 - registers the imitation/ envs
+from imitation.envs.make import make_env
+from imitation.envs.tabular import _GRID_WEIGHTS
+from imitation.rewards import make_reward_model, save_reward_run
+
+GRIDWORLD = "imitation/GridWorld8x8Slippery-v0"
+CARTPOLE = "imitation/CartPoleFixedHorizon-v0"
+
+
+def true_gridworld_reward(path):
+    """A linear reward on the gridworld's cell-type features with the true weights: the true reward itself."""
+    env = make_env(GRIDWORLD)
+    mdp = env.unwrapped.mdp
+    model = make_reward_model(env.observation_space, env.action_space, feature_table=mdp.features, hidden_sizes=[])
+    with torch.no_grad():
+        model.net[-1].weight.copy_(torch.as_tensor(_GRID_WEIGHTS, dtype=torch.float32)[None])
+        model.net[-1].bias.zero_()
+    return save_reward_run(model, path, env_id=GRIDWORLD, source="test: true reward")
+
+
+def true_cartpole_reward(path):
+    """R(s, a, s') = 1 − failed(s'), as a linear reward on (s, a, s'): the fixed-horizon CartPole's true reward."""
+    env = make_env(CARTPOLE)
+    model = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[], inputs="sas")
+    with torch.no_grad():
+        weight = torch.zeros_like(model.net[-1].weight)
+        weight[0, 5 + 2 + 4] = -1.0  # s (5 values), a one-hot (2), then s'[4], the failure flag
+        model.net[-1].weight.copy_(weight)
+        model.net[-1].bias.fill_(1.0)
+    return save_reward_run(model, path, env_id=CARTPOLE, source="test: true reward")
+
+
+def test_tabular_true_reward_is_exact_and_controls_are_not(tmp_path) -> None:
+    run = true_gridworld_reward(tmp_path / "true-reward")
+    result = run_cli("eval", "reward", str(run), "--env", GRIDWORLD, "--out", str(tmp_path / "eval"), "--json", "--quiet")
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["epic"] < 1e-6 and report["pearson"] > 1 - 1e-9
+    assert report["retrain"]["normalized"] == pytest.approx(1.0, abs=1e-9)
+    assert report["controls"]["constant"]["normalized"] == pytest.approx(0.0, abs=1e-9)
+    assert report["controls"]["constant"]["epic"] == pytest.approx(np.sqrt(0.5))
+    assert report["controls"]["random"]["epic"] > 0.3 and report["controls"]["random"]["normalized"] < 0.5
+    written = sorted(p.name for p in (tmp_path / "eval").iterdir())
+    assert {"metrics.json", "report.md", "reward_maps.png", "reward_scatter.png"} <= set(written)
+    text = (tmp_path / "eval" / "report.md").read_text()
+    assert "| recovered reward | 0.000 | 1.000 |" in text and "![reward_maps](reward_maps.png)" in text
+
+
+def test_continuous_true_reward_has_epic_near_zero(tmp_path) -> None:
+    """Sampled EPIC over demos, rollouts and uniform transitions; a short retraining checks the
+    whole path runs (the learning result is the slow test's job)."""
+    run = true_cartpole_reward(tmp_path / "true-reward")
+    result = run_cli(
+        "eval", "reward", str(run), "--env", CARTPOLE, "--demos", str(DATASETS / "CartPoleFixedHorizon-v0.mcap"),
+        "--retrain-steps", "4096", "--seeds", "1", "--out", str(tmp_path / "eval"), "--json", "--quiet", timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["epic"] < 0.02 and report["pearson"] > 0.99
+    assert report["controls"]["random"]["epic"] > 0.3
+    assert report["references"]["expert_return"] == pytest.approx(500.0)
+    assert len(report["retrain"]["seed_returns"]) == 1 and report["retrain"]["steps"] == 4096
+    assert {"reward_scatter.png", "state_slices.png", "retrain_returns.png", "report.md"} <= {p.name for p in (tmp_path / "eval").iterdir()}
+
+
+@pytest.mark.slow
+def test_continuous_true_reward_retrains_to_the_expert_and_the_random_control_does_not(tmp_path) -> None:
+    run = true_cartpole_reward(tmp_path / "true-reward")
+    result = run_cli(
+        "eval", "reward", str(run), "--env", CARTPOLE, "--demos", str(DATASETS / "CartPoleFixedHorizon-v0.mcap"),
+        "--seeds", "1", "--out", str(tmp_path / "eval"), "--json", "--quiet", timeout=1200,
+    )
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["retrain"]["normalized"] > 0.9
+    assert report["controls"]["random"]["normalized"] < 0.5 and report["controls"]["constant"]["normalized"] < 0.5
+
+
+def test_bad_input_is_one_line(tmp_path) -> None:
+    not_a_reward = run_cli("eval", "reward", str(tmp_path), "--env", GRIDWORLD)
+    assert not_a_reward.returncode == 1 and not_a_reward.stderr.count("\n") == 1 and "not a finished run directory" in not_a_reward.stderr
+    run = true_gridworld_reward(tmp_path / "true-reward")
+    wrong_env = run_cli("eval", "reward", str(run), "--env", "CartPole-v1")
+    assert wrong_env.returncode == 1 and wrong_env.stderr.count("\n") == 1 and "observation space" in wrong_env.stderr, wrong_env.stderr
+    assert not (run / "eval-reward").exists() and not (run / "eval-reward.partial").exists()
