@@ -211,26 +211,43 @@ def _train_gcl(args: argparse.Namespace) -> int:
 
 def cmd_eval_policy(args: argparse.Namespace) -> int:
     from imitation.envs.make import make_env
-    from imitation.evaluation.policy import evaluate_policy
+    from imitation.evaluation.policy import evaluate_policy, normalized_return, run_demos
     from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
 
     policy = load_policy(args.run)
     env = make_env(args.env)
     check_policy_fits_env(policy, env, args.run)
-    result = evaluate_policy(SingleObservationPolicy(policy, deterministic=not args.stochastic), env, episodes=args.episodes, seed=args.seed)
+    actor = SingleObservationPolicy(policy, deterministic=not args.stochastic)
+    result = evaluate_policy(actor, env, episodes=args.episodes, seed=args.seed)
+    demos = args.demos if args.demos is not None else run_demos(args.run)
+    if demos:
+        result |= normalized_return(result, env, demos, seed=args.seed)
     env.close()
+    if args.video:
+        from imitation.evaluation.video import record_video
+
+        result["video"] = {"path": args.video, **record_video(args.env, actor, args.video, seed=args.seed)}
     result = {"run": args.run, "env_id": args.env, "deterministic": not args.stochastic, **result}
     if args.json:
         _print_json(result)
-    else:
-        print(f"{args.run} on {args.env}: mean return {result['mean_return']:.2f} ± {result['std_return']:.2f} "
-              f"(min {result['min_return']:.2f}, max {result['max_return']:.2f}) over {args.episodes} episodes")
+        return 0
+    print(f"{args.run} on {args.env}: mean return {result['mean_return']:.2f} ± {result['std_return']:.2f} "
+          f"(min {result['min_return']:.2f}, max {result['max_return']:.2f}) over {args.episodes} episodes")
+    if "normalized_return" in result:
+        reference = result["reference"]
+        print(f"normalised return {result['normalized_return']:.3f} (0 = uniform random actions, {reference['random_return']:.2f}; "
+              f"1 = the demos, {reference['expert_return']:.2f})")
+    if args.video:
+        print(f"video of episode 0 (return {result['video']['return']:.2f}): {args.video}")
     return 0
 
 
 def cmd_eval_reward(args: argparse.Namespace) -> int:
+    import torch
+
     from imitation.evaluation.reward import RewardEvaluationConfig, evaluate_reward
 
+    torch.set_num_threads(1)  # EPIC's many small reward calls; measured 2-10x faster than 2 threads on 2 busy cores
     config = RewardEvaluationConfig(retrain_steps=args.retrain_steps, seeds=args.seeds, demos=args.demos, jobs=args.jobs, seed=args.seed)
     out = args.out or str(Path(args.run) / "eval-reward")
     result = evaluate_reward(args.run, args.env, config, out, progress=not args.quiet)
@@ -384,6 +401,8 @@ def build_parser() -> argparse.ArgumentParser:
     policy.add_argument("--episodes", type=int, default=10, metavar="N", help="episodes (default: 10)")
     policy.add_argument("--seed", type=int, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
     policy.add_argument("--stochastic", action="store_true", help="sample actions instead of taking the most likely one")
+    policy.add_argument("--demos", nargs="+", metavar="F.mcap", help="demos whose mean return is the normalised score's 1 (default: those the run learnt from)")
+    policy.add_argument("--video", metavar="FILE.mp4|.gif", help="also write episode 0 (seed S) as a video")
     policy.add_argument("--json", action="store_true", help="print one JSON object")
     policy.set_defaults(handler=cmd_eval_policy)
 
