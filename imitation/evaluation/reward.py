@@ -197,6 +197,7 @@ def _evaluate_continuous(
             "normalized": normalized(float(np.mean(returns)), random_return, expert_return) if returns else None,
             "seed_returns": returns,
             "seed_normalized": [normalized(value, random_return, expert_return) for value in returns],
+            "seed_runs": [str(Path(result["run"]).relative_to(out)) for result in retrained[name]],
         }
 
     plots: dict[str, str] = {}
@@ -258,7 +259,8 @@ def _results(lenses: dict[str, dict[str, Any]], references: dict[str, Any], *, r
         "epic": learned["epic"],
         "pearson": learned["pearson"],
         "retrain": {"mean_return": learned["mean_return"], "normalized": learned["normalized"], "seeds": seeds, "steps": retrain_steps,
-                    "seed_returns": learned.get("seed_returns", []), "seed_normalized": learned.get("seed_normalized", [])},
+                    "seed_returns": learned.get("seed_returns", []), "seed_normalized": learned.get("seed_normalized", []),
+                    "seed_runs": learned.get("seed_runs", [])},
         "controls": {name: lenses[name] for name in CONTROLS},
         "references": references,
         "coverage": coverage,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,20 @@ def record_video(env_id: str, policy: Policy, path: str | os.PathLike, *, seed: 
     # pygame's renderers need no display for rgb_array frames; without these it complains on stderr.
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
     os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="pkg_resources is deprecated")  # raised by importing pygame; harmless
+        frames, episode_return, fps = _play(env_id, policy, seed)
+    temporary = path.with_name(f".{path.name}.partial{path.suffix}")
+    try:
+        (_write_gif if path.suffix.lower() == ".gif" else _write_mp4)(temporary, frames, fps)
+        os.replace(temporary, path)
+    except OSError as error:
+        temporary.unlink(missing_ok=True)
+        raise ImitationError(f"--video {path}: cannot write: {error.strerror or error}") from None
+    return {"return": episode_return, "frames": len(frames), "fps": fps}
+
+
+def _play(env_id: str, policy: Policy, seed: int) -> tuple[list[np.ndarray], float, float]:
     env = make_env(env_id, render_mode="rgb_array")
     try:
         frames, episode_return = [], 0.0
@@ -34,17 +49,9 @@ def record_video(env_id: str, policy: Policy, path: str | os.PathLike, *, seed: 
             episode_return += float(reward)
             frames.append(_frame(env.render(), env_id))
             done = terminated or truncated
-        fps = float(env.metadata.get("render_fps") or 30)
+        return frames, episode_return, float(env.metadata.get("render_fps") or 30)
     finally:
         env.close()
-    temporary = path.with_name(f".{path.name}.partial{path.suffix}")
-    try:
-        (_write_gif if path.suffix.lower() == ".gif" else _write_mp4)(temporary, frames, fps)
-        os.replace(temporary, path)
-    except OSError as error:
-        temporary.unlink(missing_ok=True)
-        raise ImitationError(f"--video {path}: cannot write: {error.strerror or error}") from None
-    return {"return": episode_return, "frames": len(frames), "fps": fps}
 
 
 def _frame(frame: object, env_id: str) -> np.ndarray:
