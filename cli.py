@@ -460,7 +460,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return handler(args)
     except ImitationError as error:
-        print(f"error: {error}", file=sys.stderr)
+        # One line even if a message quotes a multi-line error from another library.
+        print("error: " + " ".join(line.strip() for line in str(error).splitlines() if line.strip()), file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
