@@ -22,7 +22,7 @@ from imitation.algorithms.maxent_irl import (
     MaxEntIRLConfig, Dynamics, all_state_rewards, demo_visitation, expected_return, train_maxent_irl,
 )
 from imitation.algorithms.ppo import PPOConfig, Rollout, train_ppo
-from imitation.data.loader import load_transitions, split_episodes, transitions_to_torch
+from imitation.data.loader import check_episodes_finite, load_transitions, split_episodes, transitions_to_torch
 from imitation.data.spaces import check_spaces_fit
 from imitation.data.store import DemoDataset
 from imitation.envs.make import make_env
@@ -182,7 +182,9 @@ def tabular_irl_job(demos: list[str], env_id: str, config: MaxEntIRLConfig, out:
         dataset = DemoDataset(demos)
         _check_demos_fit_env(dataset, env)
         observation_space, action_space = env.observation_space, env.action_space
-    occupancy_target = demo_visitation(dataset.read_episodes(), n_states=mdp.n_states, horizon=mdp.horizon, discount=config.discount)
+    demo_episodes = dataset.read_episodes()
+    check_episodes_finite(demo_episodes, dataset)
+    occupancy_target = demo_visitation(demo_episodes, n_states=mdp.n_states, horizon=mdp.horizon, discount=config.discount)
     model = make_reward_model(observation_space, action_space, feature_table=mdp.features, hidden_sizes=list(config.hidden_sizes))
 
     with RunWriter(out, config={

@@ -57,6 +57,8 @@ class BCConfig:
         for name in ("epochs", "batch_size", "patience"):
             if getattr(self, name) < 1:
                 raise ImitationError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if not 0 < self.learning_rate < 1e30:  # NaN fails too; from ~1e37 Adam's step overflows float32
+            raise ImitationError(f"--lr must be a positive number below 1e30, got {self.learning_rate}")
 
 
 def bc_loss(policy: ActorCritic, batch: TransitionTensors, config: BCConfig) -> tuple[torch.Tensor, dict[str, float]]:

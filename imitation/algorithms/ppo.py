@@ -88,6 +88,8 @@ class PPOConfig:
                 raise ImitationError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.total_steps < self.n_envs * self.n_steps:
             raise ImitationError(f"--steps {self.total_steps} is less than one rollout ({self.n_envs} envs × {self.n_steps} steps)")
+        if not 0 < self.learning_rate < 1e30:  # NaN fails too; from ~1e37 Adam's step overflows float32
+            raise ImitationError(f"learning_rate must be a positive number below 1e30, got {self.learning_rate}")
 
     @staticmethod
     def from_json(data: dict[str, Any]) -> PPOConfig:
@@ -215,6 +217,21 @@ def make_vector_env(
     return gym.vector.SyncVectorEnv([factory] * n_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
 
 
+def check_finite_step(env_id: str, step: int, copies: np.ndarray | None = None, **values: np.ndarray) -> None:
+    """NaN or ±inf from the environment stops training where it enters, naming the env step,
+    instead of poisoning the normaliser and surfacing later as a NaN loss. `step` counts the
+    vector env's steps before this one (env copy i's step is step + i + 1); row j of each array
+    belongs to env copy `copies[j]` (default: j)."""
+    for what, array in values.items():
+        if array.dtype.kind == "f" and not np.isfinite(array).all():
+            row = int(np.argmin(np.isfinite(array).reshape(len(array), -1).all(axis=1)))
+            copy = int(copies[row]) if copies is not None else row
+            raise ImitationError(
+                f"{env_id}: the environment returned a non-finite {what.replace('_', ' ')} at env step {step + copy + 1} "
+                f"(env copy {copy}); PPO needs finite observations and rewards"
+            )
+
+
 def finished_episode_returns(info: dict[str, Any]) -> list[float]:
     """True returns of the episodes that ended at this vector step."""
     final = info.get("final_info", {})
@@ -337,6 +354,7 @@ def _train(
     global_step = 0
 
     observations, _ = envs.reset(seed=config.seed)
+    check_finite_step(config.env_id, -1, observation=observations)
     bar = tqdm(total=n_updates * rollout_size, desc=f"ppo {config.env_id}", unit="step", disable=None if progress else True, dynamic_ncols=True)
     for update in range(n_updates):
         if config.anneal_lr:
@@ -361,6 +379,7 @@ def _train(
             observations, reward, term, trunc, info = envs.step(env_action)
             tick = time.perf_counter()
             timers["env"] += tick - tock
+            check_finite_step(config.env_id, global_step + t * n_envs, observation=observations, reward=np.asarray(reward))
             recent_returns.extend(finished_episode_returns(info))
             env_rewards[t] = torch.as_tensor(reward, dtype=torch.float32, device=device)
             terminated[t] = torch.as_tensor(term, device=device)
@@ -369,8 +388,9 @@ def _train(
             ended = np.flatnonzero(term | trunc)
             if ended.size:
                 # The episode's true final state (the env has already reset to a new one).
-                final = torch.as_tensor(np.stack([info["final_obs"][i] for i in ended]), device=device)
-                next_observations[t, torch.as_tensor(ended, device=device)] = final.to(observation_dtype)
+                final = np.stack([info["final_obs"][i] for i in ended])
+                check_finite_step(config.env_id, global_step + t * n_envs, ended, final_observation=final)
+                next_observations[t, torch.as_tensor(ended, device=device)] = torch.as_tensor(final, device=device).to(observation_dtype)
             if trunc.any():
                 # Bootstrap truncated episodes from their true final state, not the reset state.
                 with torch.no_grad():
@@ -384,6 +404,8 @@ def _train(
                 log_probs=log_probs, env_rewards=env_rewards, terminated=terminated, truncated=truncated,
             )
             optimised = rollout_rewards(rollout, policy).detach().to(device=device, dtype=torch.float32).reshape(n_steps, n_envs)
+            if not torch.isfinite(optimised).all():
+                raise ImitationError(f"PPO update {update + 1}/{n_updates}: the learned reward is NaN or infinite on this rollout")
         else:
             optimised = env_rewards
         dones = (terminated | truncated).cpu().numpy()

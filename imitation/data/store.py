@@ -49,7 +49,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 from imitation import __version__
 from imitation.data.spaces import LeafPath, space_from_json, space_leaves, space_to_json, spaces_equal
-from imitation.data.types import Episode, Tree, check_fits_space, tree_from_leaves, tree_leaves
+from imitation.data.types import Episode, Tree, check_fits_space, first_nonfinite, tree_from_leaves, tree_leaves
 from imitation.errors import DemoFileError, ImitationError
 
 FORMAT_VERSION = 1
@@ -223,6 +223,10 @@ class DemoWriter:
 
     With `durable=True` every episode is flushed (and fsync'd) as its own chunk as soon as it is
     written, so if the process is killed, `<path>.partial` holds every finished episode.
+
+    NaN and ±inf in float observations, actions or rewards are refused where they enter, with the
+    episode and step named; `finite_only=False` stores them as they are (bit-exact round trips of
+    any data), and learners then refuse the file when they load it.
     """
 
     def __init__(
@@ -239,8 +243,10 @@ class DemoWriter:
         durable: bool = False,
         chunk_size: int = 1024 * 1024,
         compression: str = "zstd",
+        finite_only: bool = True,
     ) -> None:
         self.path = Path(path)
+        self._finite_only = finite_only
         self.partial_path = self.path.with_name(self.path.name + ".partial")
         self.observation_space = observation_space
         self.action_space = action_space
@@ -296,8 +302,14 @@ class DemoWriter:
         check_fits_space(episode.observations, self.observation_space, "observations")
         check_fits_space(episode.actions, self.action_space, "actions")
         rewards = np.asarray(episode.rewards, dtype=np.float64)
-        if not np.all(np.isfinite(rewards)):
-            raise ImitationError(f"episode {len(self._facts)}: rewards contain NaN or infinity")
+        if self._finite_only:
+            for what, tree in (("observation", episode.observations), ("action", episode.actions), ("reward", rewards)):
+                if found := first_nonfinite(tree, what):
+                    step, name, value = found
+                    raise ImitationError(
+                        f"{self.path}: episode {len(self._facts)}, step {step}: the {name} is {value}; "
+                        "demo files hold finite observations, actions and rewards only"
+                    )
         times, time_shift_ns = self._episode_times(episode)
         columns: list[tuple[_Field, np.ndarray]] = []
         for f in self._fields:
@@ -1035,6 +1047,11 @@ class DemoDataset:
     @property
     def num_transitions(self) -> int:
         return sum(f.num_transitions for f in self.files)
+
+    def locate(self, k: int) -> tuple[DemoFile, int]:
+        """The file that holds dataset-wide episode k, and k's index within that file."""
+        file_index = int(np.searchsorted(self._offsets, k, side="right")) - 1
+        return self.files[file_index], k - int(self._offsets[file_index])
 
     def __getitem__(self, k: int) -> Episode:
         if not -len(self) <= k < len(self):
