@@ -36,6 +36,8 @@ def npz_to_episodes(path: str | Path) -> Converted:
         archive = np.load(path, allow_pickle=False)
     except (OSError, ValueError, zipfile.BadZipFile) as error:
         raise ImitationError(f"{path}: not a readable npz file ({error})") from None
+    if not isinstance(archive, np.lib.npyio.NpzFile):
+        raise ImitationError(f"{path}: a single .npy array, not an npz archive of named arrays")
     with archive:
         keys = set(archive.files)
 
@@ -88,6 +90,8 @@ def _imitation(path: Path, data: dict[str, np.ndarray]) -> Converted:
             f"{path}: inconsistent trajectories: {count} terminal flags need {count - 1} indices and "
             f"len(obs) = len(acts) + {count}; got {len(indices)} indices, {len(obs)} obs, {len(acts)} acts"
         )
+    if np.any(np.diff(np.concatenate([[0], indices, [len(acts)]])) < 0):
+        raise ImitationError(f"{path}: indices must be increasing split points within acts (0..{len(acts)})")
     rewards = data.get("rews")
     if rewards is not None and len(rewards) != len(acts):
         raise ImitationError(f"{path}: rews has {len(rewards)} rows, acts {len(acts)}")
