@@ -109,9 +109,26 @@ def test_export_refuses_a_non_empty_folder(tmp_path: Path) -> None:
     from imitation.data.export.lerobot import export_lerobot
 
     space = gym.spaces.Box(-1, 1, shape=(2,), dtype=np.float32)
-    source = write_episodes(tmp_path / "d.mcap", [], env_id="", observation_space=space, action_space=space)
+    empty = write_episodes(tmp_path / "empty.mcap", [], env_id="", observation_space=space, action_space=space)
+    with pytest.raises(ImitationError, match="holds no episode"):
+        export_lerobot(empty, tmp_path / "new", progress=False)
+    episode = Episode(observations=np.zeros((3, 2), np.float32), actions=np.zeros((2, 2), np.float32), rewards=np.zeros(2))
+    source = write_episodes(tmp_path / "d.mcap", [episode], env_id="", observation_space=space, action_space=space)
     (tmp_path / "taken").mkdir()
     (tmp_path / "taken" / "notes.txt").write_text("mine")
     with pytest.raises(ImitationError, match="not an empty folder"):
         export_lerobot(source, tmp_path / "taken", progress=False)
-    assert (tmp_path / "taken" / "notes.txt").read_text() == "mine"
+    assert (tmp_path / "taken" / "notes.txt").read_text() == "mine" and not (tmp_path / "new").exists()
+
+
+def test_one_value_features_keep_their_shape(tmp_path: Path) -> None:
+    """A LeRobot feature of shape (1,) (here a float action) stays a (1,) Box, not a scalar."""
+    from imitation.data.export.lerobot import export_lerobot
+
+    episode = Episode(observations=np.arange(4, dtype=np.float32).reshape(4, 1), actions=np.full((3, 1), 0.5, np.float32), rewards=np.ones(3))
+    space = gym.spaces.Box(-5, 5, shape=(1,), dtype=np.float32)
+    export_lerobot(write_episodes(tmp_path / "d.mcap", [episode], env_id="", observation_space=space, action_space=space), tmp_path / "ds", progress=False)
+    (tmp_path / "ds" / "meta" / "imitation.json").unlink()  # as if another tool had written it
+    converted = lerobot_to_episodes(tmp_path / "ds", progress=False)
+    assert converted.observation_space.shape == converted.action_space.shape == (1,)
+    assert converted.episodes[0].actions.tolist() == [[0.5]] * 3 and converted.episodes[0].rewards.tolist() == [1.0] * 3

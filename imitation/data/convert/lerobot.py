@@ -160,18 +160,15 @@ def _column(column: Any) -> np.ndarray:
 
 
 def _shaped(values: np.ndarray, feature: dict[str, Any]) -> np.ndarray:
-    """Rows of the feature's declared shape; (1,)-shaped features become one value per row."""
-    shape = tuple(feature.get("shape") or ())
-    if shape in ((), (1,)):
-        return values.reshape(len(values))
-    return values.reshape((len(values), *shape))
+    """Rows of the feature's declared shape (lerobot hands (1,)-shaped features over as scalars)."""
+    return values.reshape((len(values), *(feature.get("shape") or (1,))))
 
 
 def _build(
     root: Path, version: str, fps: float, features: dict[str, Any], observation_keys: list[str], action_key: str,
     columns: dict[str, np.ndarray], warnings: list[str],
 ) -> Converted:
-    episode_index = columns["episode_index"].astype(np.int64)
+    episode_index = columns["episode_index"].reshape(-1).astype(np.int64)
     starts = np.flatnonzero(np.diff(episode_index, prepend=episode_index[0] - 1) != 0)
     bounds = np.append(starts, len(episode_index))
     sidecar = _sidecar(root, [int(b - a) for a, b in zip(bounds[:-1], bounds[1:])], warnings)
@@ -187,8 +184,8 @@ def _build(
     actions = cast_rows(columns[action_key], action_space, f"{root}: action") if not isinstance(action_space, gym.spaces.Dict) else None
     if actions is None:
         raise ImitationError(f"{root}: Dict action spaces are not supported")
-    rewards = columns.get("next.reward")
-    done = columns.get("next.done")
+    rewards = columns["next.reward"].reshape(-1) if "next.reward" in columns else None
+    done = columns["next.done"].reshape(-1) if "next.done" in columns else None
     episodes = []
     for k, (start, end) in enumerate(zip(bounds[:-1], bounds[1:])):
         steps = int(end - start) - 1

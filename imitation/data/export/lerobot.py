@@ -14,7 +14,6 @@ gives the same demos. fps is 1/dt rounded to an integer (LeRobot stores an integ
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 from pathlib import Path
@@ -43,6 +42,8 @@ def export_lerobot(demo_path: str | os.PathLike, out_dir: str | os.PathLike, *, 
 
     The dataset is built in `<out_dir>.partial` and renamed when lerobot has finalized it."""
     demo = DemoFile(demo_path)
+    if len(demo) == 0:
+        raise ImitationError(f"{demo.path}: holds no episode to export")
     out = Path(out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise ImitationError(f"{out}: exists and is not an empty folder; choose a new folder for the dataset")
@@ -78,7 +79,7 @@ def export_lerobot(demo_path: str | os.PathLike, out_dir: str | os.PathLike, *, 
             "dt": demo.dt, "source": demo.source, "user_metadata": demo.user_metadata,
             "features": {"observation": {"/".join(p): n for p, n in observation_names.items()}, "action": {"/".join(p): n for p, n in action_names.items()}},
             "episodes": [{"length": f.length, "terminated": f.terminated, "truncated": f.truncated, "metadata": f.metadata} for f in demo.episodes],
-        }, ) + "\n")
+        }) + "\n")
         if out.exists():
             out.rmdir()  # empty, checked above
         os.replace(partial, out)
