@@ -8,10 +8,7 @@ import pytest
 import torch
 from helpers import random_episode
 
-from imitation.data.loader import (
-    MinibatchLoader, load_transitions, resolve_device, split_episode_tails, split_episodes, transitions_to_torch,
-)
-from imitation.data.types import episodes_to_transitions
+from imitation.data.loader import MinibatchLoader, load_transitions, resolve_device, split_episodes, transitions_to_torch
 from imitation.data.store import DemoDataset, write_episodes
 from imitation.errors import ImitationError
 
@@ -130,11 +127,3 @@ def test_uncompressed_files_load_the_same(tmp_path) -> None:
     np.testing.assert_array_equal(packed.observations, plain.observations)
     np.testing.assert_array_equal(packed.next_observations, plain.next_observations)
     assert plain.observations.flags.owndata  # a copy: the mapped file may change after loading
-
-
-def test_episode_tails_for_data_with_too_few_episodes() -> None:
-    episodes = [random_episode(BOX, ACTIONS, length, seed=length) for length in (10, 1, 5)]
-    train, validation = split_episode_tails(episodes_to_transitions(episodes), validation_fraction=0.2)
-    # The last 2 of 10 steps and the last 1 of 5; a 1-step episode keeps its only step for training.
-    assert validation.tolist() == [8, 9, 15] and sorted(train.tolist() + validation.tolist()) == list(range(16))
-    assert split_episode_tails(episodes_to_transitions(episodes), validation_fraction=0.0)[1].size == 0
