@@ -90,6 +90,63 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_warnings(warnings: list[str]) -> None:
+    for warning in warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+
+
+def cmd_convert(args: argparse.Namespace) -> int:
+    from imitation.data.convert.job import convert, inspect
+
+    if args.inspect or args.write_map:
+        if args.out or args.map or args.env:
+            args.parser.error("--inspect lists a bag's topics; it takes no --out, --map or --env")
+        report = inspect(args.source, source=args.source_kind, write_map=args.write_map, ros_distro=args.ros_distro)
+        _print_warnings(report["warnings"])
+        if args.json:
+            _print_json(report)
+        else:
+            from imitation.data.convert.inspect import format_report
+
+            print(format_report(report))
+            if report["map"]:
+                print(f"wrote a starter map to {report['map']}; edit it, then: imitation convert {args.source} --map {report['map']} --out demos.mcap")
+        return 0
+    if not args.out:
+        args.parser.error("--out F.mcap is required (or --inspect to list a bag's topics)")
+    result = convert(
+        args.source, args.out, source=args.source_kind, map_path=args.map, env_id=args.env, ros_distro=args.ros_distro, progress=not args.quiet,
+    )
+    _print_warnings(result["warnings"])
+    if args.json:
+        _print_json(result)
+    else:
+        print(f"converted {result['from']} {args.source} to {result['out']}: {result['episodes']} episodes, {result['transitions']} transitions; "
+              f"observation {result['observation_space']}, action {result['action_space']}; env {result['env_id'] or '- (none: offline demos)'}")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    target, destination = args.to
+    if target == "lerobot":
+        from imitation.data.export.lerobot import export_lerobot
+
+        result = export_lerobot(args.file, destination, progress=not args.quiet)
+        summary = f"{result['episodes']} episodes, {result['frames']} frames at {result['fps']} fps (LeRobotDataset v3.0)"
+    elif target == "foxglove":
+        from imitation.data.export.foxglove import export_foxglove
+
+        result = export_foxglove(args.file, destination, progress=not args.quiet)
+        summary = f"{result['episodes']} episodes, {result['messages']} JSON messages on {', '.join(result['topics'])}"
+    else:
+        raise ImitationError(f"--to {target}: unknown format; use lerobot DIR or foxglove F2.mcap")
+    if args.json:
+        _print_json(result)
+    else:
+        print(f"exported {args.file} to {destination}: {summary}")
+    return 0
+
+
 def cmd_train_ppo(args: argparse.Namespace) -> int:
     from imitation.algorithms.ppo import PPOConfig, learned_reward_ppo_defaults, ppo_defaults
     from imitation.envs.make import make_env
@@ -138,6 +195,10 @@ def cmd_train_bc(args: argparse.Namespace) -> int:
     result = bc_job(args.demos, args.env, config, args.out, progress=not args.quiet)
     if args.json:
         _print_json(result)
+    elif result["offline"]:
+        print(f"trained BC offline (no --env, so no rollouts) on {result['train_transitions']} transitions for {result['epochs']} epochs "
+              f"(best {result['best_epoch']}); validation loss {result['best_validation_loss']:.4f} on {result['validation_transitions']} "
+              f"held-out transitions; run: {result['run']}")
     else:
         evaluation = result["eval"]
         print(f"trained BC on {result['train_transitions']} transitions for {result['epochs']} epochs (best {result['best_epoch']}, "
@@ -319,6 +380,40 @@ def build_parser() -> argparse.ArgumentParser:
     info.add_argument("--json", action="store_true", help="print one JSON object")
     info.set_defaults(handler=cmd_info)
 
+    convert = commands.add_parser(
+        "convert",
+        help="convert a ROS bag, a LeRobot dataset or npz rollouts into an MCAP demo file",
+        description="Convert recordings into an MCAP demo file. ROS bags (ROS 2 .mcap file or rosbag2 directory, ROS 1 .bag, "
+        "rosbag2 sqlite directory) need a map (YAML: topics and fields for the observation and action, rate, alignment, "
+        "episodes; see docs/CONVERT.md); --inspect lists a bag's topics and numeric fields and --write-map writes a starter "
+        "map. LeRobot datasets (v3.0, v2.1) and npz rollouts (stable-baselines GAIL, HumanCompatibleAI/imitation) convert "
+        "without a map. Video and image features are skipped with a warning.",
+    )
+    convert.add_argument("source", metavar="SRC", help="a .mcap bag or rosbag2 folder, a ROS 1 .bag, a LeRobot dataset root, or an .npz file")
+    convert.add_argument("--from", dest="source_kind", metavar="KIND", help="ros2, ros1, lerobot or npz (default: recognised from SRC)")
+    convert.add_argument("--map", metavar="MAP.yaml", help="for bags: which topics and fields form the observation and the action")
+    convert.add_argument("--out", metavar="F.mcap", help="output demo file (written atomically)")
+    convert.add_argument("--env", metavar="ID", help="gymnasium id the demos belong to: its spaces are used (overrides the map's env_id)")
+    convert.add_argument("--inspect", action="store_true", help="list a bag's topics, types, counts, rates and numeric fields; convert nothing")
+    convert.add_argument("--write-map", metavar="MAP.yaml", help="with --inspect: also write a starter map to edit")
+    convert.add_argument("--ros-distro", default="latest", metavar="NAME", help="message definitions for rosbag2 sqlite bags that carry none (recorded before Iron): foxy, humble, ... (default: latest)")
+    convert.add_argument("--json", action="store_true", help="print one JSON object with the results")
+    convert.add_argument("--quiet", action="store_true", help="no progress bar")
+    convert.set_defaults(handler=cmd_convert, parser=convert)
+
+    export = commands.add_parser(
+        "export",
+        help="export a demo file as a LeRobotDataset v3.0 or a per-step MCAP Foxglove can plot",
+        description="Export an MCAP demo file: `--to lerobot DIR` writes a LeRobotDataset (codebase v3.0) that "
+        "lerobot's LeRobotDataset loads; `--to foxglove F2.mcap` writes one JSON message per step, with a JSON schema, "
+        "for plotting in Foxglove.",
+    )
+    export.add_argument("file", metavar="F.mcap", help="demo file")
+    export.add_argument("--to", nargs=2, required=True, metavar=("FORMAT", "DEST"), help="lerobot DIR, or foxglove F2.mcap")
+    export.add_argument("--json", action="store_true", help="print one JSON object with the results")
+    export.add_argument("--quiet", action="store_true", help="no progress bar")
+    export.set_defaults(handler=cmd_export)
+
     train = commands.add_parser("train", help="train a policy or reward model", description="Train a policy or reward model into a run directory.")
     algorithms = train.add_subparsers(dest="algorithm", required=True, metavar="ALGORITHM")
     ppo = algorithms.add_parser(
@@ -343,10 +438,12 @@ def build_parser() -> argparse.ArgumentParser:
         "bc",
         help="behavioural cloning on MCAP demos",
         description="Behavioural cloning: fit a policy to the demos' (observation, action) pairs. Whole episodes are "
-        "held out for validation; training stops early when the validation loss stops improving.",
+        "held out for validation (offline, a single recording holds out the last steps of each episode instead); "
+        "training stops early when the validation loss stops improving.",
     )
     bc.add_argument("--demos", required=True, nargs="+", metavar="F.mcap", help="one or more demo files of the same env")
-    bc.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id (for spaces and evaluation)")
+    bc.add_argument("--env", metavar="ID", help="gymnasium environment id (for spaces and evaluation); without it BC trains "
+                    "offline on the demos' own spaces and reports the validation loss only")
     bc.add_argument("--epochs", type=int, default=300, metavar="N", help="maximum epochs (default: 300)")
     bc.add_argument("--batch-size", type=int, default=256, metavar="B", help="minibatch size (default: 256)")
     bc.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (default: 1e-3)")

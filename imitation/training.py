@@ -6,7 +6,7 @@ The CLI calls these; learners in imitation.algorithms know nothing of run direct
 from __future__ import annotations
 
 import os
-from contextlib import closing
+from contextlib import closing, nullcontext
 from typing import Any
 
 import gymnasium as gym
@@ -22,7 +22,7 @@ from imitation.algorithms.maxent_irl import (
     MaxEntIRLConfig, Dynamics, all_state_rewards, demo_visitation, expected_return, train_maxent_irl,
 )
 from imitation.algorithms.ppo import PPOConfig, Rollout, train_ppo
-from imitation.data.loader import check_episodes_finite, load_transitions, split_episodes, transitions_to_torch
+from imitation.data.loader import TransitionTensors, check_episodes_finite, load_transitions, split_episode_tails, split_episodes, transitions_to_torch
 from imitation.data.spaces import check_spaces_fit
 from imitation.data.store import DemoDataset
 from imitation.envs.make import make_env
@@ -53,31 +53,38 @@ def _check_demos_fit_env(dataset: DemoDataset, env: gym.Env) -> None:
     check_spaces_fit("demos'", dataset.observation_space, dataset.action_space, env, where=str(first))
 
 
-def bc_job(demos: list[str], env_id: str, config: BCConfig, out: str | os.PathLike, *, progress: bool = True) -> dict[str, Any]:
-    """Behavioural cloning on `demos` into run directory `out`."""
-    env = make_env(env_id)
+def bc_job(demos: list[str], env_id: str | None, config: BCConfig, out: str | os.PathLike, *, progress: bool = True) -> dict[str, Any]:
+    """Behavioural cloning on `demos` into run directory `out`.
+
+    Without `env_id` it trains offline (recordings with no simulator behind them): the policy
+    takes the demos' own spaces and the run reports the validation loss only, no returns."""
     dataset = DemoDataset(demos)
-    _check_demos_fit_env(dataset, env)
-    policy = make_policy(env.observation_space, env.action_space, **policy_options(config))
+    env = make_env(env_id) if env_id else None
+    if env is not None:
+        _check_demos_fit_env(dataset, env)
+    elif dataset.num_transitions == 0:
+        raise ImitationError(f"{dataset.files[0].path}: the demos hold no transitions (no episode, or only empty ones)")
+    spaces = env if env is not None else dataset
+    policy = make_policy(spaces.observation_space, spaces.action_space, **policy_options(config))
     config.validate(policy.is_continuous)
-    train_ids, validation_ids = split_episodes(len(dataset), validation_fraction=config.validation_fraction, seed=config.seed)
-    train = transitions_to_torch(load_transitions(dataset, episodes=train_ids, next_observations=False))
-    validation = transitions_to_torch(load_transitions(dataset, episodes=validation_ids, next_observations=False)) if validation_ids else None
+    train, validation, split = _bc_split(dataset, config, offline=env is None)
 
     def env_return(candidate: ActorCritic) -> float:
         return evaluate_policy(SingleObservationPolicy(candidate), env, episodes=5, seed=EVAL_SEED)["mean_return"]
 
-    with closing(env), RunWriter(out, config={
-        "kind": "bc", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "demos": [str(p) for p in demos],
-        "bc": vars(config).copy(), "policy": policy.config.to_json(),
-        "split": {"train_episodes": train_ids, "validation_episodes": validation_ids},
+    with closing(env) if env is not None else nullcontext(), RunWriter(out, config={
+        "kind": "bc", "env_id": env_id, "offline": env is None, "demos_env_id": dataset.env_id, "creator": f"imitation-mcap {__version__}",
+        "demos": [str(p) for p in demos], "bc": vars(config).copy(), "policy": policy.config.to_json(), "split": split,
     }, x_axis="epoch") as run:
-        result = train_bc(policy, train, validation, config, evaluate=env_return, log=run.log, progress=progress)
+        result = train_bc(policy, train, validation, config, evaluate=env_return if env is not None else None, log=run.log, progress=progress)
         run.save_weights(policy_tensors(result.policy.cpu()))
-        plot_curve(run.file("loss_curve.png"), run.history, x="epoch", ys=["train_loss", "validation_loss"], title=f"BC on {env_id}: loss")
-        plot_curve(run.file("return_curve.png"), run.history, x="epoch", ys=["return"], title=f"BC on {env_id}: return")
+        title = f"BC on {env_id or dataset.env_id or 'offline demos'}"
+        plot_curve(run.file("loss_curve.png"), run.history, x="epoch", ys=["train_loss", "validation_loss"], title=f"{title}: loss")
+        if env is not None:
+            plot_curve(run.file("return_curve.png"), run.history, x="epoch", ys=["return"], title=f"{title}: return")
         metrics = {
             "env_id": env_id,
+            "offline": env is None,
             "train_transitions": len(train),
             "validation_transitions": len(validation) if validation is not None else 0,
             "epochs": len(result.history),
@@ -85,10 +92,28 @@ def bc_job(demos: list[str], env_id: str, config: BCConfig, out: str | os.PathLi
             "best_validation_loss": min((row["validation_loss"] for row in result.history), default=None),
             "seconds": result.seconds,
             "samples_per_second": result.history[-1]["samples_per_second"],
-            "eval": _final_evaluation(result.policy.cpu(), env),
+            "eval": _final_evaluation(result.policy.cpu(), env) if env is not None else None,
         }
         run.finish(metrics)
     return {"run": str(run.path), **metrics}
+
+
+def _bc_split(dataset: DemoDataset, config: BCConfig, *, offline: bool) -> tuple[TransitionTensors, TransitionTensors | None, dict[str, Any]]:
+    """Training and validation transitions: whole episodes held out; offline, where the
+    validation loss is all a run reports, each episode's last steps when there are too few
+    episodes to spare one (a single long recording)."""
+    train_ids, validation_ids = split_episodes(len(dataset), validation_fraction=config.validation_fraction, seed=config.seed)
+    if validation_ids or not offline or config.validation_fraction == 0:
+        train = transitions_to_torch(load_transitions(dataset, episodes=train_ids, next_observations=False))
+        validation = transitions_to_torch(load_transitions(dataset, episodes=validation_ids, next_observations=False)) if validation_ids else None
+        return train, validation, {"train_episodes": train_ids, "validation_episodes": validation_ids}
+    every = load_transitions(dataset, next_observations=False)
+    train_rows, validation_rows = split_episode_tails(every, validation_fraction=config.validation_fraction)
+    tensors = transitions_to_torch(every)
+    validation = tensors.select(torch.from_numpy(validation_rows)) if len(validation_rows) else None
+    return tensors.select(torch.from_numpy(train_rows)), validation, {
+        "episode_tails": config.validation_fraction, "train_transitions": len(train_rows), "validation_transitions": len(validation_rows),
+    }
 
 
 def dagger_job(

@@ -180,6 +180,22 @@ def split_episodes(num_episodes: int, *, validation_fraction: float, seed: int) 
     return sorted(order[num_validation:].tolist()), sorted(order[:num_validation].tolist())
 
 
+def split_episode_tails(transitions: Transitions, *, validation_fraction: float) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of training and validation transitions for data with too few episodes to hold
+    whole ones out (one long recording): the last round(fraction·T) steps of each episode are
+    validation. The held-out block is contiguous, so only its first step neighbours training
+    data; each episode keeps at least one training step."""
+    if not 0.0 <= validation_fraction < 1.0:
+        raise ImitationError(f"validation fraction must be in [0, 1), got {validation_fraction}")
+    starts = np.flatnonzero(np.diff(transitions.episode_index, prepend=transitions.episode_index[:1] - 1) != 0)
+    ends = np.append(starts[1:], len(transitions))
+    validation = np.zeros(len(transitions), dtype=bool)
+    for start, end in zip(starts, ends):
+        held = min(int(round(validation_fraction * (end - start))), end - start - 1)
+        validation[end - held : end] = held > 0
+    return np.flatnonzero(~validation), np.flatnonzero(validation)
+
+
 class MinibatchLoader:
     """Minibatches of transitions, reshuffled every epoch from a seeded generator.
 
@@ -218,6 +234,7 @@ __all__ = [
     "load_episodes",
     "load_transitions",
     "resolve_device",
+    "split_episode_tails",
     "split_episodes",
     "transitions_to_torch",
 ]

@@ -57,7 +57,7 @@ def format_summary(summary: dict[str, Any]) -> str:
 
     lines = [
         f"file:          {summary['file']} ({summary['size_bytes'] / 1e6:.2f} MB, format version {summary['format_version']})",
-        f"env:           {summary['env_id']}  (dt {summary['dt']:g} s)",
+        f"env:           {summary['env_id'] or '- (none: recorded without a simulator)'}  (dt {summary['dt']:g} s)",
         f"episodes:      {summary['episodes']}  ({summary['terminated']} terminated, {summary['truncated']} truncated)",
         f"transitions:   {summary['transitions']}",
         f"return:        {stats_line(summary['return'])}",

@@ -1,0 +1,294 @@
+"""ROS bags as one interface: topics with types, counts and times, and decoded messages in time order.
+
+- ROS 2 MCAP (a `.mcap` file, or a rosbag2 directory whose storage is MCAP): decoded with
+  mcap-ros2-support from the `ros2msg` schemas the file carries.
+- ROS 1 `.bag` and rosbag2 sqlite (a directory with `metadata.yaml` and `.db3` files): read
+  with the `rosbags` package, types from the definitions in the bag; a sqlite bag that carries
+  none (rosbag2 before Iron) is decoded with the message definitions of `ros_distro`.
+
+A topic whose schema cannot be parsed (rosbag2's `*/_service_event` topics carry raw `.srv`
+text) or whose messages do not decode is kept in the listing with a `problem` and skipped by
+`messages()`, so the rest of the bag still converts.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator, Protocol
+
+import yaml
+
+from imitation.errors import ImitationError
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+ROS1_MAGIC = b"#ROSBAG V2.0"
+
+
+@dataclass
+class TopicInfo:
+    """What a bag holds on one topic; times are log times in ns (None without messages)."""
+
+    topic: str
+    type: str
+    count: int = 0
+    first_ns: int | None = None
+    last_ns: int | None = None
+    problem: str | None = None  # why its messages cannot be decoded; None if they can
+
+    @property
+    def rate_hz(self) -> float | None:
+        if self.count < 2 or self.first_ns is None or self.last_ns is None or self.last_ns == self.first_ns:
+            return None
+        return (self.count - 1) / ((self.last_ns - self.first_ns) / 1e9)
+
+
+class Bag(Protocol):
+    path: Path
+    format: str  # "ros2 mcap", "ros1 bag", "rosbag2 sqlite"
+
+    def topics(self) -> dict[str, TopicInfo]:
+        """Every topic, with counts and time range (read from the index or one pass over the bag)."""
+
+    def messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
+        """(topic, log time ns, decoded message) of these topics, in log-time order."""
+
+    def close(self) -> None: ...
+
+
+def open_bag(path: str | Path, kind: str, *, ros_distro: str = "latest") -> Bag:
+    """Open a ROS 2 (`kind="ros2"`) or ROS 1 (`kind="ros1"`) bag; one-line errors otherwise."""
+    path = Path(path)
+    if not path.exists():
+        raise ImitationError(f"{path}: no such file or directory")
+    if kind == "ros1":
+        if path.is_dir() or _starts_with(path, ROS1_MAGIC) is False:
+            hint = "; a rosbag2 directory is a ROS 2 bag (--from ros2)" if path.is_dir() else ""
+            raise ImitationError(f"{path}: not a ROS 1 bag (it does not start with '#ROSBAG V2.0'){hint}")
+        return RosbagsBag(path, "ros1 bag", ros_distro)
+    if kind != "ros2":
+        raise ImitationError(f"unknown bag kind {kind!r}")
+    if path.is_file() and path.suffix == ".db3":
+        path = path.parent
+    if path.is_file():
+        if not _starts_with(path, MCAP_MAGIC):
+            raise ImitationError(f"{path}: not an MCAP file (a ROS 2 bag is a .mcap file or a rosbag2 directory)")
+        return McapBag(path, [path])
+    storage, files = _rosbag2_directory(path)
+    if storage == "sqlite3":
+        return RosbagsBag(path, "rosbag2 sqlite", ros_distro)
+    return McapBag(path, files)
+
+
+def _starts_with(path: Path, magic: bytes) -> bool:
+    try:
+        with open(path, "rb") as stream:
+            return stream.read(len(magic)) == magic
+    except OSError as error:
+        raise ImitationError(f"{path}: cannot read: {error.strerror or error}") from None
+
+
+def _rosbag2_directory(path: Path) -> tuple[str, list[Path]]:
+    """(storage, files) of a rosbag2 directory, from metadata.yaml or, without one, its files."""
+    metadata = path / "metadata.yaml"
+    if metadata.is_file():
+        try:
+            info = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
+            storage = str(info.get("storage_identifier", ""))
+            # Recorders write paths relative to a folder that is often renamed: keep the names.
+            files = [path / Path(name).name for name in info.get("relative_file_paths", [])]
+        except (yaml.YAMLError, KeyError, TypeError) as error:
+            raise ImitationError(f"{metadata}: not a rosbag2 metadata file ({error})") from None
+        if storage not in ("sqlite3", "mcap"):
+            raise ImitationError(f"{metadata}: storage {storage!r} is not supported (sqlite3 or mcap)")
+        missing = [f.name for f in files if not f.is_file()]
+        if missing:
+            raise ImitationError(f"{path}: metadata.yaml lists {', '.join(missing)}, which is missing")
+        return storage, files
+    if sorted(path.glob("*.db3")):
+        raise ImitationError(f"{path}: a sqlite rosbag2 directory needs its metadata.yaml")
+    files = sorted(path.glob("*.mcap"))
+    if not files:
+        raise ImitationError(f"{path}: not a rosbag2 directory (no metadata.yaml, .mcap or .db3 files)")
+    return "mcap", files
+
+
+@contextlib.contextmanager
+def _quiet_stderr() -> Iterator[None]:
+    """mcap-ros2-support's vendored message parser prints to stderr before it raises; the
+    error it raises says the same, and our one-line error contract needs the silence."""
+    with contextlib.redirect_stderr(io.StringIO()):
+        yield
+
+
+class McapBag:
+    """A ROS 2 bag in MCAP files (split bags are read one file after the other)."""
+
+    format = "ros2 mcap"
+
+    def __init__(self, path: Path, files: list[Path]) -> None:
+        from mcap.reader import make_reader
+        from mcap_ros2.decoder import DecoderFactory
+
+        self.path = path
+        self._files = files
+        self._make_reader = make_reader
+        self._factory_type = DecoderFactory
+        self._decoders: dict[str, Callable[[bytes], Any]] = {}
+        self._topics: dict[str, TopicInfo] | None = None
+
+    def topics(self) -> dict[str, TopicInfo]:
+        if self._topics is not None:
+            return self._topics
+        topics: dict[str, TopicInfo] = {}
+        for file in self._files:
+            with self._open(file) as reader:
+                summary = reader.get_summary()
+                for channel in (summary.channels.values() if summary else []):
+                    schema = summary.schemas.get(channel.schema_id)
+                    info = topics.setdefault(channel.topic, TopicInfo(channel.topic, schema.name if schema else "?"))
+                    if info.problem is None and channel.topic not in self._decoders:
+                        info.problem = self._prepare_decoder(channel, schema)
+                for schema, channel, message in reader.iter_messages(log_time_order=False):
+                    info = topics.setdefault(channel.topic, TopicInfo(channel.topic, schema.name if schema else "?"))
+                    if info.count == 0 and info.problem is None and channel.topic not in self._decoders:
+                        info.problem = self._prepare_decoder(channel, schema)
+                    if info.count == 0 and info.problem is None:
+                        info.problem = self._try_decode(channel.topic, message.data)
+                    info.count += 1
+                    info.first_ns = message.log_time if info.first_ns is None else min(info.first_ns, message.log_time)
+                    info.last_ns = message.log_time if info.last_ns is None else max(info.last_ns, message.log_time)
+        self._topics = topics
+        return topics
+
+    def messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
+        wanted = [t for t in topics if self.topics()[t].problem is None]
+        for file in self._files:
+            with self._open(file) as reader:
+                for _, channel, message in reader.iter_messages(topics=wanted, log_time_order=True):
+                    try:
+                        decoded = self._decoders[channel.topic](message.data)
+                    except Exception as error:
+                        raise ImitationError(f"{file}: a message on {channel.topic} at {message.log_time} ns does not decode ({error})") from None
+                    yield channel.topic, message.log_time, decoded
+
+    def close(self) -> None:
+        pass
+
+    @contextlib.contextmanager
+    def _open(self, file: Path) -> Iterator[Any]:
+        try:
+            with open(file, "rb") as stream:
+                yield self._make_reader(stream)
+        except OSError as error:
+            raise ImitationError(f"{file}: cannot read: {error.strerror or error}") from None
+
+    def _prepare_decoder(self, channel: Any, schema: Any) -> str | None:
+        if schema is None or channel.message_encoding != "cdr" or schema.encoding != "ros2msg":
+            return f"not a CDR message with a ros2msg schema (encoding {channel.message_encoding!r})"
+        try:
+            with _quiet_stderr():
+                # A fresh factory: its cache is keyed by schema id, which split files may reuse.
+                decoder = self._factory_type().decoder_for(channel.message_encoding, schema)
+        except Exception as error:
+            return f"its schema {schema.name} cannot be parsed ({type(error).__name__}: {str(error).strip() or 'no detail'})"
+        self._decoders[channel.topic] = decoder
+        return None
+
+    def _try_decode(self, topic: str, data: bytes) -> str | None:
+        try:
+            self._decoders[topic](data)
+        except Exception as error:
+            return f"its messages do not decode ({type(error).__name__}: {error})"
+        return None
+
+
+class RosbagsBag:
+    """A ROS 1 `.bag` or a rosbag2 sqlite directory, through the `rosbags` readers.
+
+    Types are registered connection by connection, so one unparsable definition costs its own
+    topic only (rosbags' AnyReader would refuse the whole bag)."""
+
+    def __init__(self, path: Path, format: str, ros_distro: str) -> None:
+        from rosbags.interfaces import MessageDefinitionFormat
+        from rosbags.rosbag1 import Reader as Reader1
+        from rosbags.rosbag2 import Reader as Reader2
+        from rosbags.typesys import Stores, get_typestore, get_types_from_idl, get_types_from_msg
+
+        self.path = path
+        self.format = format
+        self._ros1 = format == "ros1 bag"
+        try:
+            self._reader = Reader1(path) if self._ros1 else Reader2(path)
+            self._reader.open()
+        except Exception as error:
+            raise ImitationError(f"{path}: cannot open as a {format}: {error}") from None
+        self._typestore = get_typestore(Stores.EMPTY)
+        self._problems: dict[str, str] = {}
+        connections = list(self._reader.connections)
+        if any(c.msgdef.format == MessageDefinitionFormat.NONE for c in connections):
+            store_name = ros_distro if ros_distro == "latest" else f"ros2_{ros_distro}"
+            try:
+                self._typestore.register(get_typestore(Stores(store_name)).fielddefs)
+            except ValueError:
+                names = ", ".join(s.value.removeprefix("ros2_") for s in Stores if s.value.startswith("ros2_"))
+                raise ImitationError(f"--ros-distro {ros_distro!r}: unknown (one of latest, {names})") from None
+        for connection in connections:
+            if connection.msgdef.format == MessageDefinitionFormat.NONE:
+                continue
+            try:
+                if connection.msgdef.format == MessageDefinitionFormat.MSG:
+                    types = get_types_from_msg(connection.msgdef.data, connection.msgtype)
+                else:
+                    types = {}
+                    for part in connection.msgdef.data.split("=" * 80 + "\n"):
+                        idl = part.split("\n", 1)[1] if part.startswith("IDL: ") else part
+                        if idl.strip():
+                            types.update(get_types_from_idl(idl))
+                self._typestore.register(types)
+            except Exception as error:
+                self._problems[connection.topic] = f"its definition of {connection.msgtype} cannot be parsed ({error})"
+        self._connections = connections
+        self._topics: dict[str, TopicInfo] | None = None
+
+    def _deserialize(self, raw: bytes, msgtype: str) -> Any:
+        if self._ros1:
+            return self._typestore.deserialize_ros1(raw, msgtype)
+        return self._typestore.deserialize_cdr(raw, msgtype)
+
+    def topics(self) -> dict[str, TopicInfo]:
+        if self._topics is not None:
+            return self._topics
+        topics: dict[str, TopicInfo] = {}
+        for connection in self._connections:
+            info = topics.setdefault(connection.topic, TopicInfo(connection.topic, connection.msgtype))
+            info.problem = info.problem or self._problems.get(connection.topic)
+        for connection, time_ns, raw in self._reader.messages():
+            info = topics[connection.topic]
+            if info.count == 0 and info.problem is None:
+                try:
+                    self._deserialize(raw, connection.msgtype)
+                except Exception as error:
+                    info.problem = f"its messages do not decode as {connection.msgtype} ({type(error).__name__}: {error})"
+            info.count += 1
+            info.first_ns = time_ns if info.first_ns is None else min(info.first_ns, time_ns)
+            info.last_ns = time_ns if info.last_ns is None else max(info.last_ns, time_ns)
+        self._topics = topics
+        return topics
+
+    def messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
+        wanted = {t for t in topics if self.topics()[t].problem is None}
+        connections = [c for c in self._connections if c.topic in wanted]
+        if not connections:
+            return
+        for connection, time_ns, raw in self._reader.messages(connections=connections):
+            try:
+                decoded = self._deserialize(raw, connection.msgtype)
+            except Exception as error:
+                raise ImitationError(f"{self.path}: a message on {connection.topic} at {time_ns} ns does not decode ({error})") from None
+            yield connection.topic, time_ns, decoded
+
+    def close(self) -> None:
+        self._reader.close()

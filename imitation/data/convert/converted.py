@@ -1,0 +1,129 @@
+"""What every converter returns, how its spaces are chosen, and how it is written.
+
+Without an env id the spaces are inferred from the data: floats → Box(-inf, inf) of that dtype
+and row shape; integer actions of one column (≥ 0) → Discrete(max + 1), of several →
+MultiDiscrete. With an env id the env's own spaces are used (so `train bc --env` and `eval
+policy` accept the demos) and the data is checked and cast to them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+import gymnasium as gym
+import numpy as np
+from tqdm import tqdm
+
+from imitation.data.spaces import describe_space
+from imitation.data.store import DemoWriter
+from imitation.data.types import Episode
+from imitation.errors import ImitationError
+
+
+@dataclass
+class Converted:
+    """Episodes from a foreign source, with their spaces and where they came from."""
+
+    episodes: list[Episode]
+    observation_space: gym.Space
+    action_space: gym.Space
+    source: str  # one line: the format and the file
+    env_id: str = ""  # "" when no simulator is behind the data
+    dt: float | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+
+def box_for(rows: np.ndarray) -> gym.spaces.Box:
+    """An unbounded Box with the dtype (floats) and row shape of `rows` (integers become float32)."""
+    dtype = rows.dtype if rows.dtype.kind == "f" else np.dtype(np.float32)
+    return gym.spaces.Box(low=-np.inf, high=np.inf, shape=rows.shape[1:], dtype=dtype)
+
+
+def infer_action_space(actions: np.ndarray) -> gym.Space:
+    """Discrete for one column of non-negative integers, MultiDiscrete for several, else a Box."""
+    if actions.dtype.kind in "iub" and actions.size and actions.min() >= 0:
+        if actions.ndim == 1 or actions.shape[1:] == (1,):
+            return gym.spaces.Discrete(int(actions.max()) + 1)
+        if actions.ndim == 2:
+            return gym.spaces.MultiDiscrete(actions.max(axis=0).astype(np.int64) + 1)
+    return box_for(actions)
+
+
+def cast_rows(rows: np.ndarray, space: gym.Space, what: str) -> np.ndarray:
+    """`rows` (one row per step) as `space` holds them: dtype and row shape, values checked for
+    discrete spaces; ImitationError names `what` otherwise."""
+    if isinstance(space, gym.spaces.Discrete):
+        flat = rows.reshape(len(rows), -1)
+        if flat.shape[1] != 1:
+            raise ImitationError(f"{what}: rows of {flat.shape[1]} values do not fit {describe_space(space)} (one integer per step)")
+        values = flat[:, 0]
+        if not np.all(np.equal(np.mod(values, 1), 0)):
+            raise ImitationError(f"{what}: non-integer values do not fit {describe_space(space)}")
+        values = values.astype(np.int64)
+        if values.size and (values.min() < space.start or values.max() >= space.start + space.n):
+            raise ImitationError(f"{what}: values {values.min()}..{values.max()} lie outside {describe_space(space)}")
+        return values
+    if isinstance(space, (gym.spaces.Box, gym.spaces.MultiDiscrete, gym.spaces.MultiBinary)):
+        shape = tuple(space.shape)
+        if int(np.prod(rows.shape[1:])) != int(np.prod(shape)):
+            raise ImitationError(f"{what}: rows of shape {list(rows.shape[1:])} do not fit {describe_space(space)}")
+        return rows.reshape((len(rows), *shape)).astype(space.dtype)
+    raise ImitationError(f"{what}: converting into a {type(space).__name__} space is not supported")
+
+
+def fit_to_env(converted: Converted, env_id: str) -> Converted:
+    """Use `env_id`'s spaces (checked against the data), its id, and its step time when the source had none."""
+    from imitation.envs.make import control_period, make_env
+
+    with make_env(env_id) as env:
+        observation_space, action_space, dt = env.observation_space, env.action_space, control_period(env)
+    if isinstance(converted.observation_space, gym.spaces.Dict) or isinstance(converted.action_space, gym.spaces.Dict):
+        raise ImitationError(f"--env {env_id}: demos with Dict spaces cannot be fitted to an env's spaces")
+    episodes = [
+        dataclasses.replace(
+            episode,
+            observations=cast_rows(episode.observations, observation_space, f"observations (for {env_id})"),
+            actions=cast_rows(episode.actions, action_space, f"actions (for {env_id})"),
+        )
+        for episode in converted.episodes
+    ]
+    return dataclasses.replace(
+        converted, episodes=episodes, observation_space=observation_space, action_space=action_space, env_id=env_id,
+        dt=converted.dt or dt,  # a recording's own rate wins over the simulator's step
+    )
+
+
+def write_converted(converted: Converted, out: str | Path, *, progress: bool = True) -> dict[str, Any]:
+    """Write the episodes to demo file `out` (atomically) and describe what was written."""
+    out = Path(out)
+    if out.is_dir():
+        raise ImitationError(f"--out {out}: is a directory; give a file name such as {out / 'demos.mcap'}")
+    if not converted.episodes:
+        raise ImitationError(f"{converted.source}: no episode to write")
+    writer = DemoWriter(
+        out, env_id=converted.env_id, observation_space=converted.observation_space, action_space=converted.action_space,
+        dt=converted.dt, source=converted.source, metadata=converted.metadata,
+    )
+    with writer:
+        for episode in _bar(converted.episodes, progress):
+            writer.write(episode)
+    lengths = [len(episode) for episode in converted.episodes]
+    return {
+        "out": str(out),
+        "source": converted.source,
+        "env_id": converted.env_id,
+        "episodes": len(lengths),
+        "transitions": int(sum(lengths)),
+        "observation_space": describe_space(converted.observation_space),
+        "action_space": describe_space(converted.action_space),
+        "dt": converted.dt,
+        "warnings": converted.warnings,
+    }
+
+
+def _bar(episodes: list[Episode], progress: bool) -> Iterator[Episode]:
+    yield from tqdm(episodes, desc="write", unit="episode", disable=None if progress else True, dynamic_ncols=True)

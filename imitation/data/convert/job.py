@@ -1,0 +1,110 @@
+"""`imitation convert`: recognise the source, run its converter, fit an env, write the demo file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from imitation.data.convert.bags import MCAP_MAGIC, ROS1_MAGIC
+from imitation.data.convert.converted import fit_to_env, write_converted
+from imitation.errors import ImitationError
+
+SOURCES = ("ros2", "ros1", "lerobot", "npz")
+
+
+def detect_source(path: str | Path) -> str:
+    """ros2, ros1, lerobot or npz, from the path's layout and first bytes."""
+    path = Path(path)
+    if not path.exists():
+        raise ImitationError(f"{path}: no such file or directory")
+    if path.is_dir():
+        if (path / "meta" / "info.json").is_file():
+            return "lerobot"
+        if (path / "metadata.yaml").is_file() or any(path.glob("*.mcap")) or any(path.glob("*.db3")):
+            return "ros2"
+        if (path / "meta").is_dir() or (path / "data").is_dir():
+            raise ImitationError(f"{path}: looks like a LeRobot dataset root but has no meta/info.json")
+        raise ImitationError(f"{path}: cannot tell what this folder holds (a rosbag2 directory or a LeRobot dataset root); say it with --from")
+    try:
+        with open(path, "rb") as stream:
+            head = stream.read(16)
+    except OSError as error:
+        raise ImitationError(f"{path}: cannot read: {error.strerror or error}") from None
+    if head.startswith(MCAP_MAGIC) or path.suffix == ".db3":
+        return "ros2"
+    if head.startswith(ROS1_MAGIC):
+        return "ros1"
+    if head.startswith(b"PK") and path.suffix == ".npz":
+        return "npz"
+    raise ImitationError(f"{path}: cannot tell its format (not MCAP, a ROS 1 bag or an npz archive); say it with --from")
+
+
+def _source_kind(path: str | Path, source: str | None) -> str:
+    if source is None:
+        return detect_source(path)
+    if source not in SOURCES:
+        raise ImitationError(f"--from {source}: unknown source; use one of {', '.join(SOURCES)}")
+    if not Path(path).exists():
+        raise ImitationError(f"{path}: no such file or directory")
+    return source
+
+
+def convert(
+    path: str | Path,
+    out: str | Path,
+    *,
+    source: str | None = None,
+    map_path: str | Path | None = None,
+    env_id: str | None = None,
+    ros_distro: str = "latest",
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Convert `path` into demo file `out`; returns what `imitation convert --json` prints."""
+    kind = _source_kind(path, source)
+    if kind in ("ros2", "ros1"):
+        if map_path is None:
+            raise ImitationError(f"{path}: converting a bag needs --map MAP.yaml (`imitation convert {path} --inspect --write-map map.yaml` writes a starter)")
+        from imitation.data.convert.bags import open_bag
+        from imitation.data.convert.maps import load_map
+        from imitation.data.convert.ros import bag_to_episodes
+
+        recording_map = load_map(map_path)
+        env_id = env_id or recording_map.env_id
+        bag = open_bag(path, kind, ros_distro=ros_distro)
+        try:
+            converted = bag_to_episodes(bag, recording_map, progress=progress)
+        finally:
+            bag.close()
+    else:
+        if map_path is not None:
+            raise ImitationError(f"--map is for ROS bags; {path} is a {kind} source")
+        if kind == "lerobot":
+            from imitation.data.convert.lerobot import lerobot_to_episodes
+
+            converted = lerobot_to_episodes(path, progress=progress)
+        else:
+            from imitation.data.convert.npz import npz_to_episodes
+
+            converted = npz_to_episodes(path)
+    # An env named by --env or the map supplies the spaces; a LeRobot sidecar's are exact already.
+    if env_id:
+        converted = fit_to_env(converted, env_id)
+    return {"from": kind, **write_converted(converted, out, progress=progress)}
+
+
+def inspect(path: str | Path, *, source: str | None = None, write_map: str | Path | None = None, ros_distro: str = "latest") -> dict[str, Any]:
+    """Describe a bag's topics and fields; optionally write a starter map."""
+    from imitation.data.convert.bags import open_bag
+    from imitation.data.convert.inspect import inspect_bag, write_starter_map
+
+    kind = _source_kind(path, source)
+    if kind not in ("ros2", "ros1"):
+        raise ImitationError(f"--inspect is for ROS bags; {path} is a {kind} source (convert it directly)")
+    bag = open_bag(path, kind, ros_distro=ros_distro)
+    try:
+        report = inspect_bag(bag)
+    finally:
+        bag.close()
+    report["from"] = kind
+    report["map"] = str(write_starter_map(report, write_map)) if write_map else None
+    return report

@@ -1,0 +1,188 @@
+"""The conversion map: which topics and fields of a bag form the observation, the action and
+(optionally) the reward, at what rate, aligned how, on which clock, cut into episodes how.
+
+    rate_hz: 10                 # resampling rate
+    time: log                   # log (when the bag recorded it) | header (the message's header.stamp)
+    align: hold                 # hold (last value) | interpolate (linear); an entry may override it
+    observation:                # concatenated in this order
+      - {topic: /turtle1/pose, fields: [x, y, theta, linear_velocity, angular_velocity]}
+    action:
+      - {topic: /turtle1/cmd_vel, fields: [linear.x, angular.z], default: 0, max_age: 1.0}
+    reward: {topic: /score, field: data}     # optional; zero rewards without it
+    episodes: {split: file}     # file | {split: gap, seconds: 2.0} | {split: topic, topic: /marker}
+    env_id: null                # optional gymnasium id the demos belong to
+
+`load_map` checks the map's own shape (keys, types, values); whether its topics and fields exist
+in a bag is checked against the bag in `ros.py`. Errors name the map file and the entry.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from imitation.data.convert.fields import FieldError, parse_field
+from imitation.errors import ImitationError
+
+ALIGNMENTS = ("hold", "interpolate")
+CLOCKS = ("log", "header")
+SPLITS = ("file", "gap", "topic")
+_TOP_KEYS = {"rate_hz", "time", "align", "observation", "action", "reward", "episodes", "env_id"}
+_ENTRY_KEYS = {"topic", "fields", "field", "align", "default", "max_age"}
+
+
+@dataclass(frozen=True)
+class Stream:
+    """One map entry: these fields of this topic, aligned to the resampling grid.
+
+    `default` fills the grid before the topic's first message and wherever the last message is
+    older than `max_age_s` (a command that stopped arriving); without a default the episode
+    starts only once every entry has a value."""
+
+    where: str  # e.g. "observation[0]", for error messages
+    topic: str
+    fields: tuple[str, ...]
+    align: str
+    default: tuple[float, ...] | None  # one value per field, or one value for all
+    max_age_s: float | None
+
+
+@dataclass(frozen=True)
+class EpisodeSplit:
+    mode: str  # file | gap | topic
+    seconds: float | None = None
+    topic: str | None = None
+
+
+@dataclass(frozen=True)
+class RecordingMap:
+    path: Path
+    rate_hz: float
+    time: str
+    observation: tuple[Stream, ...]
+    action: tuple[Stream, ...]
+    reward: Stream | None
+    episodes: EpisodeSplit
+    env_id: str | None
+    raw: dict[str, Any]  # the map as written, kept in the demo file's metadata
+
+    @property
+    def streams(self) -> tuple[Stream, ...]:
+        return self.observation + self.action + ((self.reward,) if self.reward else ())
+
+
+def load_map(path: str | Path) -> RecordingMap:
+    """Read and check a map file; ImitationError names the file and what is wrong."""
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except OSError as error:
+        raise ImitationError(f"{path}: cannot read the map: {error.strerror or error}") from None
+    except yaml.YAMLError as error:
+        raise ImitationError(f"{path}: not valid YAML ({' '.join(str(error).split())})") from None
+    return parse_map(raw, path)
+
+
+def parse_map(raw: Any, path: Path) -> RecordingMap:
+    def fail(message: str) -> ImitationError:
+        return ImitationError(f"{path}: {message}")
+
+    if not isinstance(raw, dict):
+        raise fail("a map is a YAML mapping with rate_hz, observation and action (see docs/CONVERT.md)")
+    unknown = sorted(set(raw) - _TOP_KEYS)
+    if unknown:
+        raise fail(f"unknown key {unknown[0]!r} (a map has {', '.join(sorted(_TOP_KEYS))})")
+    rate = raw.get("rate_hz")
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
+        raise fail(f"rate_hz must be a positive number of samples per second, got {rate!r}")
+    clock = raw.get("time", "log")
+    if clock not in CLOCKS:
+        raise fail(f"time must be log or header, got {clock!r}")
+    align = raw.get("align", "hold")
+    if align not in ALIGNMENTS:
+        raise fail(f"align must be hold or interpolate, got {align!r}")
+    env_id = raw.get("env_id")
+    if env_id is not None and (not isinstance(env_id, str) or not env_id):
+        raise fail(f"env_id must be a gymnasium id such as CartPole-v1, or null; got {env_id!r}")
+
+    def streams(key: str) -> tuple[Stream, ...]:
+        entries = raw.get(key)
+        if entries is None or entries == []:
+            raise fail(f"no {key}: list at least one {{topic, fields}} entry under '{key}'")
+        if not isinstance(entries, list):
+            raise fail(f"{key} must be a list of {{topic, fields}} entries")
+        return tuple(_stream(entry, f"{key}[{i}]", align, fail) for i, entry in enumerate(entries))
+
+    observation, action = streams("observation"), streams("action")
+    reward = None
+    if raw.get("reward") is not None:
+        reward = _stream(raw["reward"], "reward", align, fail)
+        if len(reward.fields) != 1:
+            raise fail("reward: give exactly one field (the reward is one number per step)")
+    return RecordingMap(
+        path=path, rate_hz=float(rate), time=clock, observation=observation, action=action, reward=reward,
+        episodes=_split(raw.get("episodes", {"split": "file"}), fail), env_id=env_id, raw=raw,
+    )
+
+
+def _stream(entry: Any, where: str, align: str, fail: Any) -> Stream:
+    if not isinstance(entry, dict):
+        raise fail(f"{where}: an entry is a mapping such as {{topic: /odom, fields: [twist.twist.linear.x]}}")
+    unknown = sorted(set(entry) - _ENTRY_KEYS)
+    if unknown:
+        raise fail(f"{where}: unknown key {unknown[0]!r} (an entry has topic, fields, align, default, max_age)")
+    topic = entry.get("topic")
+    if not isinstance(topic, str) or not topic:
+        raise fail(f"{where}: no topic")
+    fields = entry.get("fields", [entry["field"]] if "field" in entry else None)
+    if isinstance(fields, str):
+        fields = [fields]
+    if not isinstance(fields, list) or not fields:
+        raise fail(f"{where} ({topic}): no fields: list the numeric fields to take, e.g. fields: [linear.x]")
+    for text in fields:
+        try:
+            parse_field(text)
+        except FieldError as error:
+            raise fail(f"{where} ({topic}): {error}") from None
+    entry_align = entry.get("align", align)
+    if entry_align not in ALIGNMENTS:
+        raise fail(f"{where} ({topic}): align must be hold or interpolate, got {entry_align!r}")
+    default = entry.get("default")
+    if default is not None:
+        values = default if isinstance(default, list) else [default]
+        if not values or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+            raise fail(f"{where} ({topic}): default must be a number or a list of numbers, got {default!r}")
+        default = tuple(float(v) for v in values)
+    max_age = entry.get("max_age")
+    if max_age is not None:
+        if isinstance(max_age, bool) or not isinstance(max_age, (int, float)) or not max_age > 0:
+            raise fail(f"{where} ({topic}): max_age must be a positive number of seconds, got {max_age!r}")
+        if default is None:
+            raise fail(f"{where} ({topic}): max_age needs a default (the value once the last message is too old)")
+    return Stream(where, topic, tuple(fields), entry_align, default, float(max_age) if max_age is not None else None)
+
+
+def _split(spec: Any, fail: Any) -> EpisodeSplit:
+    if isinstance(spec, str):
+        spec = {"split": spec}
+    if not isinstance(spec, dict) or spec.get("split") not in SPLITS:
+        raise fail(f"episodes must be {{split: file}}, {{split: gap, seconds: S}} or {{split: topic, topic: /marker}}; got {spec!r}")
+    mode = spec["split"]
+    extra = sorted(set(spec) - {"split", {"gap": "seconds", "topic": "topic"}.get(mode, "split")})
+    if extra:
+        raise fail(f"episodes: unexpected key {extra[0]!r} for split {mode}")
+    if mode == "gap":
+        seconds = spec.get("seconds")
+        if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds > 0:
+            raise fail(f"episodes: split gap needs seconds: a positive number, got {seconds!r}")
+        return EpisodeSplit("gap", seconds=float(seconds))
+    if mode == "topic":
+        topic = spec.get("topic")
+        if not isinstance(topic, str) or not topic:
+            raise fail("episodes: split topic needs topic: the marker topic whose messages start episodes")
+        return EpisodeSplit("topic", topic=topic)
+    return EpisodeSplit("file")

@@ -1,0 +1,114 @@
+"""npz rollouts → episodes, without unpickling anything.
+
+Two layouts are recognised by their keys:
+
+- stable-baselines' GAIL expert format: `obs`, `actions`, `rewards`, `episode_starts`,
+  `episode_returns`, one row per step. It stores no final observation, so an episode of L rows
+  becomes T = L - 1 steps: all L observations, the first L - 1 actions and rewards (the last
+  action led to an observation nobody recorded). The file's own return is kept in the episode's
+  metadata as `source_return`. The file does not say why episodes ended: neither terminated nor
+  truncated.
+- HumanCompatibleAI/imitation's flat trajectory format: `obs` (each trajectory's T+1 rows, one
+  after the other), `acts`, `indices` (where each trajectory after the first starts in `acts`),
+  `terminal` (one flag per trajectory), optional `rews`. Its `infos` is a pickled object array
+  and is never read: the arrays are loaded with `allow_pickle=False`, which refuses object arrays.
+"""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from imitation.data.convert.converted import Converted, box_for, cast_rows, infer_action_space
+from imitation.data.types import Episode
+from imitation.errors import ImitationError
+
+SB_KEYS = {"obs", "actions", "rewards", "episode_starts"}
+IMITATION_KEYS = {"obs", "acts", "indices", "terminal"}
+
+
+def npz_to_episodes(path: str | Path) -> Converted:
+    """Read an SB GAIL or imitation npz file; ImitationError names the file and what is wrong."""
+    path = Path(path)
+    try:
+        archive = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, zipfile.BadZipFile) as error:
+        raise ImitationError(f"{path}: not a readable npz file ({error})") from None
+    if not isinstance(archive, np.lib.npyio.NpzFile):
+        raise ImitationError(f"{path}: a single .npy array, not an npz archive of named arrays")
+    with archive:
+        keys = set(archive.files)
+
+        def array(key: str) -> np.ndarray:
+            try:
+                return archive[key]
+            except ValueError as error:  # an object array: reading it would unpickle
+                raise ImitationError(f"{path}: array {key!r} holds Python objects; it is not read (that would unpickle them)") from error
+
+        if SB_KEYS <= keys:
+            return _stable_baselines(path, {key: array(key) for key in SB_KEYS | ({"episode_returns"} & keys)})
+        if IMITATION_KEYS <= keys:
+            return _imitation(path, {key: array(key) for key in IMITATION_KEYS | ({"rews"} & keys)})
+    raise ImitationError(
+        f"{path}: unknown npz layout (keys {', '.join(sorted(keys))}); expected stable-baselines' "
+        f"({', '.join(sorted(SB_KEYS))}) or imitation's ({', '.join(sorted(IMITATION_KEYS))})"
+    )
+
+
+def _stable_baselines(path: Path, data: dict[str, np.ndarray]) -> Converted:
+    obs, actions, rewards, starts = data["obs"], data["actions"], data["rewards"].astype(np.float64), data["episode_starts"].astype(bool)
+    steps = len(obs)
+    if not (len(actions) == len(rewards) == len(starts) == steps) or steps == 0 or not starts[0]:
+        raise ImitationError(f"{path}: obs, actions, rewards and episode_starts must have one row per step and start with an episode start")
+    returns = data.get("episode_returns")
+    bounds = np.append(np.flatnonzero(starts), steps)
+    observation_space, action_space = box_for(obs), infer_action_space(actions)
+    obs, actions = cast_rows(obs, observation_space, f"{path}: obs"), cast_rows(actions, action_space, f"{path}: actions")
+    episodes = []
+    for index, (start, end) in enumerate(zip(bounds[:-1], bounds[1:])):
+        metadata = {"source_index": index, "source_length": int(end - start)}
+        if returns is not None and index < len(returns):
+            metadata["source_return"] = float(returns[index])
+        episodes.append(Episode(
+            observations=obs[start:end], actions=actions[start : end - 1], rewards=rewards[start : end - 1], metadata=metadata,
+        ))
+    return Converted(
+        episodes=episodes, observation_space=observation_space, action_space=action_space,
+        source=f"stable-baselines npz {path}", metadata={"converter": "npz", "layout": "stable-baselines", "file": str(path)},
+        warnings=[f"{path}: the format stores no final observations; each episode's last action and reward were dropped"],
+    )
+
+
+def _imitation(path: Path, data: dict[str, np.ndarray]) -> Converted:
+    obs, acts, terminal = data["obs"], data["acts"], data["terminal"].astype(bool)
+    indices = data["indices"].astype(np.int64)
+    count = len(terminal)
+    if len(indices) != count - 1 or len(obs) != len(acts) + count:
+        raise ImitationError(
+            f"{path}: inconsistent trajectories: {count} terminal flags need {count - 1} indices and "
+            f"len(obs) = len(acts) + {count}; got {len(indices)} indices, {len(obs)} obs, {len(acts)} acts"
+        )
+    if np.any(np.diff(np.concatenate([[0], indices, [len(acts)]])) < 0):
+        raise ImitationError(f"{path}: indices must be increasing split points within acts (0..{len(acts)})")
+    rewards = data.get("rews")
+    if rewards is not None and len(rewards) != len(acts):
+        raise ImitationError(f"{path}: rews has {len(rewards)} rows, acts {len(acts)}")
+    observation_space, action_space = box_for(obs), infer_action_space(acts)
+    obs, acts = cast_rows(obs, observation_space, f"{path}: obs"), cast_rows(acts, action_space, f"{path}: acts")
+    act_bounds = np.concatenate([[0], indices, [len(acts)]])
+    episodes = []
+    for index in range(count):
+        start, end = int(act_bounds[index]), int(act_bounds[index + 1])
+        episodes.append(Episode(
+            observations=obs[start + index : end + index + 1],  # each earlier trajectory has one extra observation
+            actions=acts[start:end],
+            rewards=rewards[start:end].astype(np.float64) if rewards is not None else np.zeros(end - start),
+            terminated=bool(terminal[index]), truncated=not terminal[index], metadata={"source_index": index},
+        ))
+    return Converted(
+        episodes=episodes, observation_space=observation_space, action_space=action_space,
+        source=f"imitation npz {path}", metadata={"converter": "npz", "layout": "imitation", "file": str(path)},
+        warnings=[] if rewards is not None else [f"{path}: no rews array; rewards are zero"],
+    )

@@ -1,0 +1,229 @@
+"""A ROS bag and a conversion map → episodes on a regular time grid.
+
+For each episode span (the whole bag, runs between time gaps, or between marker messages) the
+grid starts once every stream without a `default` has a sample and steps at 1/rate_hz up to the
+span's last sample, plus one more time one period later, so that the last sampled action is
+followed by an observation (the streams' held values). Its T+1 grid times give the T+1
+observations, the first T of them the actions, and the reward entry (if any) is read at grid
+times 1…T (the reward that follows each action). So a span of S seconds gives floor(S·rate) + 1
+steps, and a bag with one message per topic still gives one. Episodes are `truncated`: a
+recording stops, it does not reach a terminal state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from tqdm import tqdm
+
+from imitation.data.convert.bags import Bag, TopicInfo
+from imitation.data.convert.converted import Converted
+from imitation.data.convert.fields import FieldError, parse_field, read_field, resolve_numbers
+from imitation.data.convert.maps import RecordingMap, Stream
+from imitation.data.convert.resample import NS, regular_grid, sample, split_at_gaps, split_at_markers
+from imitation.data.types import Episode
+from imitation.errors import ImitationError
+
+_STAMP = parse_field("header.stamp")
+
+
+@dataclass
+class _Column:
+    """One map entry compiled against the bag: its fields' widths and the samples read."""
+
+    stream: Stream
+    widths: list[int]
+    default: np.ndarray | None
+    times: list[int]
+    rows: list[np.ndarray]
+
+    @property
+    def names(self) -> list[str]:
+        names = []
+        for text, width in zip(self.stream.fields, self.widths):
+            base = f"{self.stream.topic}.{text}"
+            names += [base] if width == 1 else [f"{base}[{i}]" for i in range(width)]
+        return names
+
+
+def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = True) -> Converted:
+    """Read the map's topics from `bag` and resample them into episodes."""
+    topics = bag.topics()
+    _check_topics(bag, recording_map, topics)
+    columns = [_compile(bag, stream, recording_map) for stream in recording_map.streams]
+    by_topic: dict[str, list[_Column]] = {}
+    for column in columns:
+        by_topic.setdefault(column.stream.topic, []).append(column)
+    marker_topic = recording_map.episodes.topic
+    markers: list[int] = []
+    wanted = set(by_topic) | ({marker_topic} if marker_topic else set())
+    total = sum(topics[t].count for t in wanted)
+    bar = tqdm(total=total, desc="read", unit="msg", disable=None if progress else True, dynamic_ncols=True)
+    with bar:
+        for topic, log_ns, message in bag.messages(sorted(wanted)):
+            bar.update()
+            time_ns = _time_of(message, log_ns, recording_map, topic)
+            if topic == marker_topic:
+                markers.append(time_ns)
+            for column in by_topic.get(topic, []):
+                column.times.append(time_ns)
+                column.rows.append(_row(message, column, log_ns))
+
+    arrays = {id(c): _sorted_samples(c) for c in columns}
+    spans = _spans(recording_map, [arrays[id(c)][0] for c in columns], np.sort(np.asarray(markers, dtype=np.int64)))
+    episodes: list[Episode] = []
+    warnings: list[str] = []
+    n_obs = len(recording_map.observation)
+    n_act = len(recording_map.action)
+    # Streams without a default have no value before their first sample: start the grid after it.
+    first_values = [int(arrays[id(c)][0][0]) for c in columns if c.default is None]
+    for index, (start, end) in enumerate(spans):
+        grid = regular_grid(max([start, *first_values]), end, recording_map.rate_hz)
+        if len(grid) == 0:
+            warnings.append(f"episode span {index} ({start / NS:.3f} s to {end / NS:.3f} s) ends before every stream has a value; skipped")
+            continue
+        # One period past the last grid time: the last sampled action gets its following observation.
+        grid = np.append(grid, grid[-1] + round(NS / recording_map.rate_hz))
+        values = [
+            sample(*arrays[id(c)], grid, align=c.stream.align, default=c.default,
+                   max_age_ns=None if c.stream.max_age_s is None else round(c.stream.max_age_s * NS))
+            for c in columns
+        ]
+        observations = np.concatenate(values[:n_obs], axis=1).astype(np.float32)
+        actions = np.concatenate(values[n_obs : n_obs + n_act], axis=1)[:-1].astype(np.float32)
+        rewards = values[-1][1:, 0] if recording_map.reward else np.zeros(len(grid) - 1)
+        episodes.append(Episode(
+            observations=observations, actions=actions, rewards=rewards.astype(np.float64), truncated=True,
+            timestamps=grid, metadata={"span": index},
+        ))
+    if not episodes:
+        raise ImitationError(f"{bag.path}: no episode: the mapped topics never all have a value at the same time")
+    names = [c.names for c in columns]
+    return Converted(
+        episodes=episodes,
+        observation_space=gym.spaces.Box(-np.inf, np.inf, shape=(episodes[0].observations.shape[1],), dtype=np.float32),
+        action_space=gym.spaces.Box(-np.inf, np.inf, shape=(episodes[0].actions.shape[1],), dtype=np.float32),
+        source=f"{bag.format} {bag.path}",
+        env_id=recording_map.env_id or "",
+        dt=1.0 / recording_map.rate_hz,
+        metadata={
+            "converter": "ros",
+            "bag": str(bag.path),
+            "bag_format": bag.format,
+            "map": recording_map.raw,
+            "observation_names": [n for ns in names[:n_obs] for n in ns],
+            "action_names": [n for ns in names[n_obs : n_obs + n_act] for n in ns],
+            **({"reward_name": names[-1][0]} if recording_map.reward else {}),
+        },
+        warnings=warnings,
+    )
+
+
+def _check_topics(bag: Bag, recording_map: RecordingMap, topics: dict[str, TopicInfo]) -> None:
+    wanted = [s.topic for s in recording_map.streams] + ([recording_map.episodes.topic] if recording_map.episodes.topic else [])
+    present = sorted(topics)
+    if not any(topic in topics for topic in wanted):
+        raise ImitationError(
+            f"{bag.path}: none of the map's topics ({', '.join(dict.fromkeys(wanted))}) is in this bag; "
+            f"it has {_listing(present)} (see `imitation convert {bag.path} --inspect`)"
+        )
+    for stream in recording_map.streams:
+        _check_topic(bag, recording_map, stream.topic, stream.where, topics)
+    if recording_map.episodes.topic:
+        _check_topic(bag, recording_map, recording_map.episodes.topic, "episodes", topics)
+
+
+def _check_topic(bag: Bag, recording_map: RecordingMap, topic: str, where: str, topics: dict[str, TopicInfo]) -> None:
+    info = topics.get(topic)
+    if info is None:
+        raise ImitationError(f"{recording_map.path}: {where}: topic {topic} is not in {bag.path} (it has {_listing(sorted(topics))})")
+    if info.problem:
+        raise ImitationError(f"{recording_map.path}: {where}: topic {topic} cannot be read: {info.problem}")
+    if info.count == 0:
+        raise ImitationError(f"{recording_map.path}: {where}: topic {topic} has no messages in {bag.path}")
+
+
+def _listing(names: list[str], limit: int = 12) -> str:
+    return ", ".join(names[:limit]) + (f", … ({len(names)} topics)" if len(names) > limit else "")
+
+
+def _compile(bag: Bag, stream: Stream, recording_map: RecordingMap) -> _Column:
+    """Check the entry's fields on the topic's first message and learn their widths."""
+    messages = bag.messages([stream.topic])
+    try:
+        _, _, first = next(messages)
+    finally:
+        messages.close()
+    prefix = f"{recording_map.path}: {stream.where} ({stream.topic})"
+    widths = []
+    for text in stream.fields:
+        try:
+            width = len(resolve_numbers(first, text))
+        except FieldError as error:
+            raise ImitationError(f"{prefix}: {error}") from None
+        if width == 0:
+            raise ImitationError(f"{prefix}: field {text!r} is an empty array in the first message")
+        widths.append(width)
+    if recording_map.time == "header":
+        try:
+            read_field(first, _STAMP)
+        except FieldError:
+            raise ImitationError(f"{prefix}: its messages have no header.stamp; use time: log") from None
+    default = None
+    if stream.default is not None:
+        width = sum(widths)
+        if len(stream.default) not in (1, width):
+            raise ImitationError(f"{prefix}: default has {len(stream.default)} values; the fields hold {width}")
+        default = np.broadcast_to(np.asarray(stream.default, dtype=np.float64), (width,)).copy()
+    return _Column(stream, widths, default, [], [])
+
+
+def _time_of(message: Any, log_ns: int, recording_map: RecordingMap, topic: str) -> int:
+    if recording_map.time == "log":
+        return log_ns
+    try:
+        stamp = read_field(message, _STAMP)
+    except FieldError:
+        if topic == recording_map.episodes.topic:
+            return log_ns  # a marker without a header (std_msgs/Empty) marks when it was logged
+        raise ImitationError(f"{recording_map.path}: topic {topic} has a message without header.stamp; use time: log") from None
+    return int(stamp.sec) * NS + int(getattr(stamp, "nanosec", getattr(stamp, "nsec", 0)))
+
+
+def _row(message: Any, column: _Column, log_ns: int) -> np.ndarray:
+    parts = []
+    for text, width in zip(column.stream.fields, column.widths):
+        try:
+            values = resolve_numbers(message, text)
+        except FieldError as error:
+            raise ImitationError(f"{column.stream.where} ({column.stream.topic}) at {log_ns} ns: {error}") from None
+        if len(values) != width:
+            raise ImitationError(
+                f"{column.stream.where} ({column.stream.topic}) at {log_ns} ns: field {text!r} held {width} values in the first "
+                f"message and {len(values)} now (a variable-length array: index it, e.g. {text}[0])"
+            )
+        parts.append(values)
+    return np.concatenate(parts)
+
+
+def _sorted_samples(column: _Column) -> tuple[np.ndarray, np.ndarray]:
+    """(times, rows) in time order: header stamps need not arrive in order."""
+    times = np.asarray(column.times, dtype=np.int64)
+    rows = np.asarray(column.rows, dtype=np.float64).reshape(len(times), sum(column.widths))
+    order = np.argsort(times, kind="stable")
+    return times[order], rows[order]
+
+
+def _spans(recording_map: RecordingMap, stream_times: list[np.ndarray], markers: np.ndarray) -> list[tuple[int, int]]:
+    """(start, end) ns of each episode, before the grid is fitted inside it."""
+    every = np.sort(np.concatenate(stream_times))
+    start, end = int(every[0]), int(every[-1])
+    if recording_map.episodes.mode == "gap":
+        return split_at_gaps(every, round(recording_map.episodes.seconds * NS))
+    if recording_map.episodes.mode == "topic":
+        return split_at_markers(start, end, markers)
+    return [(start, end)]
+

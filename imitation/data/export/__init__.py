@@ -1,0 +1,1 @@
+"""Exporters: demo files → other tools' formats (LeRobotDataset v3.0, per-step Foxglove MCAP)."""
