@@ -211,6 +211,13 @@ class MinibatchLoader:
         self.drop_last = drop_last
         self._generator = torch.Generator(device="cpu").manual_seed(seed)
 
+    def generator_state(self) -> torch.Tensor:
+        """Where the shuffling generator is (for checkpoints)."""
+        return self._generator.get_state()
+
+    def set_generator_state(self, state: torch.Tensor) -> None:
+        self._generator.set_state(state)
+
     def __len__(self) -> int:
         full, rest = divmod(len(self.data), self.batch_size)
         return full if self.drop_last or rest == 0 else full + 1
