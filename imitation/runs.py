@@ -278,9 +278,11 @@ def read_run(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, torch.T
     if not config_path.is_file() or not weights_path.is_file():
         raise ImitationError(f"{run}: not a finished run directory (no {CONFIG_FILE} or {WEIGHTS_FILE})")
     try:
-        config = json.loads(config_path.read_text())
-    except json.JSONDecodeError as error:
-        raise ImitationError(f"{config_path}: not valid JSON ({error})") from None
+        config = json.loads(config_path.read_bytes())
+    except (ValueError, RecursionError) as error:  # ValueError: not JSON, or not UTF-8
+        raise ImitationError(f"{config_path}: not valid JSON ({type(error).__name__}: {str(error)[:200]})") from None
+    if not isinstance(config, dict):
+        raise ImitationError(f"{config_path}: not a run's config (a JSON object), but a {type(config).__name__}")
     try:
         weights = load_file(str(weights_path))
     except Exception as error:

@@ -62,6 +62,9 @@ DEFAULT_BLOCK_STEPS = 4096
 # zstd is the default; "none" trades size for the fastest loads (chunks are read in place).
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 MAGIC = b"\x89MCAP0\r\n"
+# No writer makes chunks this large (ours: 1 MiB); a header claiming more is damaged, and is
+# refused before a buffer of that size is asked for.
+MAX_CHUNK_BYTES = 2**31
 
 _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x02, 0x03, 0x04, 0x05, 0x06
 _OP_CHUNK_INDEX, _OP_METADATA, _OP_METADATA_INDEX, _OP_DATA_END = 0x08, 0x0C, 0x0D, 0x0F
@@ -672,7 +675,10 @@ class DemoFile:
         if not chunks:
             return
         assembler = _EpisodeAssembler(self.observation_space, self.action_space, self._index.channels, self._facts_by_end_time)
-        buffers = _ChunkBuffers(chunks) if bulk else None
+        try:
+            buffers = _ChunkBuffers(chunks) if bulk else None
+        except _Damage as error:
+            raise DemoFileError(f"{self.path}: {error}") from None
         with open(self.path, "rb") as stream:
             for chunk, decoded in _decode_chunks(stream.fileno(), chunks, buffers):
                 yield from self._assemble(chunk, decoded, assembler, keep)
@@ -689,8 +695,8 @@ class DemoFile:
                     yield result[0], result[1]
         except _Damage as error:
             raise DemoFileError(f"{self.path}: damaged chunk at byte {chunk.offset}: {error}") from None
-        except (ValueError, KeyError, TypeError, json.JSONDecodeError) as error:
-            raise DemoFileError(f"{self.path}: bad data in chunk at byte {chunk.offset}: {error}") from None
+        except (ValueError, KeyError, TypeError, OverflowError, RecursionError) as error:  # RecursionError: JSON nested too deep
+            raise DemoFileError(f"{self.path}: bad data in chunk at byte {chunk.offset}: {type(error).__name__}: {str(error)[:200]}") from None
 
     def _register_channel(self, channel: Channel) -> None:
         self._index.channels.setdefault(channel.id, _channel_field(channel))
@@ -724,7 +730,7 @@ class DemoFile:
             raise DemoFileError(f"{self.path}: dataset metadata has a bad dt_ns ({dataset['dt_ns']!r})")
         try:
             json.loads(dataset.get("user_metadata", "{}"))
-        except json.JSONDecodeError as error:
+        except (ValueError, RecursionError) as error:
             raise DemoFileError(f"{self.path}: dataset metadata has bad user_metadata JSON ({error})") from None
 
     def _read_summary(self, stream: Any) -> _Index:
@@ -756,6 +762,8 @@ class DemoFile:
                 channels[channel.id] = _channel_field(channel)
             elif opcode == _OP_CHUNK_INDEX:
                 entry = ChunkIndex.read(ReadDataStream(BytesIO(body)))
+                if entry.uncompressed_size > MAX_CHUNK_BYTES:
+                    raise _Damage(f"the chunk index claims a chunk of {entry.uncompressed_size} bytes uncompressed")
                 chunks.append(
                     _ChunkRef(entry.chunk_start_offset, entry.chunk_length, entry.message_start_time, entry.message_end_time, entry.uncompressed_size)
                 )
@@ -904,6 +912,8 @@ def _chunk_header(record: memoryview) -> _ChunkHeader:
         raise _Damage("chunk data is truncated")
     if compression not in ("zstd", "lz4", ""):
         raise _Damage(f"unsupported chunk compression {compression!r}")
+    if uncompressed_size > MAX_CHUNK_BYTES:
+        raise _Damage(f"the chunk claims {uncompressed_size} bytes uncompressed, more than the {MAX_CHUNK_BYTES} a chunk may hold")
     return _ChunkHeader(compression, uncompressed_size, uncompressed_crc, payload)
 
 
@@ -955,8 +965,12 @@ class _ChunkBuffers:
     content; each chunk gets its slices."""
 
     def __init__(self, chunks: Sequence[_ChunkRef]) -> None:
-        self.raw = memoryview(np.empty(sum(c.length for c in chunks), dtype=np.uint8))
-        self.content = memoryview(np.empty(sum(c.uncompressed_size for c in chunks), dtype=np.uint8))
+        raw, content = sum(c.length for c in chunks), sum(c.uncompressed_size for c in chunks)
+        try:
+            self.raw = memoryview(np.empty(raw, dtype=np.uint8))
+            self.content = memoryview(np.empty(content, dtype=np.uint8))
+        except MemoryError:
+            raise _Damage(f"its chunks add up to {(raw + content) / 2**30:.1f} GiB, more than this machine can hold") from None
         self._slices: dict[int, tuple[memoryview, memoryview]] = {}
         raw_at = content_at = 0
         for c in chunks:

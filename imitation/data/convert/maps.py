@@ -28,6 +28,8 @@ import yaml
 from imitation.data.convert.fields import FieldError, parse_field
 from imitation.errors import ImitationError
 
+# Outside 0.001 Hz (a step per 1000 s) to 10 kHz a rate is a typo, or the map is damaged.
+MIN_RATE_HZ, MAX_RATE_HZ = 1e-3, 1e4
 ALIGNMENTS = ("hold", "interpolate")
 CLOCKS = ("log", "header")
 SPLITS = ("file", "gap", "topic")
@@ -79,11 +81,13 @@ def load_map(path: str | Path) -> RecordingMap:
     """Read and check a map file; ImitationError names the file and what is wrong."""
     path = Path(path)
     try:
-        raw = yaml.safe_load(path.read_text())
+        raw = yaml.safe_load(path.read_bytes())  # bytes: yaml reports text that is not UTF-8 as a YAMLError
     except OSError as error:
         raise ImitationError(f"{path}: cannot read the map: {error.strerror or error}") from None
     except yaml.YAMLError as error:
-        raise ImitationError(f"{path}: not valid YAML ({' '.join(str(error).split())})") from None
+        raise ImitationError(f"{path}: not valid YAML ({' '.join(str(error).split())[:300]})") from None
+    except RecursionError:
+        raise ImitationError(f"{path}: not a map (YAML nested too deep)") from None
     return parse_map(raw, path)
 
 
@@ -97,8 +101,8 @@ def parse_map(raw: Any, path: Path) -> RecordingMap:
     if unknown:
         raise fail(f"unknown key {unknown[0]!r} (a map has {', '.join(sorted(_TOP_KEYS))})")
     rate = raw.get("rate_hz")
-    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
-        raise fail(f"rate_hz must be a positive number of samples per second, got {rate!r}")
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) or not MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
+        raise fail(f"rate_hz must be a number of samples per second between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g}, got {str(rate)[:40]}")
     clock = raw.get("time", "log")
     if clock not in CLOCKS:
         raise fail(f"time must be log or header, got {clock!r}")
