@@ -225,3 +225,20 @@ def test_a_pickle_in_place_of_safetensors_weights_is_refused_and_never_runs(run_
     result = run_cli("record", "--env", "CartPole-v1", "--expert", str(run_dir), "--episodes", "1", "--out", str(tmp_path / "x.mcap"))
     assert_one_line_error(result, "unreadable safetensors file")
     assert not marker.exists(), "the pickle ran"
+
+
+def test_an_npz_with_an_object_array_is_refused_and_never_runs(tmp_path: Path) -> None:
+    marker = tmp_path / "ran"
+    path = tmp_path / "evil.npz"
+    rows = 5
+    np.savez(path, obs=np.zeros((rows, 4), np.float32), actions=np.zeros((rows, 1), np.int64), rewards=np.ones(rows),
+             episode_starts=np.eye(1, rows, dtype=bool)[0], episode_returns=np.array([MarkerPayload(marker)], dtype=object))
+    with np.load(path, allow_pickle=True) as archive:  # control: unpickled, the payload runs
+        archive["episode_returns"][0].close()
+    assert marker.exists(), "the payload is live"
+    marker.unlink()
+    out = tmp_path / "demos.mcap"
+    result = run_cli("convert", str(path), "--out", str(out))
+    assert_one_line_error(result, str(path), "array 'episode_returns' holds Python objects; it is not read")
+    assert not marker.exists(), "the pickle ran"
+    assert not out.exists() and not out.with_name(out.name + ".partial").exists()

@@ -566,6 +566,9 @@ def run_seeds(work: Path) -> list[Files]:
     from imitation.rewards import make_reward_model, reward_tensors
     from imitation.runs import RunWriter
 
+    import torch
+
+    torch.manual_seed(0)  # the same weights every run: inputs are reproducible from (target, seed, k)
     seeds = []
     cartpole = (gym.spaces.Box(-np.inf, np.inf, (4,), np.float32), gym.spaces.Discrete(2))
     pendulum = (gym.spaces.Box(np.array([-1, -1, -8], np.float32), np.array([1, 1, 8], np.float32)), gym.spaces.Box(-2, 2, (1,), np.float32))
@@ -601,14 +604,16 @@ def run_run(folder: Path, scratch: Path) -> str:
     from imitation.policies import load_policy
     from imitation.rewards import load_reward
 
-    loaded = []
+    loaded, refusal = [], None
     for kind, load in (("policy", load_policy), ("reward", load_reward)):
         try:
             load(folder)
             loaded.append(kind)
-        except ImitationError:
-            pass
-    return "+".join(loaded) or "refused"
+        except ImitationError as error:
+            refusal = error
+    if not loaded:
+        raise refusal  # both readers refused it
+    return "+".join(loaded)
 
 
 # -- converters -------------------------------------------------------------------------------------
