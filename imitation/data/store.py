@@ -580,6 +580,8 @@ class DemoFile:
                 raise
             except Exception as error:  # any malformed byte in the summary means: rebuild it by scanning
                 summary_damage = str(error) if isinstance(error, _Damage) else f"unreadable summary ({type(error).__name__}: {error})"
+            if index is not None and not index.dataset:
+                self._check_dataset(index.dataset)  # a sound MCAP file from another tool (a ROS 2 bag): say so, not "damaged"
             if index is None and not salvage:
                 raise DemoFileError(
                     f"{self.path}: damaged or unfinished ({summary_damage}); "
