@@ -914,6 +914,7 @@ class Report:
     outcomes: dict[str, int] = field(default_factory=dict)
     refused: int = 0
     failures: list[Failure] = field(default_factory=list)
+    refusals: dict[str, int] = field(default_factory=dict)  # distinct refusal messages (input paths blanked), at most 5,000
     seconds: float = 0.0
     slowest: float = 0.0
 
@@ -983,6 +984,9 @@ def fuzz(name: str, *, count: int, seed: int = 0, time_limit: float = 30.0, fail
                     report.refused += 1
                     if not str(error).strip():
                         raise AssertionError("an ImitationError without a message") from error
+                    message = str(error).replace(str(case), "<input>").replace(str(work), "<work>")
+                    if message in report.refusals or len(report.refusals) < 5000:
+                        report.refusals[message] = report.refusals.get(message, 0) + 1
                 except (Exception, InputTimeout, RecursionError, MemoryError) as error:  # noqa: BLE001 - every other one is a finding
                     saved = failures_dir / f"{name}-seed{seed}-{k}"
                     shutil.rmtree(saved, ignore_errors=True)
@@ -1014,6 +1018,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--memory-limit-gb", type=float, default=12.0, help="address-space limit, so a runaway allocation fails instead of swapping (0: none)")
     parser.add_argument("--failures", type=Path, help="where failing inputs are saved (default: a new temp folder)")
     parser.add_argument("--json", action="store_true", help="print one JSON object with the figures")
+    parser.add_argument("--refusals", type=Path, help="write every distinct refusal message, by target, to this JSON file")
     args = parser.parse_args(argv)
     names = [name.strip() for name in args.targets.split(",") if name.strip()]
     unknown = [name for name in names if name not in TARGETS]
@@ -1024,12 +1029,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
     failures = args.failures or Path(tempfile.mkdtemp(prefix="imitation-fuzz-failures-"))
     reports = []
+    refusals: dict[str, dict[str, int]] = {}
     for name in names:
         if TARGETS[name].needs_testdata and not TESTDATA.is_dir():
             print(f"{name}: skipped, {TESTDATA} not found", file=sys.stderr)
             continue
         report = fuzz(name, count=args.count, seed=args.seed, time_limit=args.time_limit, failures_dir=failures, progress=not args.json)
         reports.append(report.as_dict())
+        refusals[name] = report.refusals
         if not args.json:
             figures = reports[-1]
             print(f"{name}: {figures['inputs']} inputs in {figures['seconds']} s ({figures['inputs_per_second']}/s), "
@@ -1037,6 +1044,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                   f"{figures['failures']} failures ({len(figures['distinct_failures'])} distinct)", flush=True)
             for failure in figures["distinct_failures"]:
                 print(f"    {failure['where']}: {failure['error'][:200]}  [input {failure['saved']}]", flush=True)
+    if args.refusals:
+        args.refusals.write_text(json.dumps(refusals, indent=1))
     if args.json:
         print(json.dumps({"seed": args.seed, "count": args.count, "failures_dir": str(failures), "targets": reports}))
     return 1 if any(report["failures"] for report in reports) else 0

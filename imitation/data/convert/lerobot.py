@@ -61,7 +61,7 @@ def lerobot_to_episodes(root: str | Path, *, progress: bool = True) -> Converted
         columns = _read_v21(root, info, wanted, progress)
     else:
         raise ImitationError(f"{root}: LeRobot codebase version {version!r} is not supported (v3.0 or v2.1)")
-    columns = {key: _shaped(root, key, values, features[key]) for key, values in columns.items()}
+    columns = {key: _shaped(root, key, values, features.get(key, {})) for key, values in columns.items()}
     if len(columns["episode_index"]) == 0:
         raise ImitationError(f"{root}: the dataset holds no frames")
     return _build(root, version, fps, features, observation_keys, action_key, columns, warnings)
@@ -74,7 +74,7 @@ def _choose_features(root: Path, features: dict[str, Any]) -> tuple[list[str], s
         dtype = feature.get("dtype")
         if key in _INDEX_FEATURES or key in ("action", "next.reward", "next.done"):
             continue
-        if dtype in _VISUAL:
+        if isinstance(dtype, str) and dtype in _VISUAL:
             warnings.append(f"{root}: {dtype} feature {key!r} skipped (image demos are not supported yet)")
         elif key.startswith("observation.") and _numeric(dtype):
             observation_keys.append(key)
