@@ -115,6 +115,14 @@ def open_bag(path: str | Path, kind: str, *, ros_distro: str = "latest") -> Bag:
     return McapBag(path, files)
 
 
+def _is_file(path: Path) -> bool:
+    """Path.is_file, false for names the OS refuses (too long, a NUL byte) instead of raising."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def _starts_with(path: Path, magic: bytes) -> bool:
     try:
         with open(path, "rb") as stream:
@@ -139,7 +147,7 @@ def _rosbag2_directory(path: Path) -> tuple[str, list[Path]]:
             raise ImitationError(f"{metadata}: not a rosbag2 metadata file ({type(error).__name__}: {' '.join(str(error).split())[:200]})") from None
         if storage not in ("sqlite3", "mcap"):
             raise ImitationError(f"{metadata}: storage {storage!r} is not supported (sqlite3 or mcap)")
-        missing = [f.name for f in files if not f.is_file()]
+        missing = [f.name[:80] for f in files if not _is_file(f)]
         if missing:
             raise ImitationError(f"{path}: metadata.yaml lists {', '.join(missing)}, which is missing")
         return storage, files

@@ -143,7 +143,7 @@ def _read_v21(root: Path, info: dict[str, Any], wanted: list[str], progress: boo
         template, chunk_size = str(info["data_path"]), int(info.get("chunks_size", 1000))
         if chunk_size < 1:
             raise ValueError(f"chunks_size {chunk_size} is not positive")
-    except (OSError, ValueError, KeyError, TypeError, RecursionError) as error:  # ValueError: JSON, UTF-8 or a number
+    except (OSError, ValueError, KeyError, TypeError, OverflowError, RecursionError) as error:  # ValueError: JSON, UTF-8 or a number
         raise ImitationError(f"{episodes_path}: cannot read the v2.1 episode list ({type(error).__name__}: {str(error)[:200]})") from None
     parts: dict[str, list[np.ndarray]] = {key: [] for key in wanted}
     for line, entry in enumerate(tqdm(listed, desc="read", unit="episode", disable=None if progress else True, dynamic_ncols=True), 1):

@@ -158,12 +158,12 @@ def _stream(entry: Any, where: str, align: str, fail: Any) -> Stream:
     default = entry.get("default")
     if default is not None:
         values = default if isinstance(default, list) else [default]
-        if not values or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
-            raise fail(f"{where} ({topic}): default must be a number or a list of numbers, got {default!r}")
+        if not values or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values):
+            raise fail(f"{where} ({topic}): default must be a number or a list of numbers, got {str(default)[:80]}")
         default = tuple(float(v) for v in values)
     max_age = entry.get("max_age")
     if max_age is not None:
-        if isinstance(max_age, bool) or not isinstance(max_age, (int, float)) or not max_age > 0:
+        if isinstance(max_age, bool) or not isinstance(max_age, (int, float)) or not 0 < max_age < math.inf:
             raise fail(f"{where} ({topic}): max_age must be a positive number of seconds, got {max_age!r}")
         if default is None:
             raise fail(f"{where} ({topic}): max_age needs a default (the value once the last message is too old)")
@@ -181,7 +181,7 @@ def _split(spec: Any, fail: Any) -> EpisodeSplit:
         raise fail(f"episodes: unexpected key {extra[0]!r} for split {mode}")
     if mode == "gap":
         seconds = spec.get("seconds")
-        if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds > 0:
+        if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not 0 < seconds < math.inf:
             raise fail(f"episodes: split gap needs seconds: a positive number, got {seconds!r}")
         return EpisodeSplit("gap", seconds=float(seconds))
     if mode == "topic":
