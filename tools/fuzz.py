@@ -54,6 +54,7 @@ if str(REPO) not in sys.path:
 from imitation.errors import ImitationError  # noqa: E402
 
 Files = dict[str, bytes]  # one input: relative path -> content (a file, or a folder's files)
+NOTES: list[str] = []  # one-line errors a target met and handled itself (recorded with the refusals)
 
 # ------------------------------------------------------------------------------------------------
 # Byte-level mutations
@@ -190,7 +191,7 @@ def _mutate_document(value: Any, rng: random.Random) -> Any:
             del parent[path[-1]]
         elif action < 0.85 and isinstance(node, dict) and node:  # rename a key
             key = rng.choice(list(node))
-            node[key + rng.choice(("_", "x", "")) if isinstance(key, str) else key] = node.pop(key)
+            node[key + rng.choice(("_", "x", "", "/x")) if isinstance(key, str) else key] = node.pop(key)
         elif isinstance(node, list) and node:  # duplicate an item
             node.insert(rng.randrange(len(node) + 1), json.loads(json.dumps(rng.choice(node))))
         else:
@@ -527,7 +528,9 @@ def demo_mutate(files: Files, rng: random.Random, seeds: list[Files]) -> Files:
     data = files["demo.mcap"]
     if rng.random() < 0.5:
         try:
-            return {"demo.mcap": rewrite_mcap(data, rng)}
+            rewritten = rewrite_mcap(data, rng)
+            # Sometimes damage the bytes as well: reaches lz4 and uncompressed chunks too.
+            return {"demo.mcap": mutate_bytes(rewritten, rng) if rng.random() < 0.3 else rewritten}
         except Exception:  # noqa: BLE001 - python-mcap refused the edit: fall back to bytes
             pass
     return {"demo.mcap": mutate_bytes(data, rng, hot=mcap_record_offsets(data), donors=_donors(seeds, "demo.mcap"))}
@@ -537,6 +540,7 @@ def demo_run(folder: Path, scratch: Path) -> str:
     from imitation.data.loader import load_transitions
     from imitation.data.store import DemoDataset, DemoFile
     from imitation.data.summary import format_summary, summarize
+    from imitation.errors import DemoFileError
 
     path = folder / "demo.mcap"
     summary = summarize(path)  # what `imitation info` does: salvage and verify every chunk
@@ -545,6 +549,10 @@ def demo_run(folder: Path, scratch: Path) -> str:
         episodes = DemoFile(path, salvage=True).read_episodes()
         if summary["episodes"]:
             load_transitions(DemoDataset([path], salvage=True), finite=False)
+        try:
+            DemoFile(path).read_episodes()  # what a learner sees: most often refused, the damage named
+        except DemoFileError as error:
+            NOTES.append(str(error))
         return "salvaged" if episodes else "salvaged-empty"
     demo = DemoFile(path)
     demo.read_episodes()
@@ -975,6 +983,7 @@ def fuzz(name: str, *, count: int, seed: int = 0, time_limit: float = 30.0, fail
                 case, scratch = work / "case", work / "scratch"
                 _materialise(files, case, scratch)
                 tick = time.perf_counter()
+                NOTES.clear()
                 try:
                     if time_limit:
                         signal.setitimer(signal.ITIMER_REAL, time_limit)
@@ -997,6 +1006,10 @@ def fuzz(name: str, *, count: int, seed: int = 0, time_limit: float = 30.0, fail
                 finally:
                     if time_limit:
                         signal.setitimer(signal.ITIMER_REAL, 0)
+                for note in NOTES:
+                    message = note.replace(str(case), "<input>").replace(str(work), "<work>")
+                    if message in report.refusals or len(report.refusals) < 5000:
+                        report.refusals[message] = report.refusals.get(message, 0) + 1
                 report.slowest = max(report.slowest, time.perf_counter() - tick)
                 report.inputs += 1
                 if progress and (k + 1) % 500 == 0:

@@ -30,6 +30,7 @@ from imitation.errors import ImitationError
 
 # Outside 0.001 Hz (a step per 1000 s) to 10 kHz a rate is a typo, or the map is damaged.
 MIN_RATE_HZ, MAX_RATE_HZ = 1e-3, 1e4
+MAX_SECONDS = 1e9  # durations (max_age, gaps): beyond 30 years a value is damage, and would overflow nanoseconds
 ALIGNMENTS = ("hold", "interpolate")
 CLOCKS = ("log", "header")
 SPLITS = ("file", "gap", "topic")
@@ -163,7 +164,7 @@ def _stream(entry: Any, where: str, align: str, fail: Any) -> Stream:
         default = tuple(float(v) for v in values)
     max_age = entry.get("max_age")
     if max_age is not None:
-        if isinstance(max_age, bool) or not isinstance(max_age, (int, float)) or not 0 < max_age < math.inf:
+        if isinstance(max_age, bool) or not isinstance(max_age, (int, float)) or not 0 < max_age < MAX_SECONDS:
             raise fail(f"{where} ({topic}): max_age must be a positive number of seconds, got {max_age!r}")
         if default is None:
             raise fail(f"{where} ({topic}): max_age needs a default (the value once the last message is too old)")
@@ -181,7 +182,7 @@ def _split(spec: Any, fail: Any) -> EpisodeSplit:
         raise fail(f"episodes: unexpected key {extra[0]!r} for split {mode}")
     if mode == "gap":
         seconds = spec.get("seconds")
-        if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not 0 < seconds < math.inf:
+        if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not 0 < seconds < MAX_SECONDS:
             raise fail(f"episodes: split gap needs seconds: a positive number, got {seconds!r}")
         return EpisodeSplit("gap", seconds=float(seconds))
     if mode == "topic":
