@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import torch
 from source_scan import scan_files, scan_source
-from support import REPO, run_cli
+from support import REPO, run_cli_many
 from test_cli import assert_one_line_error, last_json
 
 from imitation.policies import make_policy, policy_tensors
@@ -165,80 +165,107 @@ def sb3_zip(path: Path, marker: Path, *, policy_pth: bytes | None = None, policy
     return path
 
 
-@pytest.mark.parametrize(
-    ("case", "fragment"),
-    [
-        ("policy.pth is a bare pickle", "policy.pth is not a plain PyTorch state dict"),
-        ("policy.pth is torch.save of an object", "policy.pth is not a plain PyTorch state dict"),
-        ("policy_kwargs' pickle names builtins.open", "policy_kwargs' pickle refers to _io.open"),
-    ],
-)
-def test_a_crafted_sb3_zip_is_refused_and_never_runs(tmp_path: Path, case: str, fragment: str) -> None:
-    marker = tmp_path / "ran"
-    if case == "policy.pth is a bare pickle":
-        path = sb3_zip(tmp_path / "evil.zip", marker, policy_pth=payload(marker))
-    elif case == "policy.pth is torch.save of an object":
-        path = sb3_zip(tmp_path / "evil.zip", marker, policy_pth=torch_saved_payload(marker))
-    else:
-        path = sb3_zip(tmp_path / "evil.zip", marker, policy_kwargs_payload=True)
-    out = tmp_path / "demos.mcap"
-    result = run_cli("record", "--env", "CartPole-v1", "--expert", f"sb3:{path}", "--episodes", "1", "--out", str(out))
-    assert_one_line_error(result, str(path), fragment)
-    assert "weights_only" not in result.stderr, "no advice to load the file unsafely"
-    assert not marker.exists(), "the pickle ran"
-    assert not out.exists() and not out.with_name(out.name + ".partial").exists()
-
-
-def test_pickles_in_fields_that_are_never_opened_do_not_run(tmp_path: Path) -> None:
-    """The spaces' and schedules' pickles are ignored: the zip loads from its readable fields."""
-    marker = tmp_path / "ran"
-    path = sb3_zip(tmp_path / "opaque.zip", marker)
-    result = last_json(run_cli("record", "--env", "CartPole-v1", "--expert", f"sb3:{path}", "--episodes", "1", "--out", str(tmp_path / "d.mcap"), "--json"))
-    assert result["episodes"] == 1
-    assert not marker.exists(), "the pickle ran"
-
-
-@pytest.fixture
-def run_dir(tmp_path: Path) -> Path:
+def run_dir(folder: Path) -> Path:
     """A small, valid BC-like run directory with a CartPole policy."""
     policy = make_policy(*CARTPOLE, hidden_sizes=[8])
-    with RunWriter(tmp_path / "run", config={"kind": "bc", "env_id": "CartPole-v1", "policy": policy.config.to_json()}, tensorboard=False) as run:
+    with RunWriter(folder, config={"kind": "bc", "env_id": "CartPole-v1", "policy": policy.config.to_json()}, tensorboard=False) as run:
         run.save_weights(policy_tensors(policy))
         run.finish({})
-    return tmp_path / "run"
+    return folder
 
 
-def test_the_valid_run_directory_loads(run_dir: Path) -> None:
-    """Control for the next test: the run only fails there because of its weights file."""
-    result = last_json(run_cli("eval", "policy", str(run_dir), "--env", "CartPole-v1", "--episodes", "1", "--json"))
-    assert result["episodes"] == 1
-
-
-@pytest.mark.parametrize("kind", ["bare pickle", "torch.save"])
-def test_a_pickle_in_place_of_safetensors_weights_is_refused_and_never_runs(run_dir: Path, tmp_path: Path, kind: str) -> None:
-    marker = tmp_path / "ran"
-    weights = run_dir / "model.safetensors"
-    weights.write_bytes(payload(marker) if kind == "bare pickle" else torch_saved_payload(marker))
-    result = run_cli("eval", "policy", str(run_dir), "--env", "CartPole-v1", "--episodes", "1")
-    assert_one_line_error(result, str(weights), "unreadable safetensors file")
-    assert not marker.exists(), "the pickle ran"
-    result = run_cli("record", "--env", "CartPole-v1", "--expert", str(run_dir), "--episodes", "1", "--out", str(tmp_path / "x.mcap"))
-    assert_one_line_error(result, "unreadable safetensors file")
-    assert not marker.exists(), "the pickle ran"
-
-
-def test_an_npz_with_an_object_array_is_refused_and_never_runs(tmp_path: Path) -> None:
-    marker = tmp_path / "ran"
-    path = tmp_path / "evil.npz"
+def evil_npz(path: Path, marker: Path) -> Path:
     rows = 5
     np.savez(path, obs=np.zeros((rows, 4), np.float32), actions=np.zeros((rows, 1), np.int64), rewards=np.ones(rows),
              episode_starts=np.eye(1, rows, dtype=bool)[0], episode_returns=np.array([MarkerPayload(marker)], dtype=object))
-    with np.load(path, allow_pickle=True) as archive:  # control: unpickled, the payload runs
-        archive["episode_returns"][0].close()
-    assert marker.exists(), "the payload is live"
-    marker.unlink()
-    out = tmp_path / "demos.mcap"
-    result = run_cli("convert", str(path), "--out", str(out))
-    assert_one_line_error(result, str(path), "array 'episode_returns' holds Python objects; it is not read")
+    return path
+
+
+SB3_CASES = {
+    "bare pickle as policy.pth": "policy.pth is not a plain PyTorch state dict",
+    "torch.save of an object as policy.pth": "policy.pth is not a plain PyTorch state dict",
+    "policy_kwargs' pickle names builtins.open": "policy_kwargs' pickle refers to _io.open",
+}
+
+
+@pytest.fixture(scope="module")
+def crafted(tmp_path_factory) -> dict:
+    """Every crafted file, each with its own marker, run through the CLI in one batch."""
+    root = tmp_path_factory.mktemp("crafted")
+    cases: dict[str, tuple[list, Path]] = {}
+    for name in SB3_CASES:
+        folder = root / name.replace(" ", "-").replace("'", "")
+        folder.mkdir()
+        marker = folder / "ran"
+        if name.startswith("bare"):
+            path = sb3_zip(folder / "evil.zip", marker, policy_pth=payload(marker))
+        elif name.startswith("torch.save"):
+            path = sb3_zip(folder / "evil.zip", marker, policy_pth=torch_saved_payload(marker))
+        else:
+            path = sb3_zip(folder / "evil.zip", marker, policy_kwargs_payload=True)
+        cases[name] = (["record", "--env", "CartPole-v1", "--expert", f"sb3:{path}", "--episodes", "1", "--out", folder / "demos.mcap"], marker)
+    opaque = root / "opaque"
+    opaque.mkdir()
+    path = sb3_zip(opaque / "opaque.zip", opaque / "ran")
+    cases["opaque fields"] = (["record", "--env", "CartPole-v1", "--expert", f"sb3:{path}", "--episodes", "1", "--out", opaque / "d.mcap", "--json"], opaque / "ran")
+    cases["valid run"] = (["eval", "policy", run_dir(root / "valid-run"), "--env", "CartPole-v1", "--episodes", "1", "--json"], root / "none")
+    for kind in ("bare pickle", "torch.save"):
+        folder = root / kind.replace(" ", "-")
+        run = run_dir(folder / "run")
+        marker = folder / "ran"
+        (run / "model.safetensors").write_bytes(payload(marker) if kind == "bare pickle" else torch_saved_payload(marker))
+        cases[f"weights: {kind}: eval"] = (["eval", "policy", run, "--env", "CartPole-v1", "--episodes", "1"], marker)
+        cases[f"weights: {kind}: record"] = (["record", "--env", "CartPole-v1", "--expert", run, "--episodes", "1", "--out", folder / "x.mcap"], marker)
+    npz = root / "npz"
+    npz.mkdir()
+    cases["npz"] = (["convert", evil_npz(npz / "evil.npz", npz / "ran"), "--out", npz / "demos.mcap"], npz / "ran")
+    outcomes = run_cli_many([argv for argv, _ in cases.values()])
+    return {name: (outcome, argv, marker) for (name, (argv, marker)), outcome in zip(cases.items(), outcomes)}
+
+
+@pytest.mark.parametrize("case", list(SB3_CASES))
+def test_a_crafted_sb3_zip_is_refused_and_never_runs(crafted: dict, case: str) -> None:
+    result, argv, marker = crafted[case]
+    zip_path = str(argv[4]).removeprefix("sb3:")
+    assert_one_line_error(result, zip_path, SB3_CASES[case])
+    assert "weights_only" not in result.stderr, "no advice to load the file unsafely"
     assert not marker.exists(), "the pickle ran"
+    out = Path(argv[-1])
+    assert not out.exists() and not out.with_name(out.name + ".partial").exists()
+
+
+def test_pickles_in_fields_that_are_never_opened_do_not_run(crafted: dict) -> None:
+    """The spaces' and schedules' pickles are ignored: the zip loads from its readable fields."""
+    result, _, marker = crafted["opaque fields"]
+    assert last_json(result)["episodes"] == 1
+    assert not marker.exists(), "the pickle ran"
+
+
+def test_the_valid_run_directory_loads(crafted: dict) -> None:
+    """Control for the next test: those runs only fail because of their weights file."""
+    assert last_json(crafted["valid run"][0])["episodes"] == 1
+
+
+@pytest.mark.parametrize("kind", ["bare pickle", "torch.save"])
+@pytest.mark.parametrize("command", ["eval", "record"])
+def test_a_pickle_in_place_of_safetensors_weights_is_refused_and_never_runs(crafted: dict, kind: str, command: str) -> None:
+    result, argv, marker = crafted[f"weights: {kind}: {command}"]
+    run = Path(argv[2] if command == "eval" else argv[4])
+    assert_one_line_error(result, str(run / "model.safetensors"), "unreadable safetensors file")
+    assert not marker.exists(), "the pickle ran"
+
+
+def test_the_npz_payload_is_live(tmp_path: Path) -> None:
+    """Control: numpy would unpickle the crafted npz's object array if asked to, and the payload would run."""
+    marker = tmp_path / "ran"
+    with np.load(evil_npz(tmp_path / "evil.npz", marker), allow_pickle=True) as archive:
+        archive["episode_returns"][0].close()
+    assert marker.exists()
+
+
+def test_an_npz_with_an_object_array_is_refused_and_never_runs(crafted: dict) -> None:
+    result, argv, marker = crafted["npz"]
+    assert_one_line_error(result, str(argv[1]), "array 'episode_returns' holds Python objects; it is not read")
+    assert not marker.exists(), "the pickle ran"
+    out = Path(argv[-1])
     assert not out.exists() and not out.with_name(out.name + ".partial").exists()
