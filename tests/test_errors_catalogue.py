@@ -181,6 +181,28 @@ class Inputs:
         path.write_bytes(bytes(data))
         return path
 
+    def patched(self, name: str, patch: Callable[[bytearray, int, int], None]) -> Path:
+        """CartPole's demos with bytes changed by patch(data, summary_start, first chunk's offset);
+        the footer's summary checksum is zeroed (MCAP: not checked) so the summary may change."""
+        data = bytearray((DATASETS / "CartPole-v1.mcap").read_bytes())
+        (summary_start,) = struct.unpack_from("<Q", data, len(data) - 28)
+        data[len(data) - 12 : len(data) - 8] = b"\0\0\0\0"
+        at = 8
+        while data[at] != 0x06:
+            at += 9 + struct.unpack_from("<Q", data, at + 1)[0]
+        patch(data, summary_start, at)
+        path = self.path(name)
+        path.write_bytes(bytes(data))
+        return path
+
+    @staticmethod
+    def chunk_index(data: bytearray, summary_start: int) -> tuple[int, int]:
+        """(start, end) of the first chunk index record's body in the summary."""
+        at = summary_start
+        while data[at] != 0x08:
+            at += 9 + struct.unpack_from("<Q", data, at + 1)[0]
+        return at + 9, at + 9 + struct.unpack_from("<Q", data, at + 1)[0]
+
     def flipped_chunk(self, name: str) -> Path:
         """Uncompressed demos with one bit flipped in the middle of the data: a CRC mismatch."""
         from imitation.data.store import DemoFile
@@ -380,6 +402,16 @@ def _npz_case(builder: str, name: str, *extra, **changes) -> Callable[[Inputs], 
     return lambda i: _convert(getattr(i, builder)(name, **changes), *extra)
 
 
+def _index_field(offset: int, value: bytes) -> Callable[[bytearray, int, int], None]:
+    """Overwrite bytes of the first chunk index: at `offset` into its body (negative: from its end)."""
+    def patch(data: bytearray, summary_start: int, chunk: int) -> None:
+        start, end = Inputs.chunk_index(data, summary_start)
+        at = (start if offset >= 0 else end) + offset
+        data[at : at + len(value)] = value
+
+    return patch
+
+
 def _nan_weights(tensors: dict) -> dict:
     return {name: torch.full_like(t, float("nan")) if t.is_floating_point() else t for name, t in tensors.items()}
 
@@ -491,12 +523,20 @@ CASE_LIST = [
     case("demo-d1", lambda i: _bc(i.path("tiny.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\0" * 10) and i.root / "tiny.mcap")),
     case("demo-d5", lambda i: _bc(i.flipped_summary("summary.mcap"))),
     case("demo-d14", lambda i: ["info", i.cut_at_record("cut-body.mcap", 20)]),
+    case("demo-d3", lambda i: _bc(i.patched("no-summary.mcap", lambda d, s, c: d.__setitem__(slice(len(d) - 28, len(d) - 20), bytes(8))))),
+    case("demo-d10", lambda i: _bc(i.patched("index-past.mcap", _index_field(16, struct.pack("<Q", 10**9))))),
+    case("demo-d11", lambda i: _bc(i.patched("index-huge.mcap", _index_field(-8, struct.pack("<Q", 2**40))))),
+    case("demo-d18", lambda i: _bc(i.patched("brotli.mcap", lambda d, s, c: d.__setitem__(slice(c + 9 + 28 + 4, c + 9 + 28 + 8), b"brot")))),
     case("write-6", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--out", i.root / "missing" / "x.mcap"]),
     # spaces (inside a demo file's metadata or a run's config)
     case("space-5", lambda i: _bc(i.demo_with("s5.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box"}'}))),
     case("space-6", lambda i: _bc(i.demo_with("s6.mcap", dataset=lambda d: d | {"observation_space": "[1, 2]"}))),
     case("space-7", lambda i: _bc(i.demo_with("s7.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box", "dtype": "float32", "shape": [-1], "low": 0, "high": 1}'}))),
     case("space-8", lambda i: _bc(i.demo_with("s8.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box", "dtype": "float32", "shape": [100000, 100000], "low": 0, "high": 1}'}))),
+    case("space-3", lambda i: _bc(i.demo_with("s3.mcap", dataset=lambda d: d | {"observation_space": json.dumps({"type": "Dict", "spaces": {"a/b": {"type": "Discrete", "n": 2}}})}))),
+    case("space-9", lambda i: _bc(i.demo_with("s9.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box", "dtype": 5, "shape": [4], "low": 0, "high": 1}'}))),
+    case("space-11", lambda i: _bc(i.demo_with("s11.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Discrete", "n": 0}'}))),
+    case("space-12", lambda i: _bc(i.demo_with("s12.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Dict", "spaces": [1]}'}))),
     case("space-10", lambda i: _bc(i.demo_with("s10.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box", "dtype": "U8", "shape": [4], "low": 0, "high": 1}'}))),
     case("space-14", lambda i: ["eval", "policy", i.policy_run("cp-run"), "--env", "Pendulum-v1", "--episodes", "1"]),
     # training
