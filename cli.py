@@ -540,7 +540,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="the whole chain on the bundled data, with one report",
         description="Bundled demos → behavioural cloning and DAgger (CartPole-v1) → MaxEnt IRL on a gridworld and guided cost "
         "learning on fixed-horizon CartPole → PPO from scratch on the recovered reward → eval policy and eval reward, offline, "
-        "in about four minutes on 2 cores; writes DIR/report.md with every result and plot.",
+        "in about three minutes on 2 cores; writes DIR/report.md with every result and plot.",
     )
     demo.add_argument("--out", default="demo-output", metavar="DIR", help="output directory (default: demo-output)")
     demo.add_argument("--datasets", metavar="DIR", help="where the bundled datasets are (default: the repository's datasets/)")

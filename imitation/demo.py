@@ -7,7 +7,7 @@ retraining, controls) → report.md.
 
 Guided cost learning, the longest stage, runs in a second process beside the short stages, and
 `eval reward` retrains its three PPO policies (recovered reward and two controls) side by side:
-on 2 cores the demo takes about four minutes.
+on 2 cores the demo takes about three minutes.
 """
 
 from __future__ import annotations
