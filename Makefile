@@ -5,7 +5,7 @@ DEMO_OUT := demo-output
 # Bundled datasets: seeds start at 1000 so evaluations on seeds 0, 1, 2, ... see fresh starts.
 DATASET_SEED := 1000
 
-.PHONY: venv demo test test-all bench datasets clean
+.PHONY: venv demo test test-all bench fuzz datasets clean
 
 venv:
 	@bash scripts/bootstrap.sh
@@ -29,6 +29,10 @@ bench: venv
 	$(PY) bench/dagger_vs_bc.py
 	$(PY) bench/irl.py
 	$(PY) bench/irl.py --continuous
+
+# Mutation fuzzing of every file reader, 10,000 inputs per target (figures: bench/RESULTS.md, "Fuzzing (issue 8)").
+fuzz: venv
+	$(PY) tools/fuzz.py
 
 datasets: venv
 	$(IMITATION) record --env CartPole-v1 --expert scripted --episodes 25 --seed $(DATASET_SEED) --out datasets/CartPole-v1.mcap

@@ -161,7 +161,7 @@ def cmd_train_ppo(args: argparse.Namespace) -> int:
     if args.async_envs:
         settings["async_envs"] = True
     config = PPOConfig(env_id=args.env, total_steps=args.steps, reward_run=args.reward, **settings)
-    result = ppo_job(config, args.out, progress=not args.quiet)
+    result = ppo_job(config, args.out, progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
     else:
@@ -192,7 +192,7 @@ def cmd_train_bc(args: argparse.Namespace) -> int:
         entropy_coef=args.entropy, l2_coef=args.l2, validation_fraction=args.validation, patience=args.patience,
         seed=args.seed, device=args.device,
     )
-    result = bc_job(args.demos, args.env, config, args.out, progress=not args.quiet)
+    result = bc_job(args.demos, args.env, config, args.out, progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
     elif result["offline"]:
@@ -339,6 +339,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_resume(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--resume", action="store_true",
+        help="continue the interrupted run in RUN_DIR.partial from its last checkpoint (saved every tenth of the run and on Ctrl-C), "
+        "with the same settings, to the same total",
+    )
+
+
 def _add_run_output(parser: argparse.ArgumentParser) -> None:
     """--out, --json and --quiet, shared by every `train` command."""
     parser.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory to write (replaced only when the run completes)")
@@ -432,6 +440,7 @@ def build_parser() -> argparse.ArgumentParser:
     ppo.add_argument("--device", metavar="auto|cpu|cuda", help="where the networks run (default: auto)")
     ppo.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (default: 1, fastest for small networks)")
     _add_run_output(ppo)
+    _add_resume(ppo)
     ppo.set_defaults(handler=cmd_train_ppo)
 
     bc = algorithms.add_parser(
@@ -457,6 +466,7 @@ def build_parser() -> argparse.ArgumentParser:
     bc.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     bc.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
     _add_run_output(bc)
+    _add_resume(bc)
     bc.set_defaults(handler=cmd_train_bc)
 
     dagger = algorithms.add_parser(
@@ -557,10 +567,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return handler(args)
     except ImitationError as error:
-        print(f"error: {error}", file=sys.stderr)
+        # One line even if a message quotes a multi-line error from another library.
+        print("error: " + " ".join(line.strip() for line in str(error).splitlines() if line.strip()), file=sys.stderr)
         return EXIT_ERROR
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+    except KeyboardInterrupt as interrupt:
+        # A trainer stopped at a checkpoint says where it is and how to resume.
+        print(f"interrupted: {interrupt}" if str(interrupt) else "interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
 
 

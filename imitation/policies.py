@@ -27,7 +27,7 @@ from torch import nn
 from torch.distributions import Categorical, Distribution, Normal
 
 from imitation.data.spaces import check_spaces_fit, space_from_json, space_to_json
-from imitation.errors import ImitationError
+from imitation.errors import ImitationError, SpaceError
 from imitation.runs import read_run
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
@@ -83,7 +83,37 @@ class PolicyConfig:
 
     @staticmethod
     def from_json(data: dict[str, Any]) -> PolicyConfig:
-        return PolicyConfig(**data)
+        """From config.json's "policy"; TypeError or ValueError for anything malformed."""
+        if not isinstance(data, dict):
+            raise TypeError(f"the policy config is a {type(data).__name__}, not an object")
+        config = PolicyConfig(**data)
+        check_layer_widths(config.hidden_sizes)
+        if not (isinstance(config.activation, str) and isinstance(config.shared_trunk, bool) and isinstance(config.normalize_observations, bool)):
+            raise TypeError("activation must be a name, shared_trunk and normalize_observations true or false")
+        if isinstance(config.log_std_init, bool) or not isinstance(config.log_std_init, (int, float)) or not math.isfinite(config.log_std_init):
+            raise ValueError(f"log_std_init must be a finite number, got {config.log_std_init!r}")
+        return config
+
+
+def check_layer_widths(hidden_sizes: Any) -> None:
+    """Hidden-layer widths read from a file: a list of at most 64 widths in [1, 2^20]."""
+    if not (isinstance(hidden_sizes, list) and len(hidden_sizes) <= 64
+            and all(isinstance(h, int) and not isinstance(h, bool) and 1 <= h <= 2**20 for h in hidden_sizes)):
+        raise ValueError(f"hidden_sizes must be a list of layer widths in [1, 2^20], got {str(hidden_sizes)[:80]}")
+
+
+def mlp_weight_count(inputs: int, hidden_sizes: list[int], outputs: int) -> int:
+    """How many numbers the weight matrices of such an MLP hold (its biases not counted)."""
+    sizes = [inputs, *hidden_sizes, outputs]
+    return sum(a * b for a, b in zip(sizes, sizes[1:]))
+
+
+def check_weights_cover(path: Any, planned: int, weights: dict[str, torch.Tensor]) -> None:
+    """Refuse, before allocating it, a network bigger than the weights file could fill: every
+    parameter must be in the file, so a config asking for more is wrong (or crafted)."""
+    held = sum(tensor.numel() for tensor in weights.values())
+    if planned > held:
+        raise ImitationError(f"{path}: its config describes a network of at least {planned} weights, but its weights file holds {held} numbers")
 
 
 def _layer(inputs: int, outputs: int, gain: float) -> nn.Linear:
@@ -259,13 +289,21 @@ def load_policy(path: str | os.PathLike) -> ActorCritic:
     """The policy of a run directory (PPO, BC, DAgger), on the CPU, in eval mode."""
     config, weights = read_run(path)
     if "policy" not in config:
-        raise ImitationError(f"{path}: a {config.get('kind', 'unknown')!r} run holds no policy")
+        raise ImitationError(f"{path}: a {str(config.get('kind', 'unknown'))[:40]!r} run holds no policy")
+    state = {name[len(POLICY_PREFIX) :]: tensor for name, tensor in weights.items() if name.startswith(POLICY_PREFIX)}
     try:
-        policy = ActorCritic(PolicyConfig.from_json(config["policy"]))
-        state = {name[len(POLICY_PREFIX) :]: tensor for name, tensor in weights.items() if name.startswith(POLICY_PREFIX)}
+        policy_config = PolicyConfig.from_json(config["policy"])
+        observations, actions = space_from_json(policy_config.observation_space), space_from_json(policy_config.action_space)
+        outputs = int(actions.n) if isinstance(actions, gym.spaces.Discrete) else observation_size(actions)
+        trunks = 1 if policy_config.shared_trunk else 2
+        planned = trunks * mlp_weight_count(observation_size(observations), policy_config.hidden_sizes, 0) + (policy_config.hidden_sizes or [observation_size(observations)])[-1] * (outputs + 1)
+        check_weights_cover(path, planned, state)
+        policy = ActorCritic(policy_config)
         policy.load_state_dict(state)
-    except (TypeError, KeyError, RuntimeError) as error:
-        raise ImitationError(f"{path}: policy weights do not match its config ({str(error).splitlines()[0]})") from None
+    except SpaceError as error:
+        raise ImitationError(f"{path}: the policy's {error}") from None
+    except (TypeError, KeyError, RuntimeError, ValueError) as error:
+        raise ImitationError(f"{path}: policy weights do not match its config ({(str(error).splitlines() or [''])[0][:200]})") from None
     return policy.eval()
 
 

@@ -22,8 +22,8 @@ import torch
 from torch import nn
 
 from imitation.data.spaces import check_spaces_fit, space_from_json, space_to_json
-from imitation.errors import ImitationError
-from imitation.policies import ACTIVATIONS, observation_size
+from imitation.errors import ImitationError, SpaceError
+from imitation.policies import ACTIVATIONS, check_layer_widths, check_weights_cover, mlp_weight_count, observation_size
 from imitation.runs import read_run
 
 if TYPE_CHECKING:
@@ -49,6 +49,31 @@ class RewardConfig:
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
+
+    @staticmethod
+    def from_json(data: Any) -> RewardConfig:
+        """From config.json's "reward"; TypeError or ValueError for anything malformed."""
+        if not isinstance(data, dict):
+            raise TypeError(f"the reward config is a {type(data).__name__}, not an object")
+        config = RewardConfig(**data)
+        check_layer_widths(config.hidden_sizes)
+        if not isinstance(config.inputs, str) or not isinstance(config.activation, str) or not isinstance(config.normalize_observations, bool):
+            raise TypeError("inputs and activation must be names, normalize_observations true or false")
+        features = config.state_features
+        if features is not None and (isinstance(features, bool) or not isinstance(features, int) or not 1 <= features <= 2**20):
+            raise ValueError(f"state_features must be a width in [1, 2^20] or null, got {str(features)[:40]}")
+        return config
+
+
+def _planned_weights(config: RewardConfig) -> int:
+    """How many numbers a RewardNet of this config holds at least: its feature table and weight matrices."""
+    observations, actions = space_from_json(config.observation_space), space_from_json(config.action_space)
+    size = observation_size(observations)
+    table = 0
+    if config.state_features is not None and isinstance(observations, gym.spaces.Discrete):
+        table, size = int(observations.n) * config.state_features, config.state_features
+    size += (observation_size(actions) if "a" in config.inputs else 0) + (observation_size(observations) if config.inputs == "sas" else 0)
+    return table + mlp_weight_count(size, config.hidden_sizes, 1)
 
 
 def _one_hot_or_flat(values: torch.Tensor, space: gym.Space) -> torch.Tensor:
@@ -147,12 +172,17 @@ def load_reward(path: str | os.PathLike) -> RewardNet:
     """The reward model of a run directory, on the CPU, in eval mode."""
     config, weights = read_run(path)
     if config.get("kind") != "reward" and "reward" not in config:
-        raise ImitationError(f"{path}: not a reward model (a {config.get('kind', 'unknown')!r} run); pass the run directory of `train irl`")
+        raise ImitationError(f"{path}: not a reward model (a {str(config.get('kind', 'unknown'))[:40]!r} run); pass the run directory of `train irl`")
+    state = {name[len(REWARD_PREFIX) :]: t for name, t in weights.items() if name.startswith(REWARD_PREFIX)}
     try:
-        model = RewardNet(RewardConfig(**config["reward"]))
-        model.load_state_dict({name[len(REWARD_PREFIX) :]: t for name, t in weights.items() if name.startswith(REWARD_PREFIX)})
-    except (TypeError, KeyError, RuntimeError) as error:
-        raise ImitationError(f"{path}: reward weights do not match its config ({str(error).splitlines()[0]})") from None
+        reward_config = RewardConfig.from_json(config["reward"])
+        check_weights_cover(path, _planned_weights(reward_config), state)
+        model = RewardNet(reward_config)
+        model.load_state_dict(state)
+    except SpaceError as error:
+        raise ImitationError(f"{path}: the reward model's {error}") from None
+    except (TypeError, KeyError, RuntimeError, ValueError) as error:
+        raise ImitationError(f"{path}: reward weights do not match its config ({(str(error).splitlines() or [''])[0][:200]})") from None
     return model.eval()
 
 

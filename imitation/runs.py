@@ -11,6 +11,12 @@
 A run is written under `RUN_DIR.partial` and renamed to RUN_DIR only when it is complete; an
 existing RUN_DIR is replaced at that moment, not before, so an interrupted or failed run never
 destroys the previous one.
+
+Trainers that can resume (PPO, BC) save a checkpoint into `RUN_DIR.partial/checkpoint/`
+(`tensors.safetensors` and `state.json`, see imitation.checkpoints) every tenth of the run and
+when Ctrl-C stops them. An interrupted run's partial directory is kept when it holds a
+checkpoint (a failed one is removed), and `RunWriter(..., resume=True)` reopens it: the logged
+rows are cut back to the checkpoint and the trainer continues from its state.
 """
 
 from __future__ import annotations
@@ -28,6 +34,9 @@ from safetensors.torch import load_file, save_file
 
 from imitation.errors import ImitationError
 
+CHECKPOINT_DIR = "checkpoint"
+CHECKPOINT_TENSORS = "tensors.safetensors"
+CHECKPOINT_STATE = "state.json"
 CONFIG_FILE = "config.json"
 WEIGHTS_FILE = "model.safetensors"
 METRICS_FILE = "metrics.json"
@@ -46,26 +55,111 @@ def _json_ready(value: Any) -> Any:
     return value
 
 
-def write_json(path: Path, data: dict[str, Any]) -> None:
+def write_json(path: Path, data: dict[str, Any], *, durable: bool = False) -> None:
     temporary = path.with_name(path.name + ".tmp")
-    temporary.write_text(json.dumps(_json_ready(data), indent=2) + "\n")
+    with open(temporary, "w") as stream:
+        stream.write(json.dumps(_json_ready(data), indent=2) + "\n")
+        if durable:
+            stream.flush()
+            os.fsync(stream.fileno())
     os.replace(temporary, path)
 
 
-class RunWriter:
-    """Builds a run directory under `<path>.partial`; `finish()` moves it into place."""
+def _fsync_directory(path: Path) -> None:
+    descriptor = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(descriptor)
+    finally:
+        os.close(descriptor)
 
-    def __init__(self, path: str | os.PathLike, *, config: dict[str, Any], tensorboard: bool = True, x_axis: str = "step") -> None:
+
+def save_checkpoint(folder: Path, tensors: dict[str, torch.Tensor], state: dict[str, Any]) -> Path:
+    """Write `folder/checkpoint/` so that it always holds one whole checkpoint: the new one is
+    written beside it (`checkpoint.new/`), made durable, then swapped in; a crash mid-swap leaves
+    `checkpoint.old/`, which `read_checkpoint` falls back to."""
+    final, fresh, old = folder / CHECKPOINT_DIR, folder / (CHECKPOINT_DIR + ".new"), folder / (CHECKPOINT_DIR + ".old")
+    shutil.rmtree(fresh, ignore_errors=True)
+    fresh.mkdir()
+    save_file({name: tensor.detach().cpu().contiguous() for name, tensor in tensors.items()}, str(fresh / CHECKPOINT_TENSORS))
+    with open(fresh / CHECKPOINT_TENSORS, "rb+") as stream:
+        os.fsync(stream.fileno())
+    write_json(fresh / CHECKPOINT_STATE, state, durable=True)
+    _fsync_directory(fresh)
+    if final.exists():
+        shutil.rmtree(old, ignore_errors=True)
+        os.replace(final, old)
+    os.replace(fresh, final)
+    _fsync_directory(folder)
+    shutil.rmtree(old, ignore_errors=True)
+    return final
+
+
+def has_checkpoint(folder: Path) -> bool:
+    return any((folder / name / CHECKPOINT_STATE).is_file() for name in (CHECKPOINT_DIR, CHECKPOINT_DIR + ".old"))
+
+
+def read_checkpoint(folder: Path) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """The checkpoint in `folder` (tensors, state); one-line errors when there is none or it is unreadable."""
+    for name in (CHECKPOINT_DIR, CHECKPOINT_DIR + ".old"):
+        where = folder / name
+        if not (where / CHECKPOINT_STATE).is_file():
+            continue
+        try:
+            state = json.loads((where / CHECKPOINT_STATE).read_text())
+            tensors = load_file(str(where / CHECKPOINT_TENSORS))
+        except Exception as error:  # noqa: BLE001 - a damaged checkpoint is one line
+            raise ImitationError(f"{where}: unreadable checkpoint ({type(error).__name__}: {error})") from None
+        if not isinstance(state, dict):
+            raise ImitationError(f"{where / CHECKPOINT_STATE}: not a checkpoint state (a JSON object)")
+        return tensors, state
+    raise ImitationError(f"{folder}: holds no checkpoint (the run stopped before its first one); start again without --resume")
+
+
+def _differences(saved: Any, given: Any, ignore: set[str], prefix: str = "") -> list[str]:
+    """Dotted keys whose values differ between two JSON documents (keys in `ignore` skipped)."""
+    if isinstance(saved, dict) and isinstance(given, dict):
+        found = []
+        for key in sorted(set(saved) | set(given)):
+            path = f"{prefix}{key}"
+            if path not in ignore:
+                found += _differences(saved.get(key), given.get(key), ignore, path + ".")
+        return found
+    return [] if saved == given else [f"{prefix.rstrip('.')}: {saved!r} there, {given!r} now"]
+
+
+class RunWriter:
+    """Builds a run directory under `<path>.partial`; `finish()` moves it into place.
+
+    With `resume=True` the partial directory of an interrupted run is reopened instead of
+    replaced: its config.json must match `config` (keys in `resume_ignore`, dotted, may differ,
+    e.g. the device), its logged rows are cut back to its checkpoint, and `resumed` holds the
+    trainer's (tensors, state) to continue from."""
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        config: dict[str, Any],
+        tensorboard: bool = True,
+        x_axis: str = "step",
+        resume: bool = False,
+        resume_ignore: tuple[str, ...] = (),
+    ) -> None:
         self.path = Path(path)
         self.x_axis = x_axis
         self.partial = self.path.with_name(self.path.name + ".partial")
+        self.resumed: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None
         if self.path.exists() and not self.path.is_dir():
             raise ImitationError(f"--out {self.path}: exists and is not a directory")
-        try:
-            shutil.rmtree(self.partial, ignore_errors=True)
-            self.partial.mkdir(parents=True)
-        except OSError as error:
-            raise ImitationError(f"--out {self.path}: cannot create: {error.strerror or error}") from None
+        history: list[dict[str, float]] = []
+        if resume:
+            history = self._reopen(config, set(resume_ignore))
+        else:
+            try:
+                shutil.rmtree(self.partial, ignore_errors=True)
+                self.partial.mkdir(parents=True)
+            except OSError as error:
+                raise ImitationError(f"--out {self.path}: cannot create: {error.strerror or error}") from None
         self.config = config
         write_json(self.partial / CONFIG_FILE, config)
         self._csv_file = open(self.partial / PROGRESS_FILE, "w", newline="")
@@ -75,7 +169,35 @@ class RunWriter:
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
 
-            self._tensorboard = SummaryWriter(str(self.partial / "tb"))
+            # purge_step hides the events an interrupted run logged after its checkpoint.
+            purge = int(history[-1][x_axis]) + 1 if history else None
+            self._tensorboard = SummaryWriter(str(self.partial / "tb"), purge_step=purge)
+        for row in history:
+            self.log(row, tensorboard=False)
+
+    def _reopen(self, config: dict[str, Any], ignore: set[str]) -> list[dict[str, float]]:
+        """Check that the partial run matches `config` and load its checkpoint; the rows logged
+        up to the checkpoint."""
+        from imitation.checkpoints import floats
+
+        if not self.partial.is_dir():
+            raise ImitationError(f"--resume: {self.partial} does not exist, so there is no interrupted run to continue; start without --resume")
+        tensors, state = read_checkpoint(self.partial)
+        try:
+            saved = json.loads((self.partial / CONFIG_FILE).read_text())
+        except (OSError, json.JSONDecodeError) as error:
+            raise ImitationError(f"--resume: {self.partial / CONFIG_FILE} is unreadable ({error})") from None
+        differences = _differences(saved, json.loads(json.dumps(_json_ready(config))), ignore)
+        if differences:
+            raise ImitationError(
+                f"--resume: {self.partial} was started with other settings ({differences[0]}); "
+                "resume with the same ones, or start again without --resume"
+            )
+        self.resumed = (tensors, state.get("trainer", {}))
+        try:
+            return [floats(row) for row in state.get("history", [])]
+        except (TypeError, ValueError, AttributeError) as error:
+            raise ImitationError(f"{self.partial / CHECKPOINT_DIR}: unreadable checkpoint (logged rows: {error})") from None
 
     @property
     def history(self) -> list[dict[str, float]]:
@@ -86,7 +208,7 @@ class RunWriter:
         self.config.update(entries)
         write_json(self.partial / CONFIG_FILE, self.config)
 
-    def log(self, row: dict[str, float]) -> None:
+    def log(self, row: dict[str, float], *, tensorboard: bool = True) -> None:
         """One row of progress (the same keys every time; the `x_axis` column is the x axis)."""
         if self._csv is None:
             self._csv = csv.DictWriter(self._csv_file, fieldnames=list(row))
@@ -94,13 +216,17 @@ class RunWriter:
         self._csv.writerow(row)
         self._csv_file.flush()
         self._history.append(dict(row))
-        if self._tensorboard is not None:
+        if self._tensorboard is not None and tensorboard:
             for key, value in row.items():
                 if key != self.x_axis and isinstance(value, (int, float)) and math.isfinite(value):
                     self._tensorboard.add_scalar(key, value, int(row[self.x_axis]))
 
     def save_weights(self, tensors: dict[str, torch.Tensor]) -> None:
         save_file({name: tensor.detach().cpu().contiguous() for name, tensor in tensors.items()}, str(self.partial / WEIGHTS_FILE))
+
+    def save_checkpoint(self, tensors: dict[str, torch.Tensor], state: dict[str, Any]) -> None:
+        """Save a trainer's checkpoint with the rows logged so far (see `save_checkpoint`)."""
+        save_checkpoint(self.partial, tensors, {"history": self._history, "trainer": state})
 
     def file(self, name: str) -> Path:
         """A path inside the run being written (for plots and extra artefacts)."""
@@ -127,8 +253,11 @@ class RunWriter:
         return self
 
     def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: Any) -> None:
-        # A run that failed or was interrupted leaves nothing behind; a finished one is in place.
-        if exc_type is not None:
+        # A failed run leaves nothing behind, nor does an interrupted one without a checkpoint;
+        # an interrupted run with a checkpoint keeps its partial directory for --resume.
+        if exc_type is not None and issubclass(exc_type, KeyboardInterrupt) and has_checkpoint(self.partial):
+            self._close_logs()
+        elif exc_type is not None:
             self.abort()
 
     def _close_logs(self) -> None:
@@ -149,9 +278,11 @@ def read_run(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, torch.T
     if not config_path.is_file() or not weights_path.is_file():
         raise ImitationError(f"{run}: not a finished run directory (no {CONFIG_FILE} or {WEIGHTS_FILE})")
     try:
-        config = json.loads(config_path.read_text())
-    except json.JSONDecodeError as error:
-        raise ImitationError(f"{config_path}: not valid JSON ({error})") from None
+        config = json.loads(config_path.read_bytes())
+    except (ValueError, RecursionError) as error:  # ValueError: not JSON, or not UTF-8
+        raise ImitationError(f"{config_path}: not valid JSON ({type(error).__name__}: {str(error)[:200]})") from None
+    if not isinstance(config, dict):
+        raise ImitationError(f"{config_path}: not a run's config (a JSON object), but a {type(config).__name__}")
     try:
         weights = load_file(str(weights_path))
     except Exception as error:

@@ -6,8 +6,8 @@ The CLI calls these; learners in imitation.algorithms know nothing of run direct
 from __future__ import annotations
 
 import os
-from contextlib import closing, nullcontext
-from typing import Any
+from contextlib import closing, contextmanager, nullcontext
+from typing import Any, Iterator
 
 import gymnasium as gym
 import numpy as np
@@ -22,7 +22,8 @@ from imitation.algorithms.maxent_irl import (
     MaxEntIRLConfig, Dynamics, all_state_rewards, demo_visitation, expected_return, train_maxent_irl,
 )
 from imitation.algorithms.ppo import PPOConfig, Rollout, train_ppo
-from imitation.data.loader import TransitionTensors, load_transitions, split_episode_tails, split_episodes, transitions_to_torch
+from imitation.checkpoints import Checkpointing, TrainingInterrupted
+from imitation.data.loader import TransitionTensors, check_episodes_finite, load_transitions, split_episode_tails, split_episodes, transitions_to_torch
 from imitation.data.spaces import check_spaces_fit
 from imitation.data.store import DemoDataset
 from imitation.envs.make import make_env
@@ -36,6 +37,8 @@ from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy
 from imitation.rewards import load_reward, make_reward_model, relabel_rollout, reward_tensors
 from imitation.runs import RunWriter, plot_curve
 
+# What may differ between an interrupted run and its --resume: where and how fast it runs.
+RESUME_IGNORE = ("creator", "ppo.device", "ppo.threads", "ppo.async_envs", "bc.device", "bc.threads")
 EVAL_SEED = 10_000  # evaluation episodes start here, away from training and demo seeds
 EVAL_EPISODES = 10
 
@@ -46,6 +49,15 @@ def _final_evaluation(policy: ActorCritic, env: gym.Env) -> dict[str, Any]:
     return {key: value for key, value in evaluation.items() if key != "returns"}
 
 
+@contextmanager
+def _resumable(run: RunWriter) -> Iterator[None]:
+    """Ctrl-C stopped the trainer with a checkpoint saved: say where, and how to continue."""
+    try:
+        yield
+    except TrainingInterrupted as stopped:
+        raise TrainingInterrupted(f"{stopped}; its checkpoint is in {run.partial}: run the same command with --resume to continue") from None
+
+
 def _check_demos_fit_env(dataset: DemoDataset, env: gym.Env) -> None:
     first = dataset.files[0].path
     if dataset.num_transitions == 0:
@@ -53,11 +65,14 @@ def _check_demos_fit_env(dataset: DemoDataset, env: gym.Env) -> None:
     check_spaces_fit("demos'", dataset.observation_space, dataset.action_space, env, where=str(first))
 
 
-def bc_job(demos: list[str], env_id: str | None, config: BCConfig, out: str | os.PathLike, *, progress: bool = True) -> dict[str, Any]:
+def bc_job(
+    demos: list[str], env_id: str | None, config: BCConfig, out: str | os.PathLike, *, progress: bool = True, resume: bool = False
+) -> dict[str, Any]:
     """Behavioural cloning on `demos` into run directory `out`.
 
     Without `env_id` it trains offline (recordings with no simulator behind them): the policy
-    takes the demos' own spaces and the run reports the validation loss only, no returns."""
+    takes the demos' own spaces and the run reports the validation loss only, no returns.
+    `resume` continues the interrupted run in `out`.partial from its checkpoint."""
     dataset = DemoDataset(demos)
     env = make_env(env_id) if env_id else None
     if env is not None:
@@ -75,8 +90,11 @@ def bc_job(demos: list[str], env_id: str | None, config: BCConfig, out: str | os
     with closing(env) if env is not None else nullcontext(), RunWriter(out, config={
         "kind": "bc", "env_id": env_id, "offline": env is None, "demos_env_id": dataset.env_id, "creator": f"imitation-mcap {__version__}",
         "demos": [str(p) for p in demos], "bc": vars(config).copy(), "policy": policy.config.to_json(), "split": split,
-    }, x_axis="epoch") as run:
-        result = train_bc(policy, train, validation, config, evaluate=env_return if env is not None else None, log=run.log, progress=progress)
+    }, x_axis="epoch", resume=resume, resume_ignore=RESUME_IGNORE) as run, _resumable(run):
+        checkpoints = Checkpointing(save=run.save_checkpoint, resume=run.resumed)
+        result = train_bc(
+            policy, train, validation, config, evaluate=env_return if env is not None else None, log=run.log, progress=progress, checkpoints=checkpoints
+        )
         run.save_weights(policy_tensors(result.policy.cpu()))
         title = f"BC on {env_id or dataset.env_id or 'offline demos'}"
         plot_curve(run.file("loss_curve.png"), run.history, x="epoch", ys=["train_loss", "validation_loss"], title=f"{title}: loss")
@@ -159,8 +177,9 @@ def dagger_job(
     return {"run": str(run.path), "round_files": [str(run.path / "rounds" / p.name) for p in result.round_files], **metrics}
 
 
-def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True) -> dict[str, Any]:
-    """Train PPO into run directory `out`; returns the metrics also written to metrics.json."""
+def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True, resume: bool = False) -> dict[str, Any]:
+    """Train PPO into run directory `out`; returns the metrics also written to metrics.json.
+    `resume` continues the interrupted run in `out`.partial from its checkpoint."""
     config.validate()
     rollout_rewards = None
     if config.reward_run is not None:
@@ -171,8 +190,12 @@ def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True)
         def rollout_rewards(rollout: Rollout, policy: ActorCritic) -> torch.Tensor:
             return relabel_rollout(reward_model, rollout)
 
-    with RunWriter(out, config={"kind": "ppo", "env_id": config.env_id, "creator": f"imitation-mcap {__version__}", "ppo": vars(config).copy()}) as run:
-        result = train_ppo(config, rollout_rewards=rollout_rewards, log=run.log, progress=progress)
+    with RunWriter(
+        out, config={"kind": "ppo", "env_id": config.env_id, "creator": f"imitation-mcap {__version__}", "ppo": vars(config).copy()},
+        resume=resume, resume_ignore=RESUME_IGNORE,
+    ) as run, _resumable(run):
+        checkpoints = Checkpointing(save=run.save_checkpoint, resume=run.resumed)
+        result = train_ppo(config, rollout_rewards=rollout_rewards, log=run.log, progress=progress, checkpoints=checkpoints)
         tensors = policy_tensors(result.policy)
         if result.reward_scaler is not None:
             tensors |= {f"reward_scaler.{name}": t for name, t in result.reward_scaler.stats.state_dict().items()}
@@ -207,7 +230,9 @@ def tabular_irl_job(demos: list[str], env_id: str, config: MaxEntIRLConfig, out:
         dataset = DemoDataset(demos)
         _check_demos_fit_env(dataset, env)
         observation_space, action_space = env.observation_space, env.action_space
-    occupancy_target = demo_visitation(dataset.read_episodes(), n_states=mdp.n_states, horizon=mdp.horizon, discount=config.discount)
+    demo_episodes = dataset.read_episodes()
+    check_episodes_finite(demo_episodes, dataset)
+    occupancy_target = demo_visitation(demo_episodes, n_states=mdp.n_states, horizon=mdp.horizon, discount=config.discount)
     model = make_reward_model(observation_space, action_space, feature_table=mdp.features, hidden_sizes=list(config.hidden_sizes))
 
     with RunWriter(out, config={

@@ -24,6 +24,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from imitation.checkpoints import (
+    CheckpointData, Checkpointing, StopAtBoundary, TrainingInterrupted, floats, optimizer_checkpoint, restore_optimizer, restore_rng,
+    rng_checkpoint, snapshot,
+)
 from imitation.data.loader import MinibatchLoader, TransitionTensors, resolve_device
 from imitation.errors import ImitationError
 from imitation.policies import ActorCritic
@@ -57,6 +61,8 @@ class BCConfig:
         for name in ("epochs", "batch_size", "patience"):
             if getattr(self, name) < 1:
                 raise ImitationError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if not 0 < self.learning_rate < 1e30:  # NaN fails too; from ~1e37 Adam's step overflows float32
+            raise ImitationError(f"--lr must be a positive number below 1e30, got {self.learning_rate}")
 
 
 def bc_loss(policy: ActorCritic, batch: TransitionTensors, config: BCConfig) -> tuple[torch.Tensor, dict[str, float]]:
@@ -102,11 +108,16 @@ def train_bc(
     evaluate_every: int = 5,
     log: Callable[[dict[str, float]], None] | None = None,
     progress: bool = True,
+    checkpoints: Checkpointing | None = None,
 ) -> BCResult:
     """Fit `policy` to the (s, a) pairs of `train`; early-stop on `validation`'s loss.
 
     `evaluate(policy)` (e.g. the env return) is logged every `evaluate_every` epochs and at the
-    last one. The policy's observation normaliser is refitted to `train` first."""
+    last one. The policy's observation normaliser is refitted to `train` first.
+
+    With `checkpoints`, a checkpoint is saved every tenth of the epochs (by default), Ctrl-C
+    stops after the current epoch with a checkpoint saved (TrainingInterrupted), and a run given
+    `checkpoints.resume` continues from one exactly as if it had not stopped."""
     config.validate(policy.is_continuous)
     torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
@@ -123,43 +134,99 @@ def train_bc(
     best_loss, best_epoch, best_state = float("inf"), 0, copy.deepcopy(policy.state_dict())
     started = time.perf_counter()
     samples = 0
-    bar = tqdm(range(1, config.epochs + 1), desc="bc", unit="epoch", disable=None if progress else True, dynamic_ncols=True)
-    for epoch in bar:
-        fits = []
-        for batch in loader:
-            loss, parts = bc_loss(policy, batch, config)
-            if not torch.isfinite(loss):
-                raise ImitationError(f"BC epoch {epoch}: the loss is {loss.item()} (diverged; try a lower learning rate)")
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            fits.append(parts["fit"])
-            samples += len(batch)
-        validation_loss = _mean_loss(policy, validation, config) if validation is not None and len(validation) else float("nan")
-        # Without validation episodes, the training loss decides what "best" means.
-        criterion = validation_loss if np.isfinite(validation_loss) else float(np.mean(fits))
-        if criterion < best_loss:
-            best_loss, best_epoch, best_state = criterion, epoch, copy.deepcopy(policy.state_dict())
-        stop = epoch - best_epoch >= config.patience
-        row = {
-            "epoch": float(epoch),
-            "train_loss": float(np.mean(fits)),
-            "validation_loss": validation_loss,
-            "return": float("nan"),
-            "samples_per_second": samples / (time.perf_counter() - started),
-        }
-        if evaluate is not None and (epoch % evaluate_every == 0 or epoch == config.epochs or stop):
-            policy.eval()
-            row["return"] = evaluate(policy)
-            policy.train()
-        history.append(row)
-        if log is not None:
-            log(row)
-        bar.set_postfix(train=f"{row['train_loss']:.3f}", val=f"{validation_loss:.3f}", ret=f"{row['return']:.1f}")
-        if stop:
-            break
+    first_epoch = 1
+    if checkpoints is not None and checkpoints.resume is not None:
+        first_epoch, best_loss, best_epoch, best_state, samples, elapsed = restore_bc_checkpoint(
+            checkpoints.resume, policy=policy, optimizer=optimizer, loader=loader, history=history, device=device
+        )
+        started -= elapsed
+    bar = tqdm(range(first_epoch, config.epochs + 1), initial=first_epoch - 1, total=config.epochs, desc="bc", unit="epoch", disable=None if progress else True, dynamic_ncols=True)
+    with StopAtBoundary(enabled=checkpoints is not None) as interrupt:
+        for epoch in bar:
+            fits = []
+            for batch in loader:
+                loss, parts = bc_loss(policy, batch, config)
+                if not torch.isfinite(loss):
+                    raise ImitationError(f"BC epoch {epoch}: the loss is {loss.item()} (diverged; try a lower learning rate)")
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                optimizer.step()
+                fits.append(parts["fit"])
+                samples += len(batch)
+            validation_loss = _mean_loss(policy, validation, config) if validation is not None and len(validation) else float("nan")
+            # Without validation episodes, the training loss decides what "best" means.
+            criterion = validation_loss if np.isfinite(validation_loss) else float(np.mean(fits))
+            if criterion < best_loss:
+                best_loss, best_epoch, best_state = criterion, epoch, copy.deepcopy(policy.state_dict())
+            stop = epoch - best_epoch >= config.patience
+            row = {
+                "epoch": float(epoch),
+                "train_loss": float(np.mean(fits)),
+                "validation_loss": validation_loss,
+                "return": float("nan"),
+                "samples_per_second": samples / (time.perf_counter() - started),
+            }
+            if evaluate is not None and (epoch % evaluate_every == 0 or epoch == config.epochs or stop):
+                policy.eval()
+                row["return"] = evaluate(policy)
+                policy.train()
+            history.append(row)
+            if log is not None:
+                log(row)
+            bar.set_postfix(train=f"{row['train_loss']:.3f}", val=f"{validation_loss:.3f}", ret=f"{row['return']:.1f}")
+            if stop:
+                break
+            # A checkpoint every tenth of the epochs; Ctrl-C stops here (a finished run just finishes).
+            interrupted = interrupt.requested and epoch < config.epochs
+            if checkpoints is not None and (interrupted or (epoch % checkpoints.interval(config.epochs) == 0 and epoch < config.epochs)):
+                checkpoints.save(*bc_checkpoint(
+                    epoch + 1, best_loss, best_epoch, best_state, samples, time.perf_counter() - started,
+                    policy=policy, optimizer=optimizer, loader=loader, history=history,
+                ))
+            if interrupted:
+                bar.close()
+                raise TrainingInterrupted(f"BC stopped after epoch {epoch} of {config.epochs}")
     policy.load_state_dict(best_state)
     return BCResult(policy=policy.eval(), history=history, best_epoch=best_epoch, seconds=time.perf_counter() - started)
+
+
+def bc_checkpoint(
+    next_epoch: int, best_loss: float, best_epoch: int, best_state: dict[str, torch.Tensor], samples: int, seconds: float, *,
+    policy: ActorCritic, optimizer: torch.optim.Optimizer, loader: MinibatchLoader, history: list[dict[str, float]],
+) -> CheckpointData:
+    """Everything `restore_bc_checkpoint` needs to continue at `next_epoch` as if never stopped:
+    weights, the best weights so far, Adam's moments, the shuffling and torch generators."""
+    optimizer_tensors, optimizer_state = optimizer_checkpoint(optimizer, "optimizer")
+    rng_tensors, rng_state = rng_checkpoint()
+    tensors = (
+        {f"policy.{name}": t for name, t in policy.state_dict().items()} | {f"best.{name}": t for name, t in best_state.items()}
+        | optimizer_tensors | rng_tensors | {"loader.generator": loader.generator_state()}
+    )
+    state = {
+        "epoch": next_epoch, "best_loss": best_loss, "best_epoch": best_epoch, "samples": samples, "seconds": seconds,
+        "optimizer": optimizer_state, "rng": rng_state, "history": history,
+    }
+    return snapshot(tensors, state)
+
+
+def restore_bc_checkpoint(
+    checkpoint: CheckpointData, *, policy: ActorCritic, optimizer: torch.optim.Optimizer, loader: MinibatchLoader,
+    history: list[dict[str, float]], device: torch.device,
+) -> tuple[int, float, int, dict[str, torch.Tensor], int, float]:
+    """Load a `bc_checkpoint` (history is filled in place); returns (next epoch, best loss, best
+    epoch, best weights, samples seen, seconds trained so far)."""
+    tensors, state = checkpoint
+    try:
+        policy.load_state_dict({name.removeprefix("policy."): t for name, t in tensors.items() if name.startswith("policy.")})
+        best_state = {name.removeprefix("best."): t.to(device) for name, t in tensors.items() if name.startswith("best.")}
+        restore_optimizer(optimizer, tensors, state["optimizer"], "optimizer")
+        restore_rng(tensors, state["rng"])
+        loader.set_generator_state(tensors["loader.generator"])
+        history += [floats(row) for row in state["history"]]
+        best_loss = float("inf") if state["best_loss"] is None else float(state["best_loss"])
+        return int(state["epoch"]), best_loss, int(state["best_epoch"]), best_state, int(state["samples"]), float(state["seconds"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as error:
+        raise ImitationError(f"the checkpoint does not fit this BC run ({type(error).__name__}: {str(error).splitlines()[0]})") from None
 
 
 def policy_options(config: BCConfig) -> dict[str, Any]:

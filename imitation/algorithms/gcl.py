@@ -72,6 +72,12 @@ class GCLConfig:
     anneal_lr: bool = True
     seed: int = 0
 
+    def validate(self) -> None:
+        if self.objective not in OBJECTIVES:
+            raise ImitationError(f"GCL objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
+        if not 0 < self.learning_rate < 1e30:  # NaN fails too; from ~1e37 Adam's step overflows float32
+            raise ImitationError(f"--lr must be a positive number below 1e30, got {self.learning_rate}")
+
 
 @dataclass
 class _Samples:
@@ -86,8 +92,7 @@ class GuidedCostLearning:
     then returns the rollout's rewards under the updated r_θ."""
 
     def __init__(self, reward: RewardNet, demos: TransitionTensors, config: GCLConfig, *, updates: int) -> None:
-        if config.objective not in OBJECTIVES:
-            raise ImitationError(f"GCL objective must be one of {', '.join(OBJECTIVES)}, got {config.objective!r}")
+        config.validate()
         if demos.next_observations is None:
             raise ImitationError("GCL's demos need next observations (load them with next_observations=True)")
         self.reward = reward
@@ -115,14 +120,14 @@ class GuidedCostLearning:
         if self.config.anneal_lr:
             self.optimizer.param_groups[0]["lr"] = self.config.learning_rate * max(0.0, 1.0 - len(self.history) / self.updates)
         steps = self.config.reward_steps + (self.config.warmup_steps if len(self.history) == 0 else 0)
-        statistics = [self._step(policy) for _ in range(steps)]
+        statistics = [self._step(policy, step, steps) for step in range(1, steps + 1)]
         self.reward.eval()
         self._center_on_demos()
         loss, demo_accuracy, sample_accuracy = np.mean(statistics, axis=0)
         self.history.append({"reward_loss": float(loss), "demo_accuracy": float(demo_accuracy), "sample_accuracy": float(sample_accuracy)})
         return relabel_rollout(self.reward, rollout)
 
-    def _step(self, policy: ActorCritic) -> tuple[float, float, float]:
+    def _step(self, policy: ActorCritic, step: int, steps: int) -> tuple[float, float, float]:
         size = self.config.batch_size
         demo_index = torch.randint(len(self.demos), (size,), generator=self.generator)
         demo_observations = self.demos.observations[demo_index]
@@ -150,6 +155,10 @@ class GuidedCostLearning:
             # what lets PPO find them from scratch; a sharp one is flat everywhere else.
             (gradient,) = torch.autograd.grad(rewards.sum(), inputs, create_graph=True)
             loss = loss + self.config.gradient_penalty * gradient.pow(2).sum(-1).mean()
+        if not torch.isfinite(loss):
+            raise ImitationError(
+                f"GCL reward update {len(self.history) + 1}, step {step}/{steps}: the loss is {loss.item()} (diverged; try a lower --lr)"
+            )
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()

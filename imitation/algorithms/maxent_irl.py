@@ -273,6 +273,8 @@ class MaxEntIRLConfig:
             raise ImitationError(f"--method must be one of {', '.join(METHODS)} for tabular IRL, got {self.method!r}")
         if self.iterations < 1:
             raise ImitationError(f"iterations must be at least 1, got {self.iterations}")
+        if not 0 < self.learning_rate < 1e30:  # NaN fails too; from ~1e37 Adam's step overflows float32
+            raise ImitationError(f"--lr must be a positive number below 1e30, got {self.learning_rate}")
 
 
 @dataclass
@@ -316,9 +318,12 @@ def train_maxent_irl(
     started = time.perf_counter()
     for iteration in range(1, config.iterations + 1):
         rewards = all_state_rewards(reward_model, mdp.n_states).double()
-        policy, values = soft_value_iteration(
-            dynamics, rewards.detach().numpy(), horizon=horizon, discount=config.discount, method=config.method
-        )
+        if not torch.isfinite(rewards).all():
+            raise ImitationError(f"{config.method} IRL iteration {iteration}: the learned reward is not finite (diverged; try a lower --lr)")
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow shows as a non-finite loss, checked below
+            policy, values = soft_value_iteration(
+                dynamics, rewards.detach().numpy(), horizon=horizon, discount=config.discount, method=config.method
+            )
         occupancy = state_visitation(dynamics, mdp.initial, policy, horizon=horizon, discount=config.discount)
         # Its gradient is Σ_s (D_θ(s) - D̃(s)) ∇r_θ(s) = -∇L(θ): descending it ascends the likelihood.
         surrogate = (torch.as_tensor(occupancy) - target) @ rewards
@@ -333,6 +338,8 @@ def train_maxent_irl(
             "occupancy_error": error,
             "gradient_norm": gradient_norm,
         }
+        if not (np.isfinite(row["loss"]) and np.isfinite(gradient_norm)):
+            raise ImitationError(f"{config.method} IRL iteration {iteration}: the loss is {row['loss']} (diverged; try a lower --lr)")
         history.append(row)
         if log is not None:
             log(row)

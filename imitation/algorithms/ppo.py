@@ -36,6 +36,10 @@ import torch
 from torch.distributions import Categorical, Normal, kl_divergence
 from tqdm import tqdm
 
+from imitation.checkpoints import (
+    CheckpointData, Checkpointing, StopAtBoundary, TrainingInterrupted, floats, optimizer_checkpoint, restore_optimizer, restore_rng,
+    rng_checkpoint, snapshot,
+)
 from imitation.data.loader import resolve_device
 from imitation.envs.make import make_env
 from imitation.errors import ImitationError
@@ -88,6 +92,8 @@ class PPOConfig:
                 raise ImitationError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.total_steps < self.n_envs * self.n_steps:
             raise ImitationError(f"--steps {self.total_steps} is less than one rollout ({self.n_envs} envs × {self.n_steps} steps)")
+        if not 0 < self.learning_rate < 1e30:  # NaN fails too; from ~1e37 Adam's step overflows float32
+            raise ImitationError(f"learning_rate must be a positive number below 1e30, got {self.learning_rate}")
 
     @staticmethod
     def from_json(data: dict[str, Any]) -> PPOConfig:
@@ -215,6 +221,21 @@ def make_vector_env(
     return gym.vector.SyncVectorEnv([factory] * n_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
 
 
+def check_finite_step(env_id: str, step: int, copies: np.ndarray | None = None, **values: np.ndarray) -> None:
+    """NaN or ±inf from the environment stops training where it enters, naming the env step,
+    instead of poisoning the normaliser and surfacing later as a NaN loss. `step` counts the
+    vector env's steps before this one (env copy i's step is step + i + 1); row j of each array
+    belongs to env copy `copies[j]` (default: j)."""
+    for what, array in values.items():
+        if array.dtype.kind == "f" and not np.isfinite(array).all():
+            row = int(np.argmin(np.isfinite(array).reshape(len(array), -1).all(axis=1)))
+            copy = int(copies[row]) if copies is not None else row
+            raise ImitationError(
+                f"{env_id}: the environment returned a non-finite {what.replace('_', ' ')} at env step {step + copy + 1} "
+                f"(env copy {copy}); PPO needs finite observations and rewards"
+            )
+
+
 def finished_episode_returns(info: dict[str, Any]) -> list[float]:
     """True returns of the episodes that ended at this vector step."""
     final = info.get("final_info", {})
@@ -272,10 +293,15 @@ def train_ppo(
     rollout_rewards: RolloutRewards | None = None,
     log: Callable[[dict[str, float]], None] | None = None,
     progress: bool = True,
+    checkpoints: Checkpointing | None = None,
 ) -> PPOResult:
     """Train an actor-critic on config.env_id; `log` receives one row of metrics per update.
     With `rollout_rewards`, each rollout's rewards are replaced by what it returns before the
-    advantages are computed; the logged "return" stays the env's own."""
+    advantages are computed; the logged "return" stays the env's own.
+
+    With `checkpoints`, a checkpoint is saved every tenth of the run (by default), Ctrl-C stops
+    after the current update with a checkpoint saved (TrainingInterrupted), and a run given
+    `checkpoints.resume` continues from one (see "Checkpoints" at the end of this module)."""
     config.validate()
     # Measured on 2 cores: one thread runs these small MLPs ~10× faster than two, which
     # spend their time synchronising.
@@ -285,13 +311,15 @@ def train_ppo(
     device = resolve_device(config.device)
     envs = make_vector_env(config.env_id, config.n_envs, asynchronous=config.async_envs, wrap=wrap_env)
     try:
-        return _train(config, envs, device, rollout_rewards, log, progress)
+        with StopAtBoundary(enabled=checkpoints is not None) as stop:
+            return _train(config, envs, device, rollout_rewards, log, progress, checkpoints, stop)
     finally:
         envs.close()
 
 
 def _train(
-    config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, rollout_rewards: RolloutRewards | None, log: Callable | None, progress: bool
+    config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, rollout_rewards: RolloutRewards | None, log: Callable | None, progress: bool,
+    checkpoints: Checkpointing | None, stop: StopAtBoundary,
 ) -> PPOResult:
     policy = make_policy(
         envs.single_observation_space,
@@ -335,10 +363,20 @@ def _train(
     timers = {"env": 0.0, "inference": 0.0, "update": 0.0}
     started = time.perf_counter()
     global_step = 0
+    first_update = 0
+    if checkpoints is not None and checkpoints.resume is not None:
+        # Continue an interrupted run: networks, optimiser, normalisers, counters and logs as at
+        # its checkpoint. The environments' state is not saved: they start new episodes.
+        first_update, global_step, beta, elapsed = restore_ppo_checkpoint(
+            checkpoints.resume, policy=policy, optimizer=optimizer, reward_scaler=reward_scaler, history=history,
+            recent_returns=recent_returns, recent_optimised_returns=recent_optimised_returns, timers=timers,
+        )
+        started -= elapsed
 
-    observations, _ = envs.reset(seed=config.seed)
-    bar = tqdm(total=n_updates * rollout_size, desc=f"ppo {config.env_id}", unit="step", disable=None if progress else True, dynamic_ncols=True)
-    for update in range(n_updates):
+    observations, _ = envs.reset(seed=config.seed + first_update * config.n_envs)
+    check_finite_step(config.env_id, -1, observation=observations)
+    bar = tqdm(total=n_updates * rollout_size, initial=global_step, desc=f"ppo {config.env_id}", unit="step", disable=None if progress else True, dynamic_ncols=True)
+    for update in range(first_update, n_updates):
         if config.anneal_lr:
             optimizer.param_groups[0]["lr"] = (1.0 - update / n_updates) * config.learning_rate
 
@@ -361,6 +399,7 @@ def _train(
             observations, reward, term, trunc, info = envs.step(env_action)
             tick = time.perf_counter()
             timers["env"] += tick - tock
+            check_finite_step(config.env_id, global_step + t * n_envs, observation=observations, reward=np.asarray(reward))
             recent_returns.extend(finished_episode_returns(info))
             env_rewards[t] = torch.as_tensor(reward, dtype=torch.float32, device=device)
             terminated[t] = torch.as_tensor(term, device=device)
@@ -369,8 +408,9 @@ def _train(
             ended = np.flatnonzero(term | trunc)
             if ended.size:
                 # The episode's true final state (the env has already reset to a new one).
-                final = torch.as_tensor(np.stack([info["final_obs"][i] for i in ended]), device=device)
-                next_observations[t, torch.as_tensor(ended, device=device)] = final.to(observation_dtype)
+                final = np.stack([info["final_obs"][i] for i in ended])
+                check_finite_step(config.env_id, global_step + t * n_envs, ended, final_observation=final)
+                next_observations[t, torch.as_tensor(ended, device=device)] = torch.as_tensor(final, device=device).to(observation_dtype)
             if trunc.any():
                 # Bootstrap truncated episodes from their true final state, not the reset state.
                 with torch.no_grad():
@@ -384,6 +424,8 @@ def _train(
                 log_probs=log_probs, env_rewards=env_rewards, terminated=terminated, truncated=truncated,
             )
             optimised = rollout_rewards(rollout, policy).detach().to(device=device, dtype=torch.float32).reshape(n_steps, n_envs)
+            if not torch.isfinite(optimised).all():
+                raise ImitationError(f"PPO update {update + 1}/{n_updates}: the learned reward is NaN or infinite on this rollout")
         else:
             optimised = env_rewards
         dones = (terminated | truncated).cpu().numpy()
@@ -497,5 +539,61 @@ def _train(
             log(row)
         bar.update(rollout_size)
         bar.set_postfix(ret=f"{row['return']:.1f}", sps=f"{row['steps_per_second']:.0f}")
+
+        # -- checkpoint every tenth of the run; stop here if Ctrl-C was pressed (unless done) ----
+        interrupted = stop.requested and update + 1 < n_updates
+        if checkpoints is not None and (interrupted or ((update + 1) % checkpoints.interval(n_updates) == 0 and update + 1 < n_updates)):
+            checkpoints.save(*ppo_checkpoint(
+                update + 1, global_step, beta, time.perf_counter() - started, policy=policy, optimizer=optimizer, reward_scaler=reward_scaler,
+                history=history, recent_returns=recent_returns, recent_optimised_returns=recent_optimised_returns, timers=timers,
+            ))
+        if interrupted:
+            bar.close()
+            raise TrainingInterrupted(f"PPO stopped after update {update + 1}/{n_updates}, at step {global_step} of {n_updates * rollout_size}")
     bar.close()
     return PPOResult(policy=policy, history=history, reward_scaler=reward_scaler, steps=global_step, seconds=time.perf_counter() - started)
+
+
+# ------------------------------------------------------------------------------------------------
+# Checkpoints (imitation.checkpoints): tensors to safetensors, the rest to JSON, nothing pickled.
+
+
+def ppo_checkpoint(
+    next_update: int, global_step: int, beta: float, seconds: float, *, policy: ActorCritic, optimizer: torch.optim.Optimizer,
+    reward_scaler: RewardScaler | None, history: list[dict[str, float]], recent_returns: deque[float],
+    recent_optimised_returns: deque[float], timers: dict[str, float],
+) -> CheckpointData:
+    """Everything `restore_ppo_checkpoint` needs to continue training after update `next_update`."""
+    optimizer_tensors, optimizer_state = optimizer_checkpoint(optimizer, "optimizer")
+    rng_tensors, rng_state = rng_checkpoint()
+    tensors = {f"policy.{name}": t for name, t in policy.state_dict().items()} | optimizer_tensors | rng_tensors
+    if reward_scaler is not None:
+        tensors |= {f"reward_scaler.{name}": t for name, t in reward_scaler.stats.state_dict().items()}
+    state = {
+        "update": next_update, "global_step": global_step, "beta": beta, "seconds": seconds, "policy": policy.config.to_json(),
+        "optimizer": optimizer_state, "rng": rng_state, "history": history, "recent_returns": list(recent_returns),
+        "recent_optimised_returns": list(recent_optimised_returns), "timers": timers,
+    }
+    return snapshot(tensors, state)
+
+
+def restore_ppo_checkpoint(
+    checkpoint: CheckpointData, *, policy: ActorCritic, optimizer: torch.optim.Optimizer, reward_scaler: RewardScaler | None,
+    history: list[dict[str, float]], recent_returns: deque[float], recent_optimised_returns: deque[float], timers: dict[str, float],
+) -> tuple[int, int, float, float]:
+    """Load a `ppo_checkpoint` into fresh objects (the containers are filled in place); returns
+    (next update, global step, β, seconds trained so far)."""
+    tensors, state = checkpoint
+    try:
+        policy.load_state_dict({name.removeprefix("policy."): t for name, t in tensors.items() if name.startswith("policy.")})
+        restore_optimizer(optimizer, tensors, state["optimizer"], "optimizer")
+        if reward_scaler is not None:
+            reward_scaler.stats.load_state_dict({name.removeprefix("reward_scaler."): t for name, t in tensors.items() if name.startswith("reward_scaler.")})
+        restore_rng(tensors, state["rng"])
+        history += [floats(row) for row in state["history"]]
+        recent_returns.extend(state["recent_returns"])
+        recent_optimised_returns.extend(state["recent_optimised_returns"])
+        timers.update(state["timers"])
+        return int(state["update"]), int(state["global_step"]), float(state["beta"]), float(state["seconds"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as error:
+        raise ImitationError(f"the checkpoint does not fit this PPO run ({type(error).__name__}: {str(error).splitlines()[0]})") from None

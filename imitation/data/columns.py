@@ -111,6 +111,8 @@ def read_transitions(dataset: DemoDataset, indices: Sequence[int], *, next_obser
     facts = [f.file.episodes[k] for f in plans for k in f.ordinal_of]
     lengths = np.array([episode.length for episode in facts], dtype=np.int64)
     total = int(lengths.sum())
+    if 8 * total > sum(c.uncompressed_size for plan in plans for c in plan.chunks):
+        return None  # more steps than the chunks hold 8-byte rewards for: a damaged index, for the general path to report
     starts = np.cumsum(lengths) - lengths
     columns = {f.topic: _Column(f, np.empty((total, *f.shape), f.native_dtype), np.empty((len(facts), *f.shape), f.native_dtype)) for f in observation_fields}
     columns |= {f.topic: _Column(f, np.empty((total, *f.shape), f.native_dtype), None) for f in action_fields}

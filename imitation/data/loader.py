@@ -20,7 +20,7 @@ import torch
 
 from imitation.data.columns import read_transitions
 from imitation.data.store import DemoDataset
-from imitation.data.types import Episode, Transitions, episodes_to_transitions
+from imitation.data.types import Episode, Transitions, episodes_to_transitions, first_nonfinite
 from imitation.errors import ImitationError
 
 TensorTree = torch.Tensor | dict[str, Any]
@@ -109,11 +109,14 @@ def load_transitions(
     *,
     episodes: Sequence[int] | None = None,
     next_observations: bool = True,
+    finite: bool = True,
 ) -> Transitions:
     """All transitions of the chosen episodes as one contiguous numpy batch.
 
     Leave out `next_observations` when the learner does not need s': it is a second copy of
-    the observations."""
+    the observations. With `finite` (the default), NaN or ±inf anywhere in the observations,
+    actions or rewards is an ImitationError naming the file, episode and step (see
+    `check_finite`)."""
     dataset = source if isinstance(source, DemoDataset) else DemoDataset(source)
     indices = sorted(set(int(k) for k in episodes)) if episodes is not None else list(range(len(dataset)))
     if indices and not 0 <= indices[0] <= indices[-1] < len(dataset):
@@ -121,10 +124,49 @@ def load_transitions(
     all_facts = dataset.episodes
     if sum(all_facts[k].length for k in indices) == 0:
         raise ImitationError("no transitions to load: the demos hold no steps")
-    bulk = read_transitions(dataset, indices, next_observations=next_observations)
-    if bulk is not None:
-        return bulk
-    return episodes_to_transitions(_read(dataset, indices), indices, next_observations=next_observations)
+    transitions = read_transitions(dataset, indices, next_observations=next_observations)
+    if transitions is None:
+        transitions = episodes_to_transitions(_read(dataset, indices), indices, next_observations=next_observations)
+    if finite:
+        check_finite(transitions, dataset)
+    return transitions
+
+
+def check_finite(transitions: Transitions, dataset: DemoDataset) -> None:
+    """One vectorised pass over every float field; the first NaN or ±inf is reported with its
+    file, episode (within that file) and step, so a learner never trains on it."""
+    candidates = []
+    for what, tree, shift in (
+        ("observation", transitions.observations, 0),
+        ("action", transitions.actions, 0),
+        ("reward", transitions.rewards, 0),
+        ("observation", transitions.next_observations, 1),  # s' of transition t is observation t + 1
+    ):
+        if tree is not None and (found := first_nonfinite(tree, what)) is not None:
+            candidates.append((found[0], shift, found[1], found[2]))
+    if not candidates:
+        return
+    row, shift, name, value = min(candidates)
+    episode = int(transitions.episode_index[row])
+    step = row - int(np.searchsorted(transitions.episode_index, episode)) + shift
+    demo, local = dataset.locate(episode)
+    raise ImitationError(
+        f"{demo.path}: episode {local}, step {step}: the {name} is {value}; "
+        "learners need finite observations, actions and rewards (fix the source and write the file again)"
+    )
+
+
+def check_episodes_finite(episodes: Sequence[Episode], dataset: DemoDataset, indices: Sequence[int] | None = None) -> None:
+    """`check_finite` for whole episodes (dataset-wide `indices`, all by default): one
+    vectorised pass per episode and field."""
+    for k, episode in zip(range(len(episodes)) if indices is None else indices, episodes):
+        for what, tree in (("observation", episode.observations), ("action", episode.actions), ("reward", episode.rewards)):
+            if (found := first_nonfinite(tree, what)) is not None:
+                demo, local = dataset.locate(int(k))
+                raise ImitationError(
+                    f"{demo.path}: episode {local}, step {found[0]}: the {found[1]} is {found[2]}; "
+                    "learners need finite observations, actions and rewards (fix the source and write the file again)"
+                )
 
 
 def split_episodes(num_episodes: int, *, validation_fraction: float, seed: int) -> tuple[list[int], list[int]]:
@@ -168,6 +210,13 @@ class MinibatchLoader:
         self.shuffle = shuffle
         self.drop_last = drop_last
         self._generator = torch.Generator(device="cpu").manual_seed(seed)
+
+    def generator_state(self) -> torch.Tensor:
+        """Where the shuffling generator is (for checkpoints)."""
+        return self._generator.get_state()
+
+    def set_generator_state(self, state: torch.Tensor) -> None:
+        self._generator.set_state(state)
 
     def __len__(self) -> int:
         full, rest = divmod(len(self.data), self.batch_size)

@@ -49,33 +49,84 @@ def space_to_json(space: gym.Space) -> dict[str, Any]:
     raise SpaceError(f"unsupported gymnasium space {type(space).__name__}: use Box, Discrete, MultiDiscrete, MultiBinary or Dict")
 
 
+# A space read from a file must fit in memory: at most this many numbers in one sample (a 4K RGB
+# image is 25 million). Anything larger is refused before anything that size is allocated.
+MAX_SAMPLE_ELEMENTS = 2**26
+
+
 def space_from_json(description: dict[str, Any] | str) -> gym.Space:
-    """Rebuild a space from `space_to_json` output (a dict or its JSON text)."""
+    """Rebuild a space from `space_to_json` output (a dict or its JSON text). Anything else,
+    however malformed, is a one-line SpaceError."""
     if isinstance(description, str):
-        description = json.loads(description)
+        try:
+            description = json.loads(description)
+        except (ValueError, RecursionError) as error:
+            raise SpaceError(f"space description is not JSON ({str(error)[:100]})") from None
     try:
-        kind = description["type"]
-        if kind == "Box":
-            dtype = np.dtype(description["dtype"])
-            shape = tuple(description["shape"])
-            low = _bounds_from_json(description["low"], dtype, shape)
-            high = _bounds_from_json(description["high"], dtype, shape)
-            return gym.spaces.Box(low=low, high=high, shape=shape, dtype=dtype)
-        if kind == "Discrete":
-            return gym.spaces.Discrete(int(description["n"]), start=int(description.get("start", 0)))
-        if kind == "MultiDiscrete":
-            dtype = np.dtype(description.get("dtype", "int64"))
-            nvec = np.asarray(description["nvec"], dtype=dtype)
-            start = np.asarray(description.get("start", np.zeros_like(nvec)), dtype=dtype)
-            return gym.spaces.MultiDiscrete(nvec, dtype=dtype, start=start)
-        if kind == "MultiBinary":
-            n = description["n"]
-            return gym.spaces.MultiBinary(list(n) if isinstance(n, list) else int(n))
-        if kind == "Dict":
-            return gym.spaces.Dict({key: space_from_json(sub) for key, sub in description["spaces"].items()})
-    except (KeyError, TypeError, ValueError) as error:
-        raise SpaceError(f"malformed space description {description!r}: {error}") from error
-    raise SpaceError(f"unknown space type {kind!r}")
+        return _space_from_json(description)
+    except SpaceError:
+        raise
+    except (KeyError, TypeError, ValueError, OverflowError, AttributeError, IndexError, RecursionError) as error:
+        raise SpaceError(f"malformed space description {_short(description)}: {type(error).__name__}: {str(error)[:100]}") from None
+
+
+def _short(value: Any) -> str:
+    try:
+        text = repr(value)
+    except RecursionError:
+        text = "(nested too deep)"
+    return text if len(text) <= 120 else text[:117] + "..."
+
+
+def _shape(value: Any) -> tuple[int, ...]:
+    if not isinstance(value, list) or len(value) > 32 or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in value):
+        raise SpaceError(f"space shape must be a list of at most 32 sizes ≥ 0, got {_short(value)}")
+    if math.prod(value) > MAX_SAMPLE_ELEMENTS:
+        raise SpaceError(f"space shape {value} holds {math.prod(value)} numbers per sample, more than the {MAX_SAMPLE_ELEMENTS} supported")
+    return tuple(value)
+
+
+def _dtype(value: Any, kinds: str) -> np.dtype:
+    if not isinstance(value, str):
+        raise SpaceError(f"space dtype must be a name such as float32, got {_short(value)}")
+    dtype = np.dtype(value)
+    if dtype.kind not in kinds or dtype.itemsize > 8:
+        raise SpaceError(f"space dtype {value!r} is not a number type a space can hold")
+    return dtype
+
+
+def _space_from_json(description: Any) -> gym.Space:
+    if not isinstance(description, dict):
+        raise SpaceError(f"a space description is a JSON object, got {_short(description)}")
+    kind = description["type"]
+    if kind == "Box":
+        dtype = _dtype(description["dtype"], "biuf")
+        shape = _shape(description["shape"])
+        low = _bounds_from_json(description["low"], dtype, shape)
+        high = _bounds_from_json(description["high"], dtype, shape)
+        return gym.spaces.Box(low=low, high=high, shape=shape, dtype=dtype)
+    if kind == "Discrete":
+        n, start = int(description["n"]), int(description.get("start", 0))
+        if not (1 <= n < 2**63 and -(2**62) <= start < 2**62):
+            raise SpaceError(f"Discrete space needs 1 ≤ n < 2^63, got n={n}, start={start}")
+        return gym.spaces.Discrete(n, start=start)
+    if kind == "MultiDiscrete":
+        dtype = _dtype(description.get("dtype", "int64"), "iu")
+        nvec = np.asarray(description["nvec"], dtype=dtype)
+        _shape(list(nvec.shape))
+        start = np.asarray(description.get("start", np.zeros_like(nvec)), dtype=dtype)
+        return gym.spaces.MultiDiscrete(nvec, dtype=dtype, start=start)
+    if kind == "MultiBinary":
+        n = description["n"]
+        return gym.spaces.MultiBinary(list(_shape(n)) if isinstance(n, list) else _shape([n])[0])
+    if kind == "Dict":
+        spaces = description["spaces"]
+        if not isinstance(spaces, dict):
+            raise SpaceError(f"Dict space needs an object of spaces, got {_short(spaces)}")
+        for key in spaces:
+            _check_key(key)
+        return gym.spaces.Dict({key: _space_from_json(sub) for key, sub in spaces.items()})
+    raise SpaceError(f"unknown space type {_short(kind)}")
 
 
 def space_leaves(space: gym.Space, prefix: LeafPath = ()) -> Iterator[tuple[LeafPath, np.dtype, tuple[int, ...]]]:

@@ -49,7 +49,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 from imitation import __version__
 from imitation.data.spaces import LeafPath, space_from_json, space_leaves, space_to_json, spaces_equal
-from imitation.data.types import Episode, Tree, check_fits_space, tree_from_leaves, tree_leaves
+from imitation.data.types import Episode, Tree, check_fits_space, first_nonfinite, tree_from_leaves, tree_leaves
 from imitation.errors import DemoFileError, ImitationError
 
 FORMAT_VERSION = 1
@@ -62,6 +62,9 @@ DEFAULT_BLOCK_STEPS = 4096
 # zstd is the default; "none" trades size for the fastest loads (chunks are read in place).
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 MAGIC = b"\x89MCAP0\r\n"
+# No writer makes chunks this large (ours: 1 MiB); a header claiming more is damaged, and is
+# refused before a buffer of that size is asked for.
+MAX_CHUNK_BYTES = 2**31
 
 _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x02, 0x03, 0x04, 0x05, 0x06
 _OP_CHUNK_INDEX, _OP_METADATA, _OP_METADATA_INDEX, _OP_DATA_END = 0x08, 0x0C, 0x0D, 0x0F
@@ -223,6 +226,10 @@ class DemoWriter:
 
     With `durable=True` every episode is flushed (and fsync'd) as its own chunk as soon as it is
     written, so if the process is killed, `<path>.partial` holds every finished episode.
+
+    NaN and ±inf in float observations, actions or rewards are refused where they enter, with the
+    episode and step named; `finite_only=False` stores them as they are (bit-exact round trips of
+    any data), and learners then refuse the file when they load it.
     """
 
     def __init__(
@@ -239,8 +246,10 @@ class DemoWriter:
         durable: bool = False,
         chunk_size: int = 1024 * 1024,
         compression: str = "zstd",
+        finite_only: bool = True,
     ) -> None:
         self.path = Path(path)
+        self._finite_only = finite_only
         self.partial_path = self.path.with_name(self.path.name + ".partial")
         self.observation_space = observation_space
         self.action_space = action_space
@@ -296,8 +305,14 @@ class DemoWriter:
         check_fits_space(episode.observations, self.observation_space, "observations")
         check_fits_space(episode.actions, self.action_space, "actions")
         rewards = np.asarray(episode.rewards, dtype=np.float64)
-        if not np.all(np.isfinite(rewards)):
-            raise ImitationError(f"episode {len(self._facts)}: rewards contain NaN or infinity")
+        if self._finite_only:
+            for what, tree in (("observation", episode.observations), ("action", episode.actions), ("reward", rewards)):
+                if found := first_nonfinite(tree, what):
+                    step, name, value = found
+                    raise ImitationError(
+                        f"{self.path}: episode {len(self._facts)}, step {step}: the {name} is {value}; "
+                        "demo files hold finite observations, actions and rewards only"
+                    )
         times, time_shift_ns = self._episode_times(episode)
         columns: list[tuple[_Field, np.ndarray]] = []
         for f in self._fields:
@@ -565,6 +580,8 @@ class DemoFile:
                 raise
             except Exception as error:  # any malformed byte in the summary means: rebuild it by scanning
                 summary_damage = str(error) if isinstance(error, _Damage) else f"unreadable summary ({type(error).__name__}: {error})"
+            if index is not None and not index.dataset:
+                self._check_dataset(index.dataset)  # a sound MCAP file from another tool (a ROS 2 bag): say so, not "damaged"
             if index is None and not salvage:
                 raise DemoFileError(
                     f"{self.path}: damaged or unfinished ({summary_damage}); "
@@ -660,7 +677,10 @@ class DemoFile:
         if not chunks:
             return
         assembler = _EpisodeAssembler(self.observation_space, self.action_space, self._index.channels, self._facts_by_end_time)
-        buffers = _ChunkBuffers(chunks) if bulk else None
+        try:
+            buffers = _ChunkBuffers(chunks) if bulk else None
+        except _Damage as error:
+            raise DemoFileError(f"{self.path}: {error}") from None
         with open(self.path, "rb") as stream:
             for chunk, decoded in _decode_chunks(stream.fileno(), chunks, buffers):
                 yield from self._assemble(chunk, decoded, assembler, keep)
@@ -677,8 +697,8 @@ class DemoFile:
                     yield result[0], result[1]
         except _Damage as error:
             raise DemoFileError(f"{self.path}: damaged chunk at byte {chunk.offset}: {error}") from None
-        except (ValueError, KeyError, TypeError, json.JSONDecodeError) as error:
-            raise DemoFileError(f"{self.path}: bad data in chunk at byte {chunk.offset}: {error}") from None
+        except (ValueError, KeyError, TypeError, OverflowError, RecursionError) as error:  # RecursionError: JSON nested too deep
+            raise DemoFileError(f"{self.path}: bad data in chunk at byte {chunk.offset}: {type(error).__name__}: {str(error)[:200]}") from None
 
     def _register_channel(self, channel: Channel) -> None:
         self._index.channels.setdefault(channel.id, _channel_field(channel))
@@ -712,7 +732,7 @@ class DemoFile:
             raise DemoFileError(f"{self.path}: dataset metadata has a bad dt_ns ({dataset['dt_ns']!r})")
         try:
             json.loads(dataset.get("user_metadata", "{}"))
-        except json.JSONDecodeError as error:
+        except (ValueError, RecursionError) as error:
             raise DemoFileError(f"{self.path}: dataset metadata has bad user_metadata JSON ({error})") from None
 
     def _read_summary(self, stream: Any) -> _Index:
@@ -744,6 +764,8 @@ class DemoFile:
                 channels[channel.id] = _channel_field(channel)
             elif opcode == _OP_CHUNK_INDEX:
                 entry = ChunkIndex.read(ReadDataStream(BytesIO(body)))
+                if entry.uncompressed_size > MAX_CHUNK_BYTES:
+                    raise _Damage(f"the chunk index claims a chunk of {entry.uncompressed_size} bytes uncompressed")
                 chunks.append(
                     _ChunkRef(entry.chunk_start_offset, entry.chunk_length, entry.message_start_time, entry.message_end_time, entry.uncompressed_size)
                 )
@@ -892,6 +914,8 @@ def _chunk_header(record: memoryview) -> _ChunkHeader:
         raise _Damage("chunk data is truncated")
     if compression not in ("zstd", "lz4", ""):
         raise _Damage(f"unsupported chunk compression {compression!r}")
+    if uncompressed_size > MAX_CHUNK_BYTES:
+        raise _Damage(f"the chunk claims {uncompressed_size} bytes uncompressed, more than the {MAX_CHUNK_BYTES} a chunk may hold")
     return _ChunkHeader(compression, uncompressed_size, uncompressed_crc, payload)
 
 
@@ -943,8 +967,12 @@ class _ChunkBuffers:
     content; each chunk gets its slices."""
 
     def __init__(self, chunks: Sequence[_ChunkRef]) -> None:
-        self.raw = memoryview(np.empty(sum(c.length for c in chunks), dtype=np.uint8))
-        self.content = memoryview(np.empty(sum(c.uncompressed_size for c in chunks), dtype=np.uint8))
+        raw, content = sum(c.length for c in chunks), sum(c.uncompressed_size for c in chunks)
+        try:
+            self.raw = memoryview(np.empty(raw, dtype=np.uint8))
+            self.content = memoryview(np.empty(content, dtype=np.uint8))
+        except MemoryError:
+            raise _Damage(f"its chunks add up to {(raw + content) / 2**30:.1f} GiB, more than this machine can hold") from None
         self._slices: dict[int, tuple[memoryview, memoryview]] = {}
         raw_at = content_at = 0
         for c in chunks:
@@ -1035,6 +1063,11 @@ class DemoDataset:
     @property
     def num_transitions(self) -> int:
         return sum(f.num_transitions for f in self.files)
+
+    def locate(self, k: int) -> tuple[DemoFile, int]:
+        """The file that holds dataset-wide episode k, and k's index within that file."""
+        file_index = int(np.searchsorted(self._offsets, k, side="right")) - 1
+        return self.files[file_index], k - int(self._offsets[file_index])
 
     def __getitem__(self, k: int) -> Episode:
         if not -len(self) <= k < len(self):

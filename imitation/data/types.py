@@ -114,6 +114,24 @@ def check_fits_space(tree: Tree, space: gym.Space, what: str) -> None:
             raise SpaceError(f"{name}: got {array.dtype}{list(array.shape[1:])} per row, the space holds {dtype}{list(shape)}")
 
 
+def first_nonfinite(tree: Tree, what: str) -> tuple[int, str, float] | None:
+    """(row, name, value) of the first row of `tree` whose float leaves hold NaN or ±inf, None when
+    every value is finite: one vectorised pass per leaf (integer and bool leaves are skipped)."""
+    found: tuple[int, str, float] | None = None
+    for path, array in tree_leaves(tree):
+        if array.dtype.kind != "f" or array.size == 0:
+            continue
+        finite = np.isfinite(array)
+        if finite.all():
+            continue
+        rows = finite.reshape(len(array), -1)
+        row = int(np.argmin(rows.all(axis=1)))
+        if found is None or row < found[0]:
+            value = float(array.reshape(len(array), -1)[row][~rows[row]][0])
+            found = (row, what + "".join(f"[{key!r}]" for key in path), value)
+    return found
+
+
 @dataclass(frozen=True, kw_only=True)
 class Transitions:
     """A flat batch of N transitions (s, a, r, s', terminated, truncated) drawn from episodes.

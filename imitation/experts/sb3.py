@@ -32,6 +32,7 @@ import json
 import os
 from pickletools import genops  # disassembles a pickle without running it
 import re
+import warnings
 import zipfile
 import zlib
 from typing import Any, Iterator
@@ -55,6 +56,7 @@ HEADS = {
 HIDDEN_LAYER = re.compile(r"mlp_extractor\.(policy_net|value_net|shared_net)\.(\d+)\.(weight|bias)")
 SPACE_TYPE = re.compile(r"<class '(?:gym|gymnasium)\.spaces\.\w+\.(\w+)'>")
 ACTIVATION_MODULE = "torch.nn.modules.activation"
+PLAIN_BUILTINS = {"dict", "list", "tuple", "set", "frozenset", "int", "float", "bool", "str", "bytes", "complex", "slice", "range"}
 STRING_OPCODES = {"STRING", "BINSTRING", "SHORT_BINSTRING", "UNICODE", "BINUNICODE", "SHORT_BINUNICODE", "BINUNICODE8"}
 
 
@@ -94,11 +96,13 @@ def _read_zip(file: str) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     except (zipfile.BadZipFile, zlib.error, OSError) as error:
         raise ImitationError(f"{file}: cannot read as a stable-baselines3 zip ({error})") from None
     try:
-        weights = torch.load(io.BytesIO(weights_bytes), weights_only=True, map_location="cpu")
+        with warnings.catch_warnings():  # torch warns on stderr about pickle protocols; one line only
+            warnings.simplefilter("ignore")
+            weights = torch.load(io.BytesIO(weights_bytes), weights_only=True, map_location="cpu")
     except Exception as error:  # noqa: BLE001 - any failure of a stranger's file is one line
         # weights_only refuses anything but tensors and plain containers: an unpickling error here
         # may also mean the file tried to import code.
-        raise ImitationError(f"{file}: policy.pth is not a plain PyTorch state dict ({str(error).splitlines()[0]})") from None
+        raise ImitationError(f"{file}: policy.pth is not a plain PyTorch state dict ({_refusal(error)}); nothing in it was run") from None
     if not isinstance(weights, dict) or not all(isinstance(v, torch.Tensor) for v in weights.values()):
         raise ImitationError(f"{file}: policy.pth holds a {type(weights).__name__}, not a state dict of tensors")
     try:
@@ -108,6 +112,14 @@ def _read_zip(file: str) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     if not isinstance(data, dict):
         raise ImitationError(f"{file}: its data member is JSON but not an object")
     return weights, data
+
+
+def _refusal(error: Exception) -> str:
+    """What torch's weights-only unpickler objected to, without its advice to retry unsafely."""
+    text = " ".join(str(error).split())
+    found = re.search(r"WeightsUnpickler error: (.*?)(?: Please use| Check the documentation|$)", text)
+    reason = found[1] if found else text
+    return reason.rstrip(". ")[:200] or type(error).__name__
 
 
 def _space(file: str, data: dict[str, Any], key: str) -> gym.Space:
@@ -189,8 +201,14 @@ def _activation(file: str, data: dict[str, Any]) -> str:
         return "tanh"
     try:
         imported = set(_pickle_globals(base64.b64decode(kwargs[":serialized:"])))
-    except ValueError as error:
+    except (ValueError, TypeError) as error:
         raise ImitationError(f"{file}: policy_kwargs is not a readable pickle ({error})") from None
+    foreign = sorted(f"{module}.{name}" for module, name in imported if not _plausible_setting(module, name))
+    if foreign:
+        raise ImitationError(
+            f"{file}: policy_kwargs' pickle refers to {', '.join(foreign)}, which no SB3 policy setting is; "
+            "refused (the pickle was not run)"
+        )
     named = sorted(name for module, name in imported if module == ACTIVATION_MODULE)
     if not named:
         return "tanh"
@@ -198,6 +216,19 @@ def _activation(file: str, data: dict[str, Any]) -> str:
     if len(named) > 1 or named[0] not in ours:
         raise ImitationError(f"{file}: activation {', '.join(named)} is not supported (only {', '.join(sorted(ours))})")
     return ours[named[0]]
+
+
+def _plausible_setting(module: str, name: str) -> bool:
+    """Whether a global named in policy_kwargs' pickle is something SB3 settings hold: torch
+    classes (activations, optimisers), SB3's own classes, numpy values, plain containers. The
+    pickle is never run either way; naming anything else (os.system, builtins.open, ...) marks the
+    zip as crafted, and it is refused rather than silently half-read."""
+    top = module.split(".")[0]
+    if top in ("torch", "stable_baselines3", "sb3_contrib", "numpy"):
+        return True
+    if module == "collections":
+        return name in ("OrderedDict", "defaultdict")
+    return module == "builtins" and name in PLAIN_BUILTINS
 
 
 def _pickle_globals(payload: bytes) -> Iterator[tuple[str, str]]:

@@ -406,6 +406,7 @@ def _write(case: Case, path: Path, **options: Any) -> DemoWriter:
     return DemoWriter(
         path,
         env_id=case.env_id,
+        finite_only=False,  # the cases' random bytes include NaN and inf
         observation_space=case.observation_space,
         action_space=case.action_space,
         dt=case.dt,

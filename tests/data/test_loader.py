@@ -21,14 +21,14 @@ ACTIONS = gym.spaces.Discrete(4)
 @pytest.fixture
 def demo_paths(tmp_path):
     episodes = [random_episode(BOX, ACTIONS, length, seed=i, terminated=i == 1) for i, length in enumerate([4, 6, 3, 5])]
-    write_episodes(tmp_path / "a.mcap", episodes[:2], env_id="T", observation_space=BOX, action_space=ACTIONS)
-    write_episodes(tmp_path / "b.mcap", episodes[2:], env_id="T", observation_space=BOX, action_space=ACTIONS)
+    write_episodes(tmp_path / "a.mcap", episodes[:2], finite_only=False, env_id="T", observation_space=BOX, action_space=ACTIONS)
+    write_episodes(tmp_path / "b.mcap", episodes[2:], finite_only=False, env_id="T", observation_space=BOX, action_space=ACTIONS)
     return [tmp_path / "a.mcap", tmp_path / "b.mcap"], episodes
 
 
 def test_transitions_line_up_with_their_episodes(demo_paths) -> None:
     paths, episodes = demo_paths
-    transitions = load_transitions(paths)
+    transitions = load_transitions(paths, finite=False)
     assert len(transitions) == 18
     np.testing.assert_array_equal(transitions.episode_index, np.repeat([0, 1, 2, 3], [4, 6, 3, 5]))
     start = 0
@@ -46,18 +46,18 @@ def test_transitions_line_up_with_their_episodes(demo_paths) -> None:
 
 def test_loading_a_subset_equals_slicing_the_whole(demo_paths) -> None:
     paths, _ = demo_paths
-    whole = load_transitions(paths)
-    subset = load_transitions(DemoDataset(paths), episodes=[3, 1])
+    whole = load_transitions(paths, finite=False)
+    subset = load_transitions(DemoDataset(paths), episodes=[3, 1], finite=False)
     mask = np.isin(whole.episode_index, [1, 3])
     np.testing.assert_array_equal(subset.observations, whole.observations[mask])
     np.testing.assert_array_equal(subset.episode_index, whole.episode_index[mask])
     with pytest.raises(ImitationError, match="episode indices"):
-        load_transitions(paths, episodes=[9])
+        load_transitions(paths, episodes=[9], finite=False)
 
 
 def test_torch_tensors_keep_dtypes_and_share_cpu_memory(demo_paths) -> None:
     paths, _ = demo_paths
-    transitions = load_transitions(paths)
+    transitions = load_transitions(paths, finite=False)
     tensors = transitions_to_torch(transitions, "cpu")
     assert tensors.observations.dtype == torch.float32 and tensors.actions.dtype == torch.int64
     assert tensors.terminated.dtype == torch.bool and tensors.rewards.dtype == torch.float32
@@ -77,7 +77,7 @@ def test_split_is_by_whole_episodes_and_seeded() -> None:
 
 def test_minibatches_cover_every_transition_once_per_epoch_in_a_seeded_order(demo_paths) -> None:
     paths, _ = demo_paths
-    tensors = transitions_to_torch(load_transitions(paths))
+    tensors = transitions_to_torch(load_transitions(paths, finite=False))
     loader = MinibatchLoader(tensors, batch_size=5, seed=1)
     assert len(loader) == 4
     epoch = [batch.episode_index for batch in loader]
@@ -93,8 +93,8 @@ def test_minibatches_cover_every_transition_once_per_epoch_in_a_seeded_order(dem
 
 def test_dict_observations_load_as_dicts_of_tensors(tmp_path) -> None:
     space = gym.spaces.Dict({"pos": gym.spaces.Box(-1, 1, (2,), np.float32), "cell": gym.spaces.Discrete(5)})
-    write_episodes(tmp_path / "d.mcap", [random_episode(space, ACTIONS, 7, seed=0)], env_id="T", observation_space=space, action_space=ACTIONS)
-    tensors = transitions_to_torch(load_transitions(tmp_path / "d.mcap"))
+    write_episodes(tmp_path / "d.mcap", [random_episode(space, ACTIONS, 7, seed=0)], finite_only=False, env_id="T", observation_space=space, action_space=ACTIONS)
+    tensors = transitions_to_torch(load_transitions(tmp_path / "d.mcap", finite=False))
     assert tensors.observations["pos"].shape == (7, 2) and tensors.next_observations["cell"].shape == (7,)
     batch = next(iter(MinibatchLoader(tensors, batch_size=3, seed=0)))
     assert batch.observations["pos"].shape == (3, 2)
@@ -112,9 +112,9 @@ def test_device_selection() -> None:
 
 def test_next_observations_can_be_left_out(demo_paths) -> None:
     paths, _ = demo_paths
-    without = load_transitions(paths, next_observations=False)
+    without = load_transitions(paths, next_observations=False, finite=False)
     assert without.next_observations is None
-    np.testing.assert_array_equal(without.observations, load_transitions(paths).observations)
+    np.testing.assert_array_equal(without.observations, load_transitions(paths, finite=False).observations)
     tensors = transitions_to_torch(without)
     assert tensors.next_observations is None
     batch = next(iter(MinibatchLoader(tensors, batch_size=4, seed=0)))
@@ -124,8 +124,8 @@ def test_next_observations_can_be_left_out(demo_paths) -> None:
 def test_uncompressed_files_load_the_same(tmp_path) -> None:
     episodes = [random_episode(BOX, ACTIONS, 9, seed=i) for i in range(3)]
     for compression in ("zstd", "none"):
-        write_episodes(tmp_path / f"{compression}.mcap", episodes, env_id="T", observation_space=BOX, action_space=ACTIONS, compression=compression)
-    packed, plain = load_transitions(tmp_path / "zstd.mcap"), load_transitions(tmp_path / "none.mcap")
+        write_episodes(tmp_path / f"{compression}.mcap", episodes, finite_only=False, env_id="T", observation_space=BOX, action_space=ACTIONS, compression=compression)
+    packed, plain = load_transitions(tmp_path / "zstd.mcap", finite=False), load_transitions(tmp_path / "none.mcap", finite=False)
     np.testing.assert_array_equal(packed.observations, plain.observations)
     np.testing.assert_array_equal(packed.next_observations, plain.next_observations)
     assert plain.observations.flags.owndata  # a copy: the mapped file may change after loading
@@ -161,7 +161,7 @@ def test_bulk_loading_equals_assembling_episodes(tmp_path, compression, timestam
             dataclasses.replace(episode, timestamps=10**9 * i + np.cumsum(np.random.default_rng(i).integers(1, 50, len(episode) + 1)) * 10**6)
             for i, episode in enumerate(episodes)
         ]
-    options = dict(env_id="T", observation_space=DICT_SPACE, action_space=BOX, block_steps=4, chunk_size=300, compression=compression)
+    options = dict(finite_only=False, env_id="T", observation_space=DICT_SPACE, action_space=BOX, block_steps=4, chunk_size=300, compression=compression)
     paths = [write_episodes(tmp_path / "a.mcap", episodes[:4], **options), write_episodes(tmp_path / "b.mcap", episodes[4:], **options)]
     dataset = DemoDataset(paths)
     for subset in (None, [2, 4, 5], [6]):
@@ -169,4 +169,39 @@ def test_bulk_loading_equals_assembling_episodes(tmp_path, compression, timestam
         for next_observations in (True, False):
             expected = episodes_to_transitions(dataset.read_episodes(indices), indices, next_observations=next_observations)
             assert (read_transitions(dataset, indices, next_observations=next_observations) is None) == timestamps
-            _assert_transitions_equal(load_transitions(dataset, episodes=subset, next_observations=next_observations), expected)
+            _assert_transitions_equal(load_transitions(dataset, episodes=subset, next_observations=next_observations, finite=False), expected)
+
+
+def _finite_episodes(lengths: list[int]) -> list:
+    from imitation.data.types import Episode
+
+    rng = np.random.default_rng(0)
+    return [
+        Episode(observations=rng.normal(size=(n + 1, 3)).astype(np.float32), actions=rng.integers(0, 4, n), rewards=rng.normal(size=n), truncated=True)
+        for n in lengths
+    ]
+
+
+@pytest.mark.parametrize(
+    ("field", "row", "next_observations", "named"),
+    [
+        ("observations", 2, False, "episode 1, step 2: the observation is nan"),
+        ("observations", 5, True, "episode 1, step 5: the observation is nan"),  # the final state: only s' holds it
+        ("rewards", 3, False, "episode 1, step 3: the reward is nan"),
+    ],
+)
+def test_loading_for_training_names_the_file_episode_and_step_of_a_nan(tmp_path, field, row, next_observations, named) -> None:
+    """b.mcap's second episode (dataset-wide episode 3) holds a NaN, stored as is by a writer
+    that does not check; the loader names b.mcap, the episode within it and the step."""
+    episodes = _finite_episodes([4, 6, 3, 5])
+    array = getattr(episodes[3], field).copy()
+    array[row] = np.nan
+    episodes[3] = dataclasses.replace(episodes[3], **{field: array})
+    options = dict(env_id="T", observation_space=BOX, action_space=ACTIONS, finite_only=False)
+    paths = [write_episodes(tmp_path / "a.mcap", episodes[:2], **options), write_episodes(tmp_path / "b.mcap", episodes[2:], **options)]
+    with pytest.raises(ImitationError, match=f"^{paths[1]}: {named}; learners need finite"):
+        load_transitions(paths, next_observations=next_observations)
+    if row == 5:  # the final observation is not part of any transition without s'
+        assert len(load_transitions(paths, next_observations=False)) == 18
+    assert len(load_transitions(paths, episodes=[0, 1, 2])) == 13  # other episodes are fine
+    assert len(load_transitions(paths, next_observations=next_observations, finite=False)) == 18

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import gymnasium as gym
@@ -21,6 +22,8 @@ DISCRETE2 = gym.spaces.Discrete(2)
 
 
 def write(path, episodes, observation_space=BOX4, action_space=DISCRETE2, **options):
+    # random_episode's rows are random bytes: NaN and inf included, stored bit for bit.
+    options.setdefault("finite_only", False)
     return write_episodes(path, episodes, env_id="Test-v0", observation_space=observation_space, action_space=action_space, **options)
 
 
@@ -145,9 +148,9 @@ def test_infos_and_metadata_are_strict_json(tmp_path) -> None:
 def test_bad_writer_arguments_leave_no_file(tmp_path) -> None:
     bad_space = gym.spaces.Dict({"a/b": DISCRETE2})
     with pytest.raises(ImitationError):
-        DemoWriter(tmp_path / "x.mcap", env_id="T", observation_space=bad_space, action_space=DISCRETE2)
+        DemoWriter(tmp_path / "x.mcap", finite_only=False, env_id="T", observation_space=bad_space, action_space=DISCRETE2)
     with pytest.raises(ImitationError, match="dt must be a positive"):
-        DemoWriter(tmp_path / "x.mcap", env_id="T", observation_space=BOX4, action_space=DISCRETE2, dt=0.0)
+        DemoWriter(tmp_path / "x.mcap", finite_only=False, env_id="T", observation_space=BOX4, action_space=DISCRETE2, dt=0.0)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -155,7 +158,7 @@ def test_lz4_chunks_from_other_writers_are_read(tmp_path) -> None:
     from mcap.writer import CompressionType
 
     episodes = [random_episode(BOX4, DISCRETE2, 9, seed=i) for i in range(2)]
-    writer = DemoWriter(tmp_path / "l.mcap", env_id="T", observation_space=BOX4, action_space=DISCRETE2)
+    writer = DemoWriter(tmp_path / "l.mcap", finite_only=False, env_id="T", observation_space=BOX4, action_space=DISCRETE2)
     # Another MCAP writer could choose lz4; swap the compression on our writer to make such a file.
     writer._writer._Writer__compression = CompressionType.LZ4
     with writer:
@@ -201,22 +204,46 @@ def test_writer_checks_data_against_spaces(tmp_path) -> None:
     assert not (tmp_path / "bad.mcap").exists() and not (tmp_path / "bad.mcap.partial").exists()
 
 
-def test_writer_refuses_non_finite_rewards(tmp_path) -> None:
-    base = random_episode(BOX4, DISCRETE2, 3, seed=0)
-    bad = Episode(observations=base.observations, actions=base.actions, rewards=np.array([0.0, np.nan, 1.0]))
-    with pytest.raises(ImitationError, match="NaN"):
-        write(tmp_path / "nan.mcap", [bad])
+def finite_episode(steps: int, seed: int, action_space=DISCRETE2) -> Episode:
+    rng = np.random.default_rng(seed)
+    actions = rng.integers(0, 2, steps) if action_space is DISCRETE2 else rng.uniform(-1, 1, (steps, *action_space.shape)).astype(action_space.dtype)
+    return Episode(observations=rng.normal(size=(steps + 1, 4)).astype(np.float32), actions=actions, rewards=rng.normal(size=steps))
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("observations", np.nan, r"episode 1, step 4: the observation is nan"),
+        ("observations", -np.inf, r"episode 1, step 4: the observation is -inf"),
+        ("actions", np.inf, r"episode 1, step 4: the action is inf"),
+        ("rewards", np.nan, r"episode 1, step 4: the reward is nan"),
+    ],
+)
+def test_writer_refuses_non_finite_values_naming_episode_and_step(tmp_path, field, value, message) -> None:
+    box_actions = gym.spaces.Box(-1, 1, (2,), np.float32)
+    good, bad = finite_episode(9, 0, box_actions), finite_episode(9, 1, box_actions)
+    array = getattr(bad, field).copy()
+    array[4, ...] = value
+    array[7, ...] = np.nan  # only the first is named
+    bad = dataclasses.replace(bad, **{field: array})
+    path = tmp_path / "nan.mcap"
+    with pytest.raises(ImitationError, match=f"^{path}: {message}; demo files hold finite"):
+        write(path, [good, bad], action_space=box_actions, finite_only=True)
+    assert list(tmp_path.iterdir()) == [], "nothing half-written"
+    # finite_only=False keeps them bit for bit (learners refuse such files when they load them).
+    write(path, [good, bad], action_space=box_actions, finite_only=False)
+    np.testing.assert_array_equal(getattr(DemoFile(path)[1], field), array)
 
 
 def test_interrupt_keeps_finished_episodes_other_errors_discard(tmp_path) -> None:
     episode = random_episode(BOX4, DISCRETE2, 5, seed=0)
     with pytest.raises(KeyboardInterrupt):
-        with DemoWriter(tmp_path / "k.mcap", env_id="T", observation_space=BOX4, action_space=DISCRETE2) as writer:
+        with DemoWriter(tmp_path / "k.mcap", finite_only=False, env_id="T", observation_space=BOX4, action_space=DISCRETE2) as writer:
             writer.write(episode)
             raise KeyboardInterrupt
     assert len(DemoFile(tmp_path / "k.mcap", verify=True)) == 1
     with pytest.raises(RuntimeError):
-        with DemoWriter(tmp_path / "r.mcap", env_id="T", observation_space=BOX4, action_space=DISCRETE2) as writer:
+        with DemoWriter(tmp_path / "r.mcap", finite_only=False, env_id="T", observation_space=BOX4, action_space=DISCRETE2) as writer:
             writer.write(episode)
             raise RuntimeError("boom")
     assert list(tmp_path.glob("r.mcap*")) == []
@@ -227,7 +254,7 @@ def test_existing_file_is_replaced_only_when_the_new_one_is_complete(tmp_path) -
     write(path, [random_episode(BOX4, DISCRETE2, 5, seed=0)])
     before = path.read_bytes()
     with pytest.raises(RuntimeError):
-        with DemoWriter(path, env_id="T", observation_space=BOX4, action_space=DISCRETE2) as writer:
+        with DemoWriter(path, finite_only=False, env_id="T", observation_space=BOX4, action_space=DISCRETE2) as writer:
             writer.write(random_episode(BOX4, DISCRETE2, 9, seed=1))
             assert path.read_bytes() == before
             raise RuntimeError("boom")
@@ -260,7 +287,7 @@ def test_ctrl_c_during_a_write_lands_after_the_episode(tmp_path, monkeypatch) ->
         original_add(self, topic, log_time, data)
 
     with pytest.raises(KeyboardInterrupt):
-        with DemoWriter(tmp_path / "c.mcap", env_id="T", observation_space=BOX4, action_space=DISCRETE2, block_steps=5) as writer:
+        with DemoWriter(tmp_path / "c.mcap", finite_only=False, env_id="T", observation_space=BOX4, action_space=DISCRETE2, block_steps=5) as writer:
             writer.write(episodes[0])
             monkeypatch.setattr(store.DemoWriter, "_add", interrupting_add)
             writer.write(episodes[1])

@@ -22,7 +22,7 @@ EPISODES = [random_episode(BOX, ACTIONS, 20 + 3 * i, seed=i, terminated=i == 2) 
 @pytest.fixture(scope="module")
 def good_file(tmp_path_factory) -> bytes:
     path = tmp_path_factory.mktemp("damage") / "good.mcap"
-    write_episodes(path, EPISODES, env_id="Test-v0", observation_space=BOX, action_space=ACTIONS, durable=True)
+    write_episodes(path, EPISODES, finite_only=False, env_id="Test-v0", observation_space=BOX, action_space=ACTIONS, durable=True)
     return path.read_bytes()
 
 

@@ -27,6 +27,39 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 ROS1_MAGIC = b"#ROSBAG V2.0"
 
 
+def _damage_errors() -> tuple[type[BaseException], ...]:
+    """What the third-party readers raise on damaged bytes: their own errors, and the struct,
+    decompression, decoding and lookup errors their parsers let through (rosbags asserts on
+    malformed records). Caught only around calls into those readers, never around our own code."""
+    import sqlite3
+    import struct
+
+    import zstandard
+    from mcap.exceptions import McapError
+    from rosbags.rosbag1 import ReaderError as Ros1Error
+    from rosbags.rosbag2 import ReaderError as Ros2Error
+
+    try:
+        import apsw  # rosbags reads sqlite bags through apsw
+
+        sqlite_errors: tuple[type[BaseException], ...] = (sqlite3.Error, apsw.Error)
+    except ImportError:
+        sqlite_errors = (sqlite3.Error,)
+    return (McapError, Ros1Error, Ros2Error, *sqlite_errors, zstandard.ZstdError, struct.error, EOFError, AssertionError,
+            KeyError, IndexError, ValueError, TypeError, RuntimeError, OverflowError, MemoryError)
+
+
+@contextlib.contextmanager
+def _reading(path: Path, what: str) -> Iterator[None]:
+    """One line for a bag whose bytes the reader chokes on."""
+    try:
+        yield
+    except ImitationError:
+        raise
+    except _damage_errors() as error:
+        raise ImitationError(f"{path}: cannot read {what}: the file is damaged or not what it claims ({type(error).__name__}: {str(error)[:200]})") from None
+
+
 @dataclass
 class TopicInfo:
     """What a bag holds on one topic; times are log times in ns (None without messages)."""
@@ -82,6 +115,14 @@ def open_bag(path: str | Path, kind: str, *, ros_distro: str = "latest") -> Bag:
     return McapBag(path, files)
 
 
+def _is_file(path: Path) -> bool:
+    """Path.is_file, false for names the OS refuses (too long, a NUL byte) instead of raising."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
+
+
 def _starts_with(path: Path, magic: bytes) -> bool:
     try:
         with open(path, "rb") as stream:
@@ -95,15 +136,18 @@ def _rosbag2_directory(path: Path) -> tuple[str, list[Path]]:
     metadata = path / "metadata.yaml"
     if metadata.is_file():
         try:
-            info = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
+            info = yaml.safe_load(metadata.read_bytes())["rosbag2_bagfile_information"]
             storage = str(info.get("storage_identifier", ""))
             # Recorders write paths relative to a folder that is often renamed: keep the names.
-            files = [path / Path(name).name for name in info.get("relative_file_paths", [])]
-        except (yaml.YAMLError, KeyError, TypeError) as error:
-            raise ImitationError(f"{metadata}: not a rosbag2 metadata file ({error})") from None
+            names = info.get("relative_file_paths", [])
+            if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
+                raise TypeError("relative_file_paths is not a list of file names")
+            files = [path / Path(name).name for name in names]
+        except (OSError, yaml.YAMLError, KeyError, TypeError, AttributeError, ValueError, RecursionError) as error:
+            raise ImitationError(f"{metadata}: not a rosbag2 metadata file ({type(error).__name__}: {' '.join(str(error).split())[:200]})") from None
         if storage not in ("sqlite3", "mcap"):
             raise ImitationError(f"{metadata}: storage {storage!r} is not supported (sqlite3 or mcap)")
-        missing = [f.name for f in files if not f.is_file()]
+        missing = [f.name[:80] for f in files if not _is_file(f)]
         if missing:
             raise ImitationError(f"{path}: metadata.yaml lists {', '.join(missing)}, which is missing")
         return storage, files
@@ -180,7 +224,7 @@ class McapBag:
     @contextlib.contextmanager
     def _open(self, file: Path) -> Iterator[Any]:
         try:
-            with open(file, "rb") as stream:
+            with open(file, "rb") as stream, _reading(file, "this MCAP file"):
                 yield self._make_reader(stream)
         except OSError as error:
             raise ImitationError(f"{file}: cannot read: {error.strerror or error}") from None
@@ -249,7 +293,7 @@ class RosbagsBag:
                             types.update(get_types_from_idl(idl))
                 self._typestore.register(types)
             except Exception as error:
-                self._problems[connection.topic] = f"its definition of {connection.msgtype} cannot be parsed ({error})"
+                self._problems[str(connection.topic)] = f"its definition of {connection.msgtype} cannot be parsed ({error})"
         self._connections = connections
         self._topics: dict[str, TopicInfo] | None = None
 
@@ -263,32 +307,36 @@ class RosbagsBag:
             return self._topics
         topics: dict[str, TopicInfo] = {}
         for connection in self._connections:
-            info = topics.setdefault(connection.topic, TopicInfo(connection.topic, connection.msgtype))
-            info.problem = info.problem or self._problems.get(connection.topic)
-        for connection, time_ns, raw in self._reader.messages():
-            info = topics[connection.topic]
-            if info.count == 0 and info.problem is None:
-                try:
-                    self._deserialize(raw, connection.msgtype)
-                except Exception as error:
-                    info.problem = f"its messages do not decode as {connection.msgtype} ({type(error).__name__}: {error})"
-            info.count += 1
-            info.first_ns = time_ns if info.first_ns is None else min(info.first_ns, time_ns)
-            info.last_ns = time_ns if info.last_ns is None else max(info.last_ns, time_ns)
+            topic = str(connection.topic)  # a damaged metadata.yaml may name a topic with a number or a list
+            info = topics.setdefault(topic, TopicInfo(topic, str(connection.msgtype)))
+            info.problem = info.problem or self._problems.get(topic)
+        with _reading(self.path, f"this {self.format}"):
+            for connection, time_ns, raw in self._reader.messages():
+                info = topics[str(connection.topic)]
+                if info.count == 0 and info.problem is None:
+                    try:
+                        self._deserialize(raw, connection.msgtype)
+                    except Exception as error:
+                        info.problem = f"its messages do not decode as {connection.msgtype} ({type(error).__name__}: {error})"
+                info.count += 1
+                info.first_ns = time_ns if info.first_ns is None else min(info.first_ns, time_ns)
+                info.last_ns = time_ns if info.last_ns is None else max(info.last_ns, time_ns)
         self._topics = topics
         return topics
 
     def messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
         wanted = {t for t in topics if self.topics()[t].problem is None}
-        connections = [c for c in self._connections if c.topic in wanted]
+        connections = [c for c in self._connections if str(c.topic) in wanted]
         if not connections:
             return
-        for connection, time_ns, raw in self._reader.messages(connections=connections):
-            try:
-                decoded = self._deserialize(raw, connection.msgtype)
-            except Exception as error:
-                raise ImitationError(f"{self.path}: a message on {connection.topic} at {time_ns} ns does not decode ({error})") from None
-            yield connection.topic, time_ns, decoded
+        with _reading(self.path, f"this {self.format}"):
+            listing = self._reader.messages(connections=connections)
+            for connection, time_ns, raw in listing:
+                try:
+                    decoded = self._deserialize(raw, connection.msgtype)
+                except Exception as error:
+                    raise ImitationError(f"{self.path}: a message on {connection.topic} at {time_ns} ns does not decode ({error})") from None
+                yield str(connection.topic), time_ns, decoded
 
     def close(self) -> None:
         self._reader.close()

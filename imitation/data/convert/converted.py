@@ -45,7 +45,8 @@ def box_for(rows: np.ndarray) -> gym.spaces.Box:
 
 def infer_action_space(actions: np.ndarray) -> gym.Space:
     """Discrete for one column of non-negative integers, MultiDiscrete for several, else a Box."""
-    if actions.dtype.kind in "iub" and actions.size and actions.min() >= 0:
+    # Below 2^31 choices: larger integers are measurements, not choices (and would overflow int64 spaces).
+    if actions.dtype.kind in "iub" and actions.size and actions.min() >= 0 and actions.max() < 2**31:
         if actions.ndim == 1 or actions.shape[1:] == (1,):
             return gym.spaces.Discrete(int(actions.max()) + 1)
         if actions.ndim == 2:

@@ -45,10 +45,14 @@ def lerobot_to_episodes(root: str | Path, *, progress: bool = True) -> Converted
     if not info_path.is_file():
         raise ImitationError(f"{root}: not a LeRobot dataset root (no meta/info.json)")
     try:
-        info = json.loads(info_path.read_text())
+        info = json.loads(info_path.read_bytes())
         version, features, fps = info["codebase_version"], info["features"], info["fps"]
-    except (json.JSONDecodeError, KeyError, TypeError) as error:
-        raise ImitationError(f"{info_path}: not a LeRobot info.json ({error})") from None
+    except (OSError, ValueError, KeyError, TypeError, RecursionError) as error:  # ValueError: not JSON, or not UTF-8
+        raise ImitationError(f"{info_path}: not a LeRobot info.json ({type(error).__name__}: {str(error)[:200]})") from None
+    if not isinstance(features, dict) or not all(isinstance(key, str) and isinstance(f, dict) for key, f in features.items()):
+        raise ImitationError(f"{info_path}: 'features' must map each feature name to its description")
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 0 < fps < 1e6:
+        raise ImitationError(f"{info_path}: 'fps' must be a positive number of frames per second, got {str(fps)[:40]}")
     observation_keys, action_key, warnings = _choose_features(root, features)
     wanted = [*observation_keys, action_key, *(k for k in ("next.reward", "next.done") if k in features), "episode_index"]
     if version == "v3.0":
@@ -57,7 +61,9 @@ def lerobot_to_episodes(root: str | Path, *, progress: bool = True) -> Converted
         columns = _read_v21(root, info, wanted, progress)
     else:
         raise ImitationError(f"{root}: LeRobot codebase version {version!r} is not supported (v3.0 or v2.1)")
-    columns = {key: _shaped(values, features[key]) for key, values in columns.items()}
+    columns = {key: _shaped(root, key, values, features.get(key, {})) for key, values in columns.items()}
+    if len(columns["episode_index"]) == 0:
+        raise ImitationError(f"{root}: the dataset holds no frames")
     return _build(root, version, fps, features, observation_keys, action_key, columns, warnings)
 
 
@@ -68,7 +74,7 @@ def _choose_features(root: Path, features: dict[str, Any]) -> tuple[list[str], s
         dtype = feature.get("dtype")
         if key in _INDEX_FEATURES or key in ("action", "next.reward", "next.done"):
             continue
-        if dtype in _VISUAL:
+        if isinstance(dtype, str) and dtype in _VISUAL:
             warnings.append(f"{root}: {dtype} feature {key!r} skipped (image demos are not supported yet)")
         elif key.startswith("observation.") and _numeric(dtype):
             observation_keys.append(key)
@@ -84,7 +90,7 @@ def _choose_features(root: Path, features: dict[str, Any]) -> tuple[list[str], s
 def _numeric(dtype: Any) -> bool:
     try:
         return np.dtype(dtype).kind in "biuf"
-    except TypeError:
+    except (TypeError, ValueError, SyntaxError):  # numpy parses some dtype strings as Python
         return False
 
 
@@ -93,9 +99,10 @@ def lerobot_quietly() -> Iterator[None]:
     """lerobot is imported here only (it costs seconds). Its loaders look at the Hub unless told
     not to, it logs warnings about fields it ignores, and its writer runs a `datasets` map per
     episode, each with a progress bar. We read and write local folders and keep our own bar."""
+    # Before the import: huggingface_hub reads HF_HUB_OFFLINE once, when it is first imported.
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
     import datasets
 
-    os.environ.setdefault("HF_HUB_OFFLINE", "1")
     logger = logging.getLogger("lerobot")
     level = logger.level
     logger.setLevel(logging.ERROR)
@@ -117,35 +124,50 @@ def _read_v30(root: Path, wanted: list[str]) -> dict[str, np.ndarray]:
             dataset = LeRobotDataset(repo_id=f"local/{root.name}", root=root, download_videos=False, video_backend="pyav")
         except Exception as error:
             raise ImitationError(f"{root}: lerobot cannot load it ({type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ''})") from None
-        table = dataset.hf_dataset.select_columns(wanted).with_format("numpy")
-        return {key: np.asarray(table[key]) for key in wanted}
+        try:
+            table = dataset.hf_dataset.select_columns(wanted).with_format("numpy")
+            return {key: np.asarray(table[key]) for key in wanted}
+        except (ValueError, KeyError, TypeError) as error:  # a column missing, or rows of different lengths
+            raise ImitationError(f"{root}: its data does not match meta/info.json's features ({type(error).__name__}: {str(error)[:200]})") from None
 
 
 def _read_v21(root: Path, info: dict[str, Any], wanted: list[str], progress: bool) -> dict[str, np.ndarray]:
     import pyarrow.parquet as pq
     from tqdm import tqdm
 
+    import pyarrow as pa
+
     episodes_path = root / "meta" / "episodes.jsonl"
     try:
-        listed = [json.loads(line) for line in episodes_path.read_text().splitlines() if line.strip()]
-        template, chunk_size = info["data_path"], int(info.get("chunks_size", 1000))
-    except (OSError, json.JSONDecodeError, KeyError) as error:
-        raise ImitationError(f"{episodes_path}: cannot read the v2.1 episode list ({error})") from None
+        listed = [json.loads(line) for line in episodes_path.read_bytes().splitlines() if line.strip()]
+        template, chunk_size = str(info["data_path"]), int(info.get("chunks_size", 1000))
+        if chunk_size < 1:
+            raise ValueError(f"chunks_size {chunk_size} is not positive")
+    except (OSError, ValueError, KeyError, TypeError, OverflowError, RecursionError) as error:  # ValueError: JSON, UTF-8 or a number
+        raise ImitationError(f"{episodes_path}: cannot read the v2.1 episode list ({type(error).__name__}: {str(error)[:200]})") from None
     parts: dict[str, list[np.ndarray]] = {key: [] for key in wanted}
-    for entry in tqdm(listed, desc="read", unit="episode", disable=None if progress else True, dynamic_ncols=True):
-        index = int(entry["episode_index"])
-        path = root / template.format(episode_chunk=index // chunk_size, episode_index=index)
+    for line, entry in enumerate(tqdm(listed, desc="read", unit="episode", disable=None if progress else True, dynamic_ncols=True), 1):
+        try:
+            index = int(entry["episode_index"])
+            length = int(entry.get("length", -1))
+            path = root / template.format(episode_chunk=index // chunk_size, episode_index=index)
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as error:
+            raise ImitationError(f"{episodes_path}: line {line} is not an episode entry, or data_path does not fit it ({type(error).__name__}: {str(error)[:100]})") from None
         try:
             table = pq.read_table(path, columns=wanted)
-        except (OSError, ValueError) as error:
-            raise ImitationError(f"{path}: cannot read episode {index} ({error})") from None
-        if table.num_rows != int(entry.get("length", table.num_rows)):
-            raise ImitationError(f"{path}: episode {index} has {table.num_rows} frames, meta/episodes.jsonl says {entry['length']}")
+            columns = {key: _column(table.column(key)) for key in wanted}
+        except (OSError, ValueError, KeyError, TypeError, pa.ArrowException) as error:
+            raise ImitationError(f"{path}: cannot read episode {index} ({type(error).__name__}: {str(error)[:200]})") from None
+        if length >= 0 and table.num_rows != length:
+            raise ImitationError(f"{path}: episode {index} has {table.num_rows} frames, meta/episodes.jsonl says {length}")
         for key in wanted:
-            parts[key].append(_column(table.column(key)))
+            parts[key].append(columns[key])
     if not listed:
         raise ImitationError(f"{episodes_path}: lists no episode")
-    return {key: np.concatenate(values) for key, values in parts.items()}
+    try:
+        return {key: np.concatenate(values) for key, values in parts.items()}
+    except ValueError as error:  # rows of one feature differ in width between episodes
+        raise ImitationError(f"{root}: episodes disagree on a feature's shape ({str(error)[:200]})") from None
 
 
 def _column(column: Any) -> np.ndarray:
@@ -159,9 +181,15 @@ def _column(column: Any) -> np.ndarray:
     return array.to_numpy(zero_copy_only=False).reshape(rows, -1)
 
 
-def _shaped(values: np.ndarray, feature: dict[str, Any]) -> np.ndarray:
+def _shaped(root: Path, key: str, values: np.ndarray, feature: dict[str, Any]) -> np.ndarray:
     """Rows of the feature's declared shape (lerobot hands (1,)-shaped features over as scalars)."""
-    return values.reshape((len(values), *(feature.get("shape") or (1,))))
+    shape = feature.get("shape") or [1]
+    try:
+        if values.dtype.kind not in "biuf":
+            raise ValueError(f"values of type {values.dtype}")
+        return values.reshape((len(values), *shape))
+    except (ValueError, TypeError) as error:
+        raise ImitationError(f"{root}: feature {key!r} does not hold rows of its declared shape {str(shape)[:40]} ({str(error)[:100]})") from None
 
 
 def _build(

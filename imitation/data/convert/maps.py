@@ -28,6 +28,9 @@ import yaml
 from imitation.data.convert.fields import FieldError, parse_field
 from imitation.errors import ImitationError
 
+# Outside 0.001 Hz (a step per 1000 s) to 10 kHz a rate is a typo, or the map is damaged.
+MIN_RATE_HZ, MAX_RATE_HZ = 1e-3, 1e4
+MAX_SECONDS = 1e9  # durations (max_age, gaps): beyond 30 years a value is damage, and would overflow nanoseconds
 ALIGNMENTS = ("hold", "interpolate")
 CLOCKS = ("log", "header")
 SPLITS = ("file", "gap", "topic")
@@ -79,11 +82,13 @@ def load_map(path: str | Path) -> RecordingMap:
     """Read and check a map file; ImitationError names the file and what is wrong."""
     path = Path(path)
     try:
-        raw = yaml.safe_load(path.read_text())
+        raw = yaml.safe_load(path.read_bytes())  # bytes: yaml reports text that is not UTF-8 as a YAMLError
     except OSError as error:
         raise ImitationError(f"{path}: cannot read the map: {error.strerror or error}") from None
     except yaml.YAMLError as error:
-        raise ImitationError(f"{path}: not valid YAML ({' '.join(str(error).split())})") from None
+        raise ImitationError(f"{path}: not valid YAML ({' '.join(str(error).split())[:300]})") from None
+    except RecursionError:
+        raise ImitationError(f"{path}: not a map (YAML nested too deep)") from None
     return parse_map(raw, path)
 
 
@@ -97,8 +102,8 @@ def parse_map(raw: Any, path: Path) -> RecordingMap:
     if unknown:
         raise fail(f"unknown key {unknown[0]!r} (a map has {', '.join(sorted(_TOP_KEYS))})")
     rate = raw.get("rate_hz")
-    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
-        raise fail(f"rate_hz must be a positive number of samples per second, got {rate!r}")
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) or not MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
+        raise fail(f"rate_hz must be a number of samples per second between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g}, got {str(rate)[:40]}")
     clock = raw.get("time", "log")
     if clock not in CLOCKS:
         raise fail(f"time must be log or header, got {clock!r}")
@@ -154,12 +159,12 @@ def _stream(entry: Any, where: str, align: str, fail: Any) -> Stream:
     default = entry.get("default")
     if default is not None:
         values = default if isinstance(default, list) else [default]
-        if not values or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
-            raise fail(f"{where} ({topic}): default must be a number or a list of numbers, got {default!r}")
+        if not values or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values):
+            raise fail(f"{where} ({topic}): default must be a number or a list of numbers, got {str(default)[:80]}")
         default = tuple(float(v) for v in values)
     max_age = entry.get("max_age")
     if max_age is not None:
-        if isinstance(max_age, bool) or not isinstance(max_age, (int, float)) or not max_age > 0:
+        if isinstance(max_age, bool) or not isinstance(max_age, (int, float)) or not 0 < max_age < MAX_SECONDS:
             raise fail(f"{where} ({topic}): max_age must be a positive number of seconds, got {max_age!r}")
         if default is None:
             raise fail(f"{where} ({topic}): max_age needs a default (the value once the last message is too old)")
@@ -177,7 +182,7 @@ def _split(spec: Any, fail: Any) -> EpisodeSplit:
         raise fail(f"episodes: unexpected key {extra[0]!r} for split {mode}")
     if mode == "gap":
         seconds = spec.get("seconds")
-        if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds > 0:
+        if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not 0 < seconds < MAX_SECONDS:
             raise fail(f"episodes: split gap needs seconds: a positive number, got {seconds!r}")
         return EpisodeSplit("gap", seconds=float(seconds))
     if mode == "topic":

@@ -16,8 +16,11 @@ Two layouts are recognised by their keys:
 
 from __future__ import annotations
 
+import math
 import zipfile
+import zlib
 from pathlib import Path
+from tokenize import TokenError  # numpy parses old .npy headers with tokenize
 
 import numpy as np
 
@@ -32,37 +35,66 @@ IMITATION_KEYS = {"obs", "acts", "indices", "terminal"}
 def npz_to_episodes(path: str | Path) -> Converted:
     """Read an SB GAIL or imitation npz file; ImitationError names the file and what is wrong."""
     path = Path(path)
-    try:
-        archive = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, zipfile.BadZipFile) as error:
-        raise ImitationError(f"{path}: not a readable npz file ({error})") from None
-    if not isinstance(archive, np.lib.npyio.NpzFile):
-        raise ImitationError(f"{path}: a single .npy array, not an npz archive of named arrays")
-    with archive:
-        keys = set(archive.files)
-
-        def array(key: str) -> np.ndarray:
-            try:
-                return archive[key]
-            except ValueError as error:  # an object array: reading it would unpickle
-                raise ImitationError(f"{path}: array {key!r} holds Python objects; it is not read (that would unpickle them)") from error
-
-        if SB_KEYS <= keys:
-            return _stable_baselines(path, {key: array(key) for key in SB_KEYS | ({"episode_returns"} & keys)})
-        if IMITATION_KEYS <= keys:
-            return _imitation(path, {key: array(key) for key in IMITATION_KEYS | ({"rews"} & keys)})
+    arrays = _read_npz(path)
+    keys = set(arrays)
+    if SB_KEYS <= keys:
+        return _stable_baselines(path, {key: arrays[key] for key in SB_KEYS | ({"episode_returns"} & keys)})
+    if IMITATION_KEYS <= keys:
+        return _imitation(path, {key: arrays[key] for key in IMITATION_KEYS | ({"rews"} & keys)})
     raise ImitationError(
-        f"{path}: unknown npz layout (keys {', '.join(sorted(keys))}); expected stable-baselines' "
+        f"{path}: unknown npz layout (keys {', '.join(sorted(keys))[:200]}); expected stable-baselines' "
         f"({', '.join(sorted(SB_KEYS))}) or imitation's ({', '.join(sorted(IMITATION_KEYS))})"
     )
 
 
+def _read_npz(path: Path) -> dict[str, np.ndarray]:
+    """Every array of the archive. Each member's .npy header is checked before its data is read:
+    object arrays are refused (reading them would unpickle), and so is a header promising more
+    bytes than the member holds (a damaged file must not make us allocate what it claims)."""
+    try:
+        with open(path, "rb") as stream:
+            if stream.read(6) == b"\x93NUMPY":
+                raise ImitationError(f"{path}: a single .npy array, not an npz archive of named arrays")
+        arrays = {}
+        with zipfile.ZipFile(path) as archive:
+            for info in archive.infolist():
+                key = info.filename.removesuffix(".npy")
+                with archive.open(info) as member:
+                    version = np.lib.format.read_magic(member)
+                    read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+                    shape, _, dtype = read_header(member)
+                    if dtype.hasobject:
+                        raise ImitationError(f"{path}: array {key!r} holds Python objects; it is not read (that would unpickle them)")
+                    if math.prod(shape) * dtype.itemsize > info.file_size:
+                        raise ImitationError(f"{path}: array {key!r} is damaged (its header promises more data than the archive holds)")
+                with archive.open(info) as member:
+                    arrays[key] = np.lib.format.read_array(member, allow_pickle=False)
+        return arrays
+    except ImitationError:
+        raise
+    except (OSError, EOFError, ValueError, KeyError, SyntaxError, TokenError, zipfile.BadZipFile, zlib.error, NotImplementedError) as error:
+        # zipfile's and numpy's ways of saying the bytes are not an npz archive (or a damaged one).
+        raise ImitationError(f"{path}: not a readable npz file ({type(error).__name__}: {str(error)[:200]})") from None
+
+
+def _numeric(path: Path, key: str, array: np.ndarray, *, flat: bool = False) -> np.ndarray:
+    """A numeric array with one row per step (1-D when `flat`); ImitationError otherwise."""
+    if array.dtype.kind not in "biuf" or array.ndim == 0 or (flat and array.ndim != 1):
+        shape = "one value per row" if flat else "one row per step"
+        raise ImitationError(f"{path}: array {key!r} must be numbers with {shape}, got {array.dtype} of shape {list(array.shape)}")
+    return array
+
+
 def _stable_baselines(path: Path, data: dict[str, np.ndarray]) -> Converted:
-    obs, actions, rewards, starts = data["obs"], data["actions"], data["rewards"].astype(np.float64), data["episode_starts"].astype(bool)
+    obs, actions = _numeric(path, "obs", data["obs"]), _numeric(path, "actions", data["actions"])
+    rewards = _numeric(path, "rewards", data["rewards"], flat=True).astype(np.float64)
+    starts = _numeric(path, "episode_starts", data["episode_starts"], flat=True).astype(bool)
     steps = len(obs)
     if not (len(actions) == len(rewards) == len(starts) == steps) or steps == 0 or not starts[0]:
         raise ImitationError(f"{path}: obs, actions, rewards and episode_starts must have one row per step and start with an episode start")
     returns = data.get("episode_returns")
+    if returns is not None:
+        returns = _numeric(path, "episode_returns", returns.reshape(-1) if returns.ndim == 0 else returns, flat=True)
     bounds = np.append(np.flatnonzero(starts), steps)
     observation_space, action_space = box_for(obs), infer_action_space(actions)
     obs, actions = cast_rows(obs, observation_space, f"{path}: obs"), cast_rows(actions, action_space, f"{path}: actions")
@@ -82,8 +114,12 @@ def _stable_baselines(path: Path, data: dict[str, np.ndarray]) -> Converted:
 
 
 def _imitation(path: Path, data: dict[str, np.ndarray]) -> Converted:
-    obs, acts, terminal = data["obs"], data["acts"], data["terminal"].astype(bool)
-    indices = data["indices"].astype(np.int64)
+    obs, acts = _numeric(path, "obs", data["obs"]), _numeric(path, "acts", data["acts"])
+    terminal = _numeric(path, "terminal", data["terminal"], flat=True).astype(bool)
+    indices = _numeric(path, "indices", data["indices"], flat=True)
+    if indices.dtype.kind not in "iu":
+        raise ImitationError(f"{path}: array 'indices' must hold integers, got {indices.dtype}")
+    indices = indices.astype(np.int64)
     count = len(terminal)
     if len(indices) != count - 1 or len(obs) != len(acts) + count:
         raise ImitationError(
@@ -93,6 +129,8 @@ def _imitation(path: Path, data: dict[str, np.ndarray]) -> Converted:
     if np.any(np.diff(np.concatenate([[0], indices, [len(acts)]])) < 0):
         raise ImitationError(f"{path}: indices must be increasing split points within acts (0..{len(acts)})")
     rewards = data.get("rews")
+    if rewards is not None:
+        rewards = _numeric(path, "rews", rewards, flat=True)
     if rewards is not None and len(rewards) != len(acts):
         raise ImitationError(f"{path}: rews has {len(rewards)} rows, acts {len(acts)}")
     observation_space, action_space = box_for(obs), infer_action_space(acts)

@@ -29,6 +29,8 @@ from imitation.errors import ImitationError
 
 _STAMP = parse_field("header.stamp")
 
+MAX_EPISODE_STEPS = 100_000_000  # a day at 1 kHz: more means damaged timestamps, not a recording
+
 
 @dataclass
 class _Column:
@@ -81,7 +83,13 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
     # Streams without a default have no value before their first sample: start the grid after it.
     first_values = [int(arrays[id(c)][0][0]) for c in columns if c.default is None]
     for index, (start, end) in enumerate(spans):
-        grid = regular_grid(max([start, *first_values]), end, recording_map.rate_hz)
+        begin = max([start, *first_values])
+        if (end - begin) / NS * recording_map.rate_hz > MAX_EPISODE_STEPS:  # before allocating the grid
+            raise ImitationError(
+                f"{bag.path}: episode span {index} lasts {(end - begin) / NS:.0f} s, more than {MAX_EPISODE_STEPS} steps at "
+                f"{recording_map.rate_hz:g} Hz; are the bag's timestamps damaged, or should the map split episodes?"
+            )
+        grid = regular_grid(begin, end, recording_map.rate_hz)
         if len(grid) == 0:
             warnings.append(f"episode span {index} ({start / NS:.3f} s to {end / NS:.3f} s) ends before every stream has a value; skipped")
             continue

@@ -1,0 +1,115 @@
+"""Checkpoints hold the whole training state: BC resumed from one ends bit for bit where an
+uninterrupted run ends; PPO's round trip restores networks, optimiser, normalisers and random
+generators exactly; Ctrl-C stops at an update boundary with a checkpoint saved."""
+
+from __future__ import annotations
+
+import os
+import signal
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from support import DATASETS
+
+from imitation.algorithms.bc import BCConfig, policy_options, train_bc
+from imitation.algorithms.ppo import PPOConfig, RewardScaler, ppo_checkpoint, restore_ppo_checkpoint, train_ppo
+from imitation.checkpoints import Checkpointing, TrainingInterrupted
+from imitation.data.loader import load_transitions, transitions_to_torch
+from imitation.data.store import DemoFile
+from imitation.errors import ImitationError
+from imitation.policies import make_policy
+from imitation.runs import read_checkpoint, save_checkpoint
+
+CONFIG = BCConfig(epochs=12, patience=12, batch_size=128, hidden_sizes=[16], seed=4, device="cpu")
+
+
+@pytest.fixture(scope="module")
+def demos():
+    demo = DemoFile(DATASETS / "CartPole-v1.mcap")
+    data = transitions_to_torch(load_transitions(DATASETS / "CartPole-v1.mcap", episodes=range(6)))
+    validation = transitions_to_torch(load_transitions(DATASETS / "CartPole-v1.mcap", episodes=[6, 7]))
+    return demo, data, validation
+
+
+def fresh_policy(demo):
+    torch.manual_seed(0)
+    return make_policy(demo.observation_space, demo.action_space, **policy_options(CONFIG))
+
+
+def test_bc_resumed_from_a_ctrl_c_checkpoint_ends_exactly_where_an_uninterrupted_run_does(demos, tmp_path: Path) -> None:
+    demo, data, validation = demos
+    whole = train_bc(fresh_policy(demo), data, validation, CONFIG, progress=False)
+
+    saved = []
+
+    def press_ctrl_c_during_epoch_5(policy) -> float:
+        os.kill(os.getpid(), signal.SIGINT)  # deferred to the end of the epoch
+        return 0.0
+
+    def save(tensors, state) -> None:
+        save_checkpoint(tmp_path, tensors, {"trainer": state})  # through the files, as a run does
+        saved.append(state["epoch"])
+
+    with pytest.raises(TrainingInterrupted, match="BC stopped after epoch 5 of 12"):
+        train_bc(fresh_policy(demo), data, validation, CONFIG, evaluate=press_ctrl_c_during_epoch_5, evaluate_every=5, progress=False,
+                 checkpoints=Checkpointing(save=save, every=2))
+    assert saved == [3, 5, 6], "every 2 epochs, and at the interruption"
+    tensors, state = read_checkpoint(tmp_path)
+    torch.manual_seed(123)  # the resumed process's generators start elsewhere: the checkpoint must set them
+    resumed = train_bc(fresh_policy(demo), data, validation, CONFIG, progress=False, checkpoints=Checkpointing(save=lambda *a: None, resume=(tensors, state["trainer"])))
+    assert [row["epoch"] for row in resumed.history] == list(range(1, 13))
+    assert resumed.best_epoch == whole.best_epoch
+    assert [row["validation_loss"] for row in resumed.history] == [row["validation_loss"] for row in whole.history]
+    for name, tensor in whole.policy.state_dict().items():
+        assert torch.equal(resumed.policy.state_dict()[name], tensor), name
+
+
+def test_ppo_checkpoint_round_trip_is_exact(demos) -> None:
+    demo, data, _ = demos
+    policy = make_policy(demo.observation_space, demo.action_space, normalize_observations=True)
+    optimizer = torch.optim.Adam(policy.parameters(), lr=1e-3, eps=1e-5)
+    scaler = RewardScaler(4, 0.99)
+    for _ in range(3):  # some optimiser, normaliser and scaler state
+        policy.update_normalizer(data.observations[:64])
+        loss = policy.value(policy.encode(data.observations[:64])).pow(2).mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        scaler(np.random.default_rng(0).normal(size=4), np.zeros(4, dtype=bool))
+    history = [{"step": 1.0, "return": float("nan")}]
+    checkpoint = ppo_checkpoint(7, 1792, 0.5, 12.5, policy=policy, optimizer=optimizer, reward_scaler=scaler, history=history,
+                                recent_returns=deque([1.0, 2.0]), recent_optimised_returns=deque([3.0]), timers={"env": 1.0})
+    expected_next = (torch.rand(3), np.random.random(3))
+
+    torch.manual_seed(99)
+    copy = make_policy(demo.observation_space, demo.action_space, normalize_observations=True)
+    copy_optimizer = torch.optim.Adam(copy.parameters(), lr=1e-3, eps=1e-5)
+    copy_scaler = RewardScaler(4, 0.99)
+    copy_history, returns, optimised, timers = [], deque(maxlen=20), deque(maxlen=20), {"env": 0.0}
+    counters = restore_ppo_checkpoint(checkpoint, policy=copy, optimizer=copy_optimizer, reward_scaler=copy_scaler, history=copy_history,
+                                      recent_returns=returns, recent_optimised_returns=optimised, timers=timers)
+    assert counters == (7, 1792, 0.5, 12.5)
+    for name, tensor in policy.state_dict().items():
+        assert torch.equal(copy.state_dict()[name], tensor), name
+    for mine, theirs in zip(optimizer.state.values(), copy_optimizer.state.values()):
+        assert all(torch.equal(mine[key], theirs[key]) for key in mine)
+    assert torch.equal(copy_scaler.stats.var, scaler.stats.var)
+    assert list(returns) == [1.0, 2.0] and list(optimised) == [3.0] and timers == {"env": 1.0} and np.isnan(copy_history[0]["return"])
+    assert torch.equal(torch.rand(3), expected_next[0]) and np.array_equal(np.random.random(3), expected_next[1])
+
+    with pytest.raises(ImitationError, match="the checkpoint does not fit this PPO run"):
+        restore_ppo_checkpoint(({}, {}), policy=copy, optimizer=copy_optimizer, reward_scaler=None, history=[],
+                               recent_returns=deque(), recent_optimised_returns=deque(), timers={})
+
+
+def test_ppo_resumes_to_the_requested_total() -> None:
+    config = PPOConfig(env_id="CartPole-v1", total_steps=2560, n_envs=2, n_steps=128, seed=0, device="cpu")
+    saved = []
+    train_ppo(config, progress=False, checkpoints=Checkpointing(save=lambda tensors, state: saved.append((tensors, state)), every=3))
+    assert [state["update"] for _, state in saved] == [3, 6, 9], "every 3 of 10 updates, not after the last"
+    resumed = train_ppo(config, progress=False, checkpoints=Checkpointing(save=lambda *a: None, resume=saved[0]))
+    assert resumed.steps == 2560 and [row["step"] for row in resumed.history] == [256.0 * (i + 1) for i in range(10)]
+    assert resumed.history[:3] == saved[0][1]["history"]

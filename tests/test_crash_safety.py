@@ -1,0 +1,152 @@
+"""Crash safety of real processes: Ctrl-C during `train ppo` and `train bc` keeps the last
+checkpoint, which loads and which `--resume` continues to the requested total; `kill -9` during
+DAgger leaves every finished round readable and nothing under a final name that is not whole.
+(`kill -9` and Ctrl-C during `record`: tests/data/test_recorder.py.)"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+from support import DATASETS, REPO, run_cli_many
+from test_cli import assert_one_line_error, last_json
+
+from imitation.data.store import DemoFile
+from imitation.policies import ActorCritic, PolicyConfig
+from imitation.runs import read_checkpoint
+
+
+def start(*args: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, str(REPO / "cli.py"), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+
+
+def wait_for(path: Path, process: subprocess.Popen, timeout: float = 120) -> None:
+    deadline = time.monotonic() + timeout
+    while not path.exists():
+        assert process.poll() is None, f"the process ended before {path} appeared: {process.communicate()[1][-2000:]}"
+        assert time.monotonic() < deadline, f"{path} did not appear within {timeout} s"
+        time.sleep(0.05)
+
+
+def interrupt_after_first_checkpoint(*args: str, out: Path) -> str:
+    """Run `imitation ARGS`, press Ctrl-C once a checkpoint exists; the last stderr line."""
+    process = start(*args)
+    try:
+        wait_for(out.with_name(out.name + ".partial") / "checkpoint" / "state.json", process)
+        process.send_signal(signal.SIGINT)
+        _, stderr = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    return [line for line in stderr.splitlines() if line.strip()][-1]
+
+
+def progress_rows(run: Path) -> list[dict[str, float]]:
+    with open(run / "progress.csv") as stream:
+        return [{key: float(value) for key, value in row.items()} for row in csv.DictReader(stream)]
+
+
+def test_ctrl_c_during_train_ppo_keeps_a_checkpoint_that_resume_finishes(tmp_path: Path) -> None:
+    out = tmp_path / "ppo"
+    partial = tmp_path / "ppo.partial"
+    # CartPole's defaults: 8 envs × 32 steps = 256 steps per update, 200 updates, a checkpoint every 20.
+    args = ["train", "ppo", "--env", "CartPole-v1", "--steps", "51200", "--seed", "3", "--quiet", "--out", str(out)]
+    message = interrupt_after_first_checkpoint(*args, out=out)
+    assert message.startswith("interrupted: PPO stopped after update ") and f"of 51200; its checkpoint is in {partial}" in message
+    assert message.endswith("run the same command with --resume to continue")
+    assert not out.exists() and partial.is_dir()
+
+    # The checkpoint loads: a whole policy, and the counters of the update it was taken after.
+    tensors, state = read_checkpoint(partial)
+    trainer = state["trainer"]
+    stopped_at = int(message.split("after update ")[1].split("/")[0])
+    assert trainer["update"] == stopped_at and trainer["global_step"] == 256 * stopped_at < 51200
+    assert len(state["history"]) == len(trainer["history"]) == stopped_at
+    policy = ActorCritic(PolicyConfig.from_json(trainer["policy"]))
+    policy.load_state_dict({name.removeprefix("policy."): t for name, t in tensors.items() if name.startswith("policy.")})
+    assert torch.isfinite(policy.value(policy.encode(torch.zeros(1, 4)))).all()
+
+    resumed, evaluation = run_cli_many([[*args, "--resume", "--json"], ["eval", "policy", str(out), "--env", "CartPole-v1", "--episodes", "2", "--json"]])
+    result = last_json(resumed)
+    assert result["steps"] == 51200, "a resumed run's step count is the requested total"
+    assert not partial.exists() and (out / "model.safetensors").is_file()
+    rows = progress_rows(out)
+    assert [row["step"] for row in rows] == [256.0 * (i + 1) for i in range(200)], "every update logged once, in order"
+    assert last_json(evaluation)["episodes"] == 2
+
+
+def test_ctrl_c_during_train_bc_keeps_a_checkpoint_that_resume_finishes(tmp_path: Path) -> None:
+    out = tmp_path / "bc"
+    partial = tmp_path / "bc.partial"
+    args = ["train", "bc", "--demos", str(DATASETS / "CartPole-v1.mcap"), "--env", "CartPole-v1", "--epochs", "60", "--patience", "60", "--hidden", "32,32", "--quiet", "--out", str(out)]
+    message = interrupt_after_first_checkpoint(*args, out=out)
+    assert message.startswith("interrupted: BC stopped after epoch ") and f"of 60; its checkpoint is in {partial}" in message
+    stopped_at = int(message.split("after epoch ")[1].split(" ")[0])
+    tensors, state = read_checkpoint(partial)
+    assert state["trainer"]["epoch"] == stopped_at + 1 and len(state["history"]) == stopped_at
+    config = json.loads((partial / "config.json").read_text())
+    policy = ActorCritic(PolicyConfig.from_json(config["policy"]))
+    policy.load_state_dict({name.removeprefix("policy."): t for name, t in tensors.items() if name.startswith("policy.")})
+
+    resumed, evaluation = run_cli_many([[*args, "--resume", "--json"], ["eval", "policy", str(out), "--env", "CartPole-v1", "--episodes", "2", "--json"]])
+    result = last_json(resumed)
+    assert result["epochs"] == 60 and not partial.exists()
+    assert [row["epoch"] for row in progress_rows(out)] == [float(e) for e in range(1, 61)]
+    assert last_json(evaluation)["episodes"] == 2
+
+
+def test_resume_refuses_what_it_cannot_continue(tmp_path: Path) -> None:
+    from imitation.algorithms.ppo import PPOConfig, ppo_defaults
+    from imitation.runs import RunWriter
+
+    # An interrupted 4096-step run with a checkpoint, and one stopped before its first checkpoint.
+    config = PPOConfig(env_id="CartPole-v1", total_steps=4096, **ppo_defaults("CartPole-v1"))
+    for name, checkpoint in (("checkpointed", True), ("early", False)):
+        with pytest.raises(KeyboardInterrupt):
+            with RunWriter(tmp_path / name, config={"kind": "ppo", "env_id": "CartPole-v1", "creator": "x", "ppo": vars(config)}, tensorboard=False) as run:
+                if checkpoint:
+                    run.save_checkpoint({"x": torch.zeros(1)}, {"update": 1})
+                raise KeyboardInterrupt
+    assert (tmp_path / "checkpointed.partial").is_dir() and not (tmp_path / "early.partial").exists()
+    (tmp_path / "early.partial").mkdir()  # as a kill -9 before the first checkpoint leaves it
+
+    def ppo(name: str, steps: str) -> list[str]:
+        return ["train", "ppo", "--env", "CartPole-v1", "--steps", steps, "--quiet", "--out", str(tmp_path / name), "--resume"]
+
+    never, early, other_settings = run_cli_many([ppo("never", "4096"), ppo("early", "4096"), ppo("checkpointed", "8192")])
+    assert_one_line_error(never, f"--resume: {tmp_path / 'never.partial'} does not exist, so there is no interrupted run to continue")
+    assert_one_line_error(early, f"{tmp_path / 'early.partial'}: holds no checkpoint")
+    assert_one_line_error(other_settings, f"--resume: {tmp_path / 'checkpointed.partial'} was started with other settings (ppo.total_steps: 4096 there, 8192 now)")
+    assert (tmp_path / "checkpointed.partial" / "checkpoint").is_dir(), "a refused --resume leaves the interrupted run alone"
+
+
+def test_kill_9_during_dagger_leaves_every_finished_round_readable(tmp_path: Path) -> None:
+    out = tmp_path / "dagger"
+    rounds = tmp_path / "dagger.partial" / "rounds"
+    process = start("train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--rounds", "30", "--episodes-per-round", "2",
+                    "--epochs", "3", "--hidden", "16", "--quiet", "--out", str(out))
+    try:
+        wait_for(rounds / "round-03.mcap", process)
+    finally:
+        os.kill(process.pid, signal.SIGKILL)
+        process.wait()
+    assert not out.exists(), "the final name appears only for a finished run"
+    finished = sorted(rounds.glob("round-*.mcap"))
+    assert len(finished) >= 3
+    assert [path.name for path in finished] == [f"round-{i:02d}.mcap" for i in range(1, len(finished) + 1)]
+    for path in finished:
+        demo = DemoFile(path, verify=True)
+        assert demo.damage is None and len(demo) == 2 and demo.episodes[0].metadata["round"] == int(path.stem[-2:])
+        assert all(len(episode) > 0 for episode in demo)
+    leftovers = {path.name for path in rounds.iterdir()} - {path.name for path in finished}
+    assert all(name.endswith(".mcap.partial") for name in leftovers), leftovers

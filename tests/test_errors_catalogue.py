@@ -1,0 +1,743 @@
+"""docs/ERRORS.md is complete and true: every `raise ImitationError(...)` in the package has its
+message there; every entry marked CLI is triggered here through the command line (one case per
+entry, table-driven, all run in one process with run_cli_many), which must exit 1 with one line on
+stderr that matches the entry's message; every other entry says which test triggers it or why the
+command line cannot."""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import re
+import shutil
+import struct
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+import yaml
+from error_sites import error_sites, normalise, pattern_regex
+from support import DATASETS, REPO, TESTDATA, run_cli_many
+
+DOC = REPO / "docs" / "ERRORS.md"
+NOT_RAISED = {"cli-3", "cli-4"}  # printed by cli.py itself, not raised as ImitationError
+
+
+@dataclass(frozen=True)
+class Entry:
+    id: str
+    template: str
+    test: str
+
+
+def catalogue() -> dict[str, Entry]:
+    entries = {}
+    for line in DOC.read_text().splitlines():
+        row = re.match(r"\| ([a-z0-9-]+) \| (.*?) \| .* \| ([^|]*) \|$", line)
+        if row is None or row[1] == "ID":
+            continue
+        code = re.match(r"``\s?(.+?)\s?``|`([^`]+)`", row[2])
+        assert code, f"{row[1]}: no message in backticks"
+        assert row[1] not in entries, f"{row[1]} twice"
+        entries[row[1]] = Entry(row[1], code[1] or code[2], row[3].strip())
+    return entries
+
+
+ENTRIES = catalogue()
+
+
+def test_every_raised_message_is_in_the_catalogue() -> None:
+    sources = sorted((REPO / "imitation").rglob("*.py")) + [REPO / "cli.py"]
+    sites = error_sites(sources, REPO)
+    assert len(sites) > 250
+    listed = {normalise(entry.template) for entry in ENTRIES.values()}
+    missing = [f"{s.path}:{s.line}: {s.template}" for s in sites if normalise(s.template) not in listed]
+    assert not missing, "messages raised but not in docs/ERRORS.md:\n" + "\n".join(missing)
+    raised = {normalise(s.template) for s in sites}
+    stale = [e.id for e in ENTRIES.values() if e.id not in NOT_RAISED and normalise(e.template) not in raised]
+    assert not stale, f"entries whose message is raised nowhere: {stale}"
+
+
+def test_every_entry_says_how_it_is_tested() -> None:
+    for entry in ENTRIES.values():
+        if entry.test == "CLI":
+            assert entry.id in CASES, f"{entry.id} is marked CLI but has no case here"
+        elif entry.test.startswith("CLI ("):
+            name = entry.test.removeprefix("CLI (").split(")")[0].split(";")[0].strip()
+            if not name.startswith("same template"):
+                assert (REPO / name).is_file(), f"{entry.id}: {name} does not exist"
+        elif (same := re.fullmatch(r"not from the CLI: as ([a-z0-9-]+)", entry.test)) is not None:
+            assert ENTRIES[same[1]].test.startswith("not from the CLI: "), f"{entry.id}: refers to {same[1]}, which is tested from the CLI"
+        else:
+            assert re.match(r"not from the CLI: \S.{10,}", entry.test), f"{entry.id}: '{entry.test}' gives no reason"
+    assert set(CASES) <= set(ENTRIES), set(CASES) - set(ENTRIES)
+
+
+# ------------------------------------------------------------------------------------------------
+# Inputs the cases need, built in one temporary folder
+
+
+class Inputs:
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    def path(self, name: str) -> Path:
+        path = self.root / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return path
+
+    def text(self, name: str, content: str) -> Path:
+        path = self.path(name)
+        path.write_text(content)
+        return path
+
+    def folder(self, name: str) -> Path:
+        path = self.root / name
+        path.mkdir(parents=True, exist_ok=True)
+        return path
+
+    # -- demo files ---------------------------------------------------------------------------
+
+    def demo_with(self, name: str, source: str = "CartPole-v1.mcap", *, dataset: Callable[[dict], dict] | None = None, crc: bool = True,
+                  message: Callable[[int, bytes], bytes] | None = None) -> Path:
+        """A bundled demo file written again record by record, its dataset metadata edited
+        (checksum recomputed unless crc=False) or one block message's bytes changed."""
+        from mcap.records import Channel, Header, Message, Metadata, Schema
+        from mcap.stream_reader import StreamReader
+        from mcap.writer import Writer
+
+        from imitation.data.store import DATASET_METADATA, metadata_crc
+
+        records = [r for r in StreamReader(io.BytesIO((DATASETS / source).read_bytes()), emit_chunks=False).records]
+        header = next(r for r in records if isinstance(r, Header))
+        out = io.BytesIO()
+        writer = Writer(out)
+        writer.start(profile=header.profile, library=header.library)
+        seen: set = set()
+        index = 0
+        for record in records:
+            if isinstance(record, Metadata):
+                if record.name in seen:
+                    continue
+                seen.add(record.name)
+                values = dict(record.metadata)
+                if record.name == DATASET_METADATA and dataset is not None:
+                    values = dataset({k: v for k, v in values.items() if k != "crc32"})
+                    values["crc32"] = metadata_crc(values) if crc else "0"
+                writer.add_metadata(record.name, values)
+            elif isinstance(record, (Schema, Channel)):
+                if (type(record), record.id) in seen:
+                    continue
+                seen.add((type(record), record.id))
+                if isinstance(record, Schema):
+                    writer.register_schema(record.name, record.encoding, record.data)
+                else:
+                    writer.register_channel(record.topic, record.message_encoding, record.schema_id, dict(record.metadata))
+            elif isinstance(record, Message):
+                data = message(index, record.data) if message is not None else record.data
+                index += 1
+                writer.add_message(record.channel_id, log_time=record.log_time, data=data, publish_time=record.publish_time)
+        writer.finish()
+        path = self.path(name)
+        path.write_bytes(out.getvalue())
+        return path
+
+    def episodes_file(self, name: str, episodes: list, source: str, **options) -> Path:
+        from imitation.data.store import DemoFile, write_episodes
+
+        demo = DemoFile(DATASETS / source)
+        return write_episodes(self.path(name), episodes, env_id=demo.env_id, observation_space=demo.observation_space,
+                              action_space=demo.action_space, **options)
+
+    def truncated(self, name: str, fraction: float = 0.5) -> Path:
+        data = (DATASETS / "CartPole-v1.mcap").read_bytes()
+        path = self.path(name)
+        path.write_bytes(data[: int(len(data) * fraction)])
+        return path
+
+    def cut_at_record(self, name: str, offset_into_record: int) -> Path:
+        """CartPole's demos (written one chunk per episode) cut a few bytes into their third chunk."""
+        data = (DATASETS / "CartPole-v1.mcap").read_bytes()
+        at, chunks = 8, []
+        while at + 9 <= len(data):
+            if data[at] == 0x06:
+                chunks.append(at)
+            at += 9 + struct.unpack_from("<Q", data, at + 1)[0]
+        path = self.path(name)
+        path.write_bytes(data[: chunks[2] + offset_into_record])
+        return path
+
+    def flipped_summary(self, name: str) -> Path:
+        data = bytearray((DATASETS / "CartPole-v1.mcap").read_bytes())
+        (summary_start,) = struct.unpack_from("<Q", data, len(data) - 8 - 20)
+        data[summary_start + 20] ^= 0x40
+        path = self.path(name)
+        path.write_bytes(bytes(data))
+        return path
+
+    def flipped_chunk(self, name: str) -> Path:
+        """Uncompressed demos with one bit flipped in the middle of the data: a CRC mismatch."""
+        from imitation.data.store import DemoFile
+
+        source = self.episodes_file(name + ".src.mcap", DemoFile(DATASETS / "CartPole-v1.mcap").read_episodes(), "CartPole-v1.mcap", compression="none")
+        data = bytearray(source.read_bytes())
+        data[len(data) // 3] ^= 0x10
+        path = self.path(name)
+        path.write_bytes(bytes(data))
+        return path
+
+    # -- runs ---------------------------------------------------------------------------------
+
+    def policy_run(self, name: str, *, config: Callable[[dict], dict] | None = None, weights: Callable[[dict], dict] | None = None,
+                   kind: str = "bc", spaces: tuple = None) -> Path:
+        from imitation.policies import make_policy, policy_tensors
+        from imitation.runs import RunWriter
+
+        spaces = spaces or (gym.spaces.Box(-np.inf, np.inf, (4,), np.float32), gym.spaces.Discrete(2))
+        policy = make_policy(*spaces, hidden_sizes=[8])
+        settings = {"kind": kind, "env_id": "CartPole-v1", "policy": policy.config.to_json()}
+        with RunWriter(self.root / name, config=config(settings) if config else settings, tensorboard=False) as run:
+            tensors = policy_tensors(policy)
+            run.save_weights(weights(tensors) if weights else tensors)
+            run.finish({})
+        return self.root / name
+
+    def reward_run(self, name: str, *, config: Callable[[dict], dict] | None = None, weights: Callable[[dict], dict] | None = None,
+                   demos: bool = True) -> Path:
+        from imitation.rewards import make_reward_model, reward_tensors
+        from imitation.runs import RunWriter
+
+        model = make_reward_model(gym.spaces.Box(-np.inf, np.inf, (4,), np.float32), gym.spaces.Discrete(2), hidden_sizes=[8])
+        settings = {"kind": "reward", "env_id": "CartPole-v1", "reward": model.config.to_json(), "irl": {"method": "gcl"}}
+        if demos:
+            settings["demos"] = [str(DATASETS / "CartPole-v1.mcap")]
+        with RunWriter(self.root / name, config=config(settings) if config else settings, tensorboard=False) as run:
+            tensors = reward_tensors(model)
+            run.save_weights(weights(tensors) if weights else tensors)
+            run.finish({})
+        return self.root / name
+
+    def interrupted_ppo(self, name: str, steps: int = 4096, *, tensors: dict | None = None, state: dict | None = None) -> Path:
+        """RUN_DIR.partial of a `train ppo --env CartPole-v1 --steps STEPS` stopped after a checkpoint."""
+        from imitation.algorithms.ppo import PPOConfig, ppo_defaults
+        from imitation.runs import RunWriter
+
+        config = PPOConfig(env_id="CartPole-v1", total_steps=steps, **ppo_defaults("CartPole-v1"))
+        with pytest.raises(KeyboardInterrupt):
+            with RunWriter(self.root / name, config={"kind": "ppo", "env_id": "CartPole-v1", "creator": "x", "ppo": vars(config)}, tensorboard=False) as run:
+                run.save_checkpoint(tensors if tensors is not None else {"x": torch.zeros(1)}, state if state is not None else {"update": 1})
+                raise KeyboardInterrupt
+        return self.root / name
+
+    # -- sb3 zips -----------------------------------------------------------------------------
+
+    def sb3_zip(self, name: str, *, weights: dict | None = None, data: dict | None = None, members: dict | None = None,
+                observation: gym.Space | None = None, action: gym.Space | None = None) -> Path:
+        def entry(space: gym.Space) -> dict:
+            base = {":type:": f"<class '{type(space).__module__}.{type(space).__name__}'>", ":serialized:": "bm90IG9wZW5lZA==", "_shape": list(space.shape)}
+            if isinstance(space, gym.spaces.Discrete):
+                return base | {"n": str(space.n), "start": "0", "dtype": "int64"}
+            if isinstance(space, gym.spaces.Box):
+                return base | {"dtype": str(space.dtype), "low": str(space.low), "high": str(space.high)}
+            return base
+
+        if weights is None:
+            weights = {}
+            for net in ("policy_net", "value_net"):
+                weights |= {f"mlp_extractor.{net}.0.weight": torch.randn(8, 4), f"mlp_extractor.{net}.0.bias": torch.randn(8)}
+            weights |= {"action_net.weight": torch.randn(2, 8), "action_net.bias": torch.randn(2), "value_net.weight": torch.randn(1, 8), "value_net.bias": torch.randn(1)}
+        buffer = io.BytesIO()
+        torch.save(weights, buffer)
+        fields = {"observation_space": entry(observation or gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)),
+                  "action_space": entry(action or gym.spaces.Discrete(2)), "policy_kwargs": {}, "use_sde": False} | (data or {})
+        path = self.path(name)
+        with zipfile.ZipFile(path, "w") as archive:
+            for member, content in (members if members is not None else {"data": json.dumps(fields).encode(), "policy.pth": buffer.getvalue()}).items():
+                archive.writestr(member, content)
+        return path
+
+    # -- converter sources --------------------------------------------------------------------
+
+    def npz(self, name: str, **arrays) -> Path:
+        path = self.path(name)
+        with open(path, "wb") as stream:
+            np.savez(stream, **arrays)
+        return path
+
+    def sb_npz(self, name: str, **changes) -> Path:
+        rows = 6
+        arrays = {"obs": np.zeros((rows, 4), np.float32), "actions": np.zeros((rows, 1), np.int64), "rewards": np.ones(rows),
+                  "episode_starts": np.array([1, 0, 0, 1, 0, 0], bool)}
+        return self.npz(name, **{**arrays, **changes})
+
+    def imitation_npz(self, name: str, **changes) -> Path:
+        arrays = {"obs": np.zeros((8, 4), np.float32), "acts": np.zeros(6, np.int64), "indices": np.array([3]), "terminal": np.array([True, False]),
+                  "rews": np.ones(6)}
+        return self.npz(name, **{**arrays, **changes})
+
+    def lerobot(self, name: str, *, info: Callable[[dict], dict] | None = None, episodes: str | None = None, drop: tuple[str, ...] = ()) -> Path:
+        """The first two episodes of the G1 v2.1 dataset, edited."""
+        source = TESTDATA / "lerobot" / "g1_v21"
+        root = self.folder(name)
+        (root / "meta").mkdir()
+        data = json.loads((source / "meta" / "info.json").read_text())
+        lines = (source / "meta" / "episodes.jsonl").read_text().splitlines()[:2]
+        data.update(total_episodes=2, total_frames=sum(json.loads(line)["length"] for line in lines))
+        (root / "meta" / "info.json").write_text(json.dumps(info(data) if info else data))
+        (root / "meta" / "episodes.jsonl").write_text(episodes if episodes is not None else "\n".join(lines) + "\n")
+        (root / "meta" / "tasks.jsonl").write_text((source / "meta" / "tasks.jsonl").read_text())
+        for index in range(2):
+            relative = f"data/chunk-000/episode_{index:06d}.parquet"
+            if relative not in drop:
+                (root / relative).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy(source / relative, root / relative)
+        for relative in drop:
+            if (root / relative).is_file():
+                (root / relative).unlink()
+        return root
+
+    def turtle_map(self, name: str, **changes) -> Path:
+        data = {
+            "rate_hz": 10, "time": "log",
+            "observation": [{"topic": "/turtle1/pose", "fields": ["x", "y", "theta"]}],
+            "action": [{"topic": "/turtle1/cmd_vel", "fields": ["linear.x", "angular.z"]}],
+        }
+        data.update(changes)
+        return self.text(name, yaml.safe_dump({k: v for k, v in data.items() if v is not None}))
+
+    def entry_map(self, name: str, **entry) -> Path:
+        """The turtle map with its observation entry edited."""
+        return self.turtle_map(name, observation=[{"topic": "/turtle1/pose", "fields": ["x"], **entry}])
+
+
+TURTLE = TESTDATA / "ros1" / "plotjuggler_example.bag"
+
+
+def _cartpole_episodes():
+    from imitation.data.store import DemoFile
+
+    return DemoFile(DATASETS / "CartPole-v1.mcap").read_episodes([0, 1])
+
+
+def _grid(edit: Callable) -> Callable[[Inputs], list]:
+    def build(i: Inputs) -> list:
+        from imitation.data.store import DemoFile
+
+        episodes = DemoFile(DATASETS / "GridWorld8x8-v0.mcap").read_episodes([0, 1, 2])
+        path = i.episodes_file(f"grid-{edit.__name__}.mcap", edit(episodes), "GridWorld8x8-v0.mcap")
+        return ["train", "irl", "--method", "mce", "--env", "imitation/GridWorld8x8-v0", "--demos", path, "--iterations", "3", "--quiet", "--out", i.root / "irl-run"]
+
+    return build
+
+
+def _state_99(episodes):
+    observations = np.array(episodes[0].observations)
+    observations[2] = 99
+    return [dataclasses.replace(episodes[0], observations=observations), *episodes[1:]]
+
+
+def _too_long(episodes):
+    first, second = episodes[0], episodes[1]
+    return [dataclasses.replace(first, observations=np.concatenate([first.observations, second.observations[1:]]),
+                                actions=np.concatenate([first.actions, second.actions]), rewards=np.concatenate([first.rewards, second.rewards]))]
+
+
+def _bc(demos, *extra) -> list:
+    """`train bc` on CartPole; without --out, the run goes beside the (generated) last demo file."""
+    demos = demos if isinstance(demos, list) else [demos]
+    out = [] if "--out" in extra else ["--out", Path(str(demos[-1]) + ".run")]
+    assert out == [] or REPO not in Path(out[1]).parents, "no run directory inside the repository"
+    return ["train", "bc", "--demos", *demos, "--env", "CartPole-v1", "--epochs", "1", "--quiet", *extra, *out]
+
+
+def _sb3(path: Path) -> list:
+    return ["record", "--env", "CartPole-v1", "--expert", f"sb3:{path}", "--episodes", "1", "--quiet", "--out", path.with_suffix(".mcap")]
+
+
+def _convert(source, *extra, out: str | None = "out.mcap") -> list:
+    return ["convert", source, *extra, *(["--out", Path(source).parent / out] if out else [])]
+
+
+def _map_case(name: str, **changes) -> Callable[[Inputs], list]:
+    return lambda i: _convert(TURTLE, "--map", i.turtle_map(name, **changes))
+
+
+def _entry_case(name: str, **entry) -> Callable[[Inputs], list]:
+    return lambda i: _convert(TURTLE, "--map", i.entry_map(name, **entry))
+
+
+def _lerobot_case(name: str, **options) -> Callable[[Inputs], list]:
+    return lambda i: _convert(i.lerobot(name, **options), "--from", "lerobot", out=None) + ["--out", i.root / f"{name}.mcap"]
+
+
+def _npz_case(builder: str, name: str, *extra, **changes) -> Callable[[Inputs], list]:
+    return lambda i: _convert(getattr(i, builder)(name, **changes), *extra)
+
+
+def _nan_weights(tensors: dict) -> dict:
+    return {name: torch.full_like(t, float("nan")) if t.is_floating_point() else t for name, t in tensors.items()}
+
+
+def _npy_claiming_more(i: Inputs) -> list:
+    member = io.BytesIO()
+    np.lib.format.write_array_header_1_0(member, {"descr": "<f8", "fortran_order": False, "shape": (10**9,)})
+    member.write(b"\0" * 64)
+    path = i.path("claims.npz")
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("obs.npy", member.getvalue())
+    return _convert(path)
+
+
+def _sqlite_without_metadata(i: Inputs) -> list:
+    folder = i.folder("db3-only")
+    (folder / "x.db3").write_bytes(b"SQLite format 3\0")
+    return _convert(folder, "--from", "ros2", "--map", i.turtle_map("m-db3.yaml"))
+
+
+def _rosbag2_metadata(name: str, text: str) -> Callable[[Inputs], list]:
+    def build(i: Inputs) -> list:
+        folder = i.folder(name)
+        (folder / "metadata.yaml").write_text(text)
+        return _convert(folder, "--from", "ros2", "--inspect", out=None)
+
+    return build
+
+
+def _damaged_mcap_bag(i: Inputs) -> list:
+    data = (TESTDATA / "ros2" / "replay_testing" / "cmd_vel_only_2.mcap").read_bytes()
+    path = i.path("damaged-bag.mcap")
+    path.write_bytes(data[: len(data) // 2])
+    return _convert(path, "--from", "ros2", "--inspect", out=None)
+
+
+def _lerobot_v30_without_data(i: Inputs) -> list:
+    root = i.folder("v30")
+    shutil.copytree(TESTDATA / "lerobot" / "so101_v30", root, dirs_exist_ok=True)
+    shutil.rmtree(root / "data")
+    return _convert(root, "--from", "lerobot", out=None) + ["--out", i.root / "v30.mcap"]
+
+
+def _checkpoint_case(name: str, **files) -> Callable[[Inputs], list]:
+    """An interrupted PPO run whose partial folder's files are then replaced."""
+    def build(i: Inputs) -> list:
+        partial = Path(str(i.interrupted_ppo(name)) + ".partial")
+        for relative, content in files.items():
+            (partial / relative.replace("__", "/")).write_text(content)
+        return ["train", "ppo", "--env", "CartPole-v1", "--steps", "4096", "--quiet", "--resume", "--out", i.root / name]
+
+    return build
+
+
+def _bc_checkpoint_mismatch(i: Inputs) -> list:
+    from imitation.runs import save_checkpoint
+
+    finished = i.root / "bc-done"  # made by the first batch (PREPARE)
+    partial = i.folder("bc-garbage.partial")
+    shutil.copy(finished / "config.json", partial / "config.json")
+    save_checkpoint(partial, {"x": torch.zeros(1)}, {"history": [], "trainer": {"epoch": 2}})
+    return PREPARE_BC + [i.root / "bc-garbage", "--resume"]
+
+
+PREPARE_BC = ["train", "bc", "--demos", str(DATASETS / "CartPole-v1.mcap"), "--env", "CartPole-v1", "--epochs", "1", "--hidden", "8", "--quiet", "--out"]
+
+
+# Each case: the entries it triggers (the first is its name), a function building the argv, and
+# whether it needs ../shared/testdata. The message must match every listed entry.
+@dataclass(frozen=True)
+class Case:
+    ids: tuple[str, ...]
+    argv: Callable[[Inputs], list]
+    testdata: bool = False
+
+
+def case(ids: str, argv: Callable[[Inputs], list], testdata: bool = False) -> Case:
+    return Case(tuple(ids.split()), argv, testdata)
+
+
+CASE_LIST = [
+    # command line, environments, experts
+    case("cli-1", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "0", "--out", i.path("e.mcap")]),
+    case("cli-2", lambda i: ["export", DATASETS / "CartPole-v1.mcap", "--to", "hdf5", i.path("x")]),
+    case("cli-4 demo-d13", lambda i: ["info", i.cut_at_record("cut-header.mcap", 4)]),
+    case("env-1", lambda i: ["record", "--env", "NoSuchEnv-v0", "--out", i.path("n.mcap")]),
+    case("env-3", lambda i: ["train", "irl", "--method", "mce", "--env", "CartPole-v1", "--demos", DATASETS / "CartPole-v1.mcap", "--out", i.root / "irl-cp"]),
+    case("expert-1", lambda i: ["record", "--env", "CartPole-v1", "--expert", "oracle", "--out", i.path("o.mcap")]),
+    case("expert-2", lambda i: ["record", "--env", "Acrobot-v1", "--expert", "scripted", "--out", i.path("a.mcap")]),
+    case("expert-3", lambda i: ["record", "--env", "Pendulum-v1", "--expert", "keyboard", "--out", i.path("k.mcap")]),
+    # demo files
+    case("demo-1", lambda i: ["info", i.root / "absent.mcap"]),
+    case("demo-2", lambda i: ["info", i.text("notes.mcap", "not mcap at all\n")]),
+    case("demo-3", lambda i: ["info", TESTDATA / "ros2" / "replay_testing" / "cmd_vel_only.mcap"], testdata=True),
+    case("demo-4", lambda i: _bc(i.demo_with("v-x.mcap", dataset=lambda d: d | {"format_version": "x"}))),
+    case("demo-5", lambda i: _bc(i.demo_with("v-2.mcap", dataset=lambda d: d | {"format_version": "2"}))),
+    case("demo-6", lambda i: _bc(i.demo_with("crc.mcap", dataset=lambda d: d | {"env_id": "Other-v0"}, crc=False))),
+    case("demo-7", lambda i: _bc(i.demo_with("no-env.mcap", dataset=lambda d: {k: v for k, v in d.items() if k != "env_id"}))),
+    case("demo-8 space-13", lambda i: _bc(i.demo_with("space.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Bogus"}'}))),
+    case("demo-9", lambda i: _bc(i.demo_with("dt.mcap", dataset=lambda d: d | {"dt_ns": "soon"}))),
+    case("demo-10", lambda i: _bc(i.demo_with("user.mcap", dataset=lambda d: d | {"user_metadata": "{"}))),
+    case("demo-11 demo-d2", lambda i: _bc(i.truncated("half.mcap"))),
+    case("demo-13", lambda i: ["info", i.path("magic.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\x07" * 40) and i.root / "magic.mcap"]),
+    case("demo-14 demo-d23", lambda i: _bc(i.flipped_chunk("flip.mcap"))),
+    case("demo-15", lambda i: _bc(i.demo_with("short-block.mcap", message=lambda k, data: data[:-4] if k == 1 else data))),
+    case("demo-17", lambda i: _bc([DATASETS / "CartPole-v1.mcap", DATASETS / "Pendulum-v1.mcap"], "--out", i.root / "d17")),
+    case("demo-18", lambda i: _bc([DATASETS / "CartPole-v1.mcap", i.demo_with("pend-as-cp.mcap", "Pendulum-v1.mcap", dataset=lambda d: d | {"env_id": "CartPole-v1"})])),
+    case("demo-21", lambda i: _bc(i.episodes_file("empty.mcap", [], "CartPole-v1.mcap"))),
+    case("demo-d1", lambda i: _bc(i.path("tiny.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\0" * 10) and i.root / "tiny.mcap")),
+    case("demo-d5", lambda i: _bc(i.flipped_summary("summary.mcap"))),
+    case("demo-d14", lambda i: ["info", i.cut_at_record("cut-body.mcap", 20)]),
+    case("write-6", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--out", i.root / "missing" / "x.mcap"]),
+    # spaces (inside a demo file's metadata or a run's config)
+    case("space-5", lambda i: _bc(i.demo_with("s5.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box"}'}))),
+    case("space-6", lambda i: _bc(i.demo_with("s6.mcap", dataset=lambda d: d | {"observation_space": "[1, 2]"}))),
+    case("space-7", lambda i: _bc(i.demo_with("s7.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box", "dtype": "float32", "shape": [-1], "low": 0, "high": 1}'}))),
+    case("space-8", lambda i: _bc(i.demo_with("s8.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box", "dtype": "float32", "shape": [100000, 100000], "low": 0, "high": 1}'}))),
+    case("space-10", lambda i: _bc(i.demo_with("s10.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box", "dtype": "U8", "shape": [4], "low": 0, "high": 1}'}))),
+    case("space-14", lambda i: ["eval", "policy", i.policy_run("cp-run"), "--env", "Pendulum-v1", "--episodes", "1"]),
+    # training
+    case("train-1", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--patience", "0", "--out", i.root / "t1")),
+    case("train-2", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--lr", "0", "--out", i.root / "t2")),
+    case("train-5", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--loss", "mse", "--out", i.root / "t5")),
+    case("train-7", _bc_checkpoint_mismatch),
+    case("train-11", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "10", "--out", i.root / "t11"]),
+    case("train-13", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "2048", "--quiet", "--out", i.root / "t13",
+                                "--reward", i.reward_run("nan-reward", weights=_nan_weights)]),
+    case("train-16", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "4096", "--quiet", "--resume", "--out", i.interrupted_ppo("bad-ckpt")]),
+    case("train-17", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--quiet", "--resume", "--out", i.root / "never"]),
+    case("train-18", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--quiet", "--resume", "--out", i.folder("early.partial").parent / "early"]),
+    case("train-19", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "8192", "--quiet", "--resume", "--out", i.interrupted_ppo("other-steps")]),
+    case("train-20", _checkpoint_case("ckpt-config", **{"config.json": "{"})),
+    case("train-21", _checkpoint_case("ckpt-not-json", **{"checkpoint__state.json": "{"})),
+    case("train-22", _checkpoint_case("ckpt-list", **{"checkpoint__state.json": "[]"})),
+    case("train-23", _checkpoint_case("ckpt-rows", **{"checkpoint__state.json": '{"history": 5}'})),
+    case("train-24", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--out", i.text("a-file", "x"))),
+    case("train-25", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--out", i.text("plain", "x") / "run")),
+    case("train-26", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--device", "toaster", "--out", i.root / "t26")),
+    case("train-27", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--device", "cuda", "--out", i.root / "t27")),
+    case("train-28", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--validation", "1", "--out", i.root / "t28")),
+    case("dagger-2", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--rounds", "0", "--out", i.root / "d2"]),
+    case("dagger-3", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--beta-decay", "2", "--out", i.root / "d3"]),
+    case("irl-1", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--discount", "0", "--out", i.root / "i1"]),
+    case("irl-6", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--iterations", "0", "--out", i.root / "i6"]),
+    case("irl-11", _grid(_state_99)),
+    case("irl-13", lambda i: ["train", "irl", "--method", "maxent", "--env", "imitation/GridWorld8x8Slippery-v0", "--demos", DATASETS / "GridWorld8x8Slippery-v0.mcap",
+                              "--out", i.root / "i13"]),
+    case("irl-14", _grid(_too_long)),
+    # run directories
+    case("run-1", lambda i: ["eval", "policy", i.root / "no-run", "--env", "CartPole-v1"]),
+    case("run-2", lambda i: ["eval", "policy", i.folder("empty-run"), "--env", "CartPole-v1"]),
+    case("run-3", lambda i: ["eval", "policy", _edit(i.policy_run("r3"), "config.json", b"{\xff"), "--env", "CartPole-v1"]),
+    case("run-4", lambda i: ["eval", "policy", _edit(i.policy_run("r4"), "config.json", b"[1]"), "--env", "CartPole-v1"]),
+    case("run-5", lambda i: ["eval", "policy", _edit(i.policy_run("r5"), "model.safetensors", b"\x80\x04garbage"), "--env", "CartPole-v1"]),
+    case("run-6", lambda i: ["eval", "policy", i.reward_run("r6"), "--env", "CartPole-v1"]),
+    case("run-7", lambda i: ["eval", "policy", i.policy_run("r7", weights=lambda t: {k: (v[:, :3] if v.dim() == 2 and v.shape[1] == 4 else v) for k, v in t.items()}), "--env", "CartPole-v1"]),
+    case("run-8", lambda i: ["eval", "policy", i.policy_run("r8", config=lambda c: c | {"policy": c["policy"] | {"hidden_sizes": [4096, 4096]}}), "--env", "CartPole-v1"]),
+    case("run-9", lambda i: ["eval", "policy", i.policy_run("r9", config=lambda c: c | {"policy": c["policy"] | {"observation_space": {"type": "Bogus"}}}), "--env", "CartPole-v1"]),
+    case("run-10", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--out", i.root / "r10-ppo",
+                              "--reward", i.reward_run("r10", config=lambda c: c | {"reward": c["reward"] | {"action_space": {"type": "Box"}}})]),
+    case("run-11", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--out", i.root / "r11-ppo", "--reward", i.policy_run("r11")]),
+    case("run-12", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--out", i.root / "r12-ppo",
+                              "--reward", i.reward_run("r12", weights=lambda t: {k: v.T.contiguous() if v.dim() == 2 else v for k, v in t.items()})]),
+    case("run-14", lambda i: ["train", "bc", "--demos", _dict_demos(i), "--epochs", "1", "--out", i.root / "r14"]),
+    # stable-baselines3 zips
+    case("sb3-1", lambda i: _sb3(i.text("not.zip", "not a zip"))),
+    case("sb3-2", lambda i: _sb3(i.sb3_zip("no-pth.zip", members={"data": b"{}"}))),
+    case("sb3-3", lambda i: _sb3(i.sb3_zip("pickled.zip", weights={"w": _Opaque()}))),
+    case("sb3-4", lambda i: _sb3(i.sb3_zip("list.zip", weights=[torch.zeros(1)]))),
+    case("sb3-5", lambda i: _sb3(i.sb3_zip("data-not-json.zip", members={"data": b"{", "policy.pth": _pth()}))),
+    case("sb3-6", lambda i: _sb3(i.sb3_zip("data-list.zip", members={"data": b"[]", "policy.pth": _pth()}))),
+    case("sb3-7", lambda i: _sb3(i.sb3_zip("sde.zip", data={"use_sde": True}))),
+    case("sb3-8", lambda i: _sb3(i.sb3_zip("image.zip", observation=gym.spaces.Box(0, 255, (8, 8, 3), np.uint8)))),
+    case("sb3-9", lambda i: _sb3(i.sb3_zip("no-space.zip", data={"observation_space": {}}))),
+    case("sb3-10", lambda i: _sb3(i.sb3_zip("unreadable-space.zip", data={"action_space": {":type:": "<class 'gymnasium.spaces.discrete.Discrete'>"}}))),
+    case("sb3-11", lambda i: _sb3(i.sb3_zip("multi.zip", action=gym.spaces.MultiDiscrete([2, 2])))),
+    case("sb3-12", lambda i: _sb3(i.sb3_zip("cnn.zip", weights={"features_extractor.cnn.0.weight": torch.zeros(1)}))),
+    case("sb3-13", lambda i: _sb3(i.sb3_zip("shared.zip", weights={"mlp_extractor.shared_net.0.weight": torch.zeros(8, 4), "mlp_extractor.shared_net.0.bias": torch.zeros(8),
+                                                                     "mlp_extractor.policy_net.0.weight": torch.zeros(8, 8), "mlp_extractor.policy_net.0.bias": torch.zeros(8)}))),
+    case("sb3-14", lambda i: _sb3(i.sb3_zip("sizes.zip", weights={"mlp_extractor.policy_net.0.weight": torch.zeros(8, 4), "mlp_extractor.policy_net.0.bias": torch.zeros(8),
+                                                                    "mlp_extractor.value_net.0.weight": torch.zeros(16, 4), "mlp_extractor.value_net.0.bias": torch.zeros(16)}))),
+    case("sb3-15", lambda i: _sb3(i.sb3_zip("layers.zip", weights={"mlp_extractor.policy_net.1.weight": torch.zeros(8, 4), "mlp_extractor.policy_net.1.bias": torch.zeros(8)}))),
+    case("sb3-16", lambda i: _sb3(i.sb3_zip("kwargs.zip", data={"policy_kwargs": {":type:": "<class 'dict'>", ":serialized:": "bm90IGEgcGlja2xl"}}))),
+    case("sb3-18", lambda i: _sb3(i.sb3_zip("elu.zip", data={"policy_kwargs": {":type:": "<class 'dict'>", ":serialized:": _pickled_elu()}}))),
+    case("sb3-19", lambda i: _sb3(i.sb3_zip("misfit.zip", action=gym.spaces.Discrete(3)))),
+    # convert
+    case("conv-1", lambda i: _convert(i.root / "absent.npz")),
+    case("conv-2", lambda i: _convert(i.text("notes.txt", "hello"))),
+    case("conv-3", lambda i: _convert(i.folder("plain-folder"))),
+    case("conv-4", lambda i: _convert((i.folder("half-lerobot/meta") and i.root / "half-lerobot"))),
+    case("conv-6", lambda i: _convert(i.sb_npz("c6.npz"), "--from", "hdf5")),
+    case("conv-7", lambda i: _convert(TURTLE), testdata=True),
+    case("conv-8", lambda i: _convert(i.sb_npz("c8.npz"), "--map", i.turtle_map("c8.yaml"))),
+    case("conv-9", lambda i: _convert(i.sb_npz("c9.npz"), "--inspect", out=None)),
+    case("conv-11", lambda i: _convert(TURTLE, "--inspect", "--write-map", i.root / "missing-folder" / "m.yaml", out=None), testdata=True),
+    case("conv-12", lambda i: ["convert", i.sb_npz("c12.npz"), "--out", i.folder("out-folder")]),
+    case("conv-15", _npz_case("sb_npz", "c15.npz", "--env", "CartPole-v1", actions=np.zeros((6, 2), np.int64))),
+    case("conv-16", _npz_case("sb_npz", "c16.npz", "--env", "CartPole-v1", actions=np.full((6, 1), 0.5))),
+    case("conv-17", _npz_case("sb_npz", "c17.npz", "--env", "CartPole-v1", actions=np.full((6, 1), 5))),
+    case("conv-18", _npz_case("sb_npz", "c18.npz", "--env", "CartPole-v1", obs=np.zeros((6, 3), np.float32))),
+    case("npz-1", lambda i: _convert(i.path("broken.npz").write_bytes(b"PK\x03\x04" + b"\0" * 60) and i.root / "broken.npz")),
+    case("npz-2", lambda i: _convert(_npy(i), "--from", "npz")),
+    case("npz-4", _npy_claiming_more),
+    case("npz-5", lambda i: _convert(i.npz("other.npz", a=np.zeros(3), b=np.ones(3)))),
+    case("npz-6", _npz_case("sb_npz", "n6.npz", obs=np.array(["a"] * 6))),
+    case("npz-7", _npz_case("sb_npz", "n7.npz", rewards=np.ones(5))),
+    case("npz-8", _npz_case("imitation_npz", "n8.npz", indices=np.array([3.0]))),
+    case("npz-9", _npz_case("imitation_npz", "n9.npz", indices=np.array([1, 2]))),
+    case("npz-10", _npz_case("imitation_npz", "n10.npz", indices=np.array([9]))),
+    case("npz-11", _npz_case("imitation_npz", "n11.npz", rews=np.ones(4))),
+    # LeRobot
+    case("lerobot-1", lambda i: _convert(i.folder("not-lerobot"), "--from", "lerobot", out=None) + ["--out", i.root / "l1.mcap"]),
+    case("lerobot-2", lambda i: _convert(_replace(i.lerobot("l2"), "meta/info.json", "{"), "--from", "lerobot", out=None) + ["--out", i.root / "l2.mcap"], testdata=True),
+    case("lerobot-4", _lerobot_case("l4", info=lambda d: d | {"features": 5}), testdata=True),
+    case("lerobot-5", _lerobot_case("l5", info=lambda d: d | {"fps": -1}), testdata=True),
+    case("lerobot-6", _lerobot_case("l6", info=lambda d: d | {"features": {k: v for k, v in d["features"].items() if not k.startswith("observation.")}}), testdata=True),
+    case("lerobot-7", _lerobot_case("l7", info=lambda d: d | {"features": {k: v for k, v in d["features"].items() if k != "action"}}), testdata=True),
+    case("lerobot-8", _lerobot_case("l8", info=lambda d: d | {"codebase_version": "v9.9"}), testdata=True),
+    case("lerobot-9", _lerobot_v30_without_data, testdata=True),
+    case("lerobot-11", lambda i: _convert(_remove(i.lerobot("l11"), "meta/episodes.jsonl"), "--from", "lerobot", out=None) + ["--out", i.root / "l11.mcap"], testdata=True),
+    case("lerobot-12", _lerobot_case("l12", episodes='{"tasks": []}\n'), testdata=True),
+    case("lerobot-13", _lerobot_case("l13", drop=("data/chunk-000/episode_000001.parquet",)), testdata=True),
+    case("lerobot-14", _lerobot_case("l14", episodes='{"episode_index": 0, "length": 3}\n'), testdata=True),
+    case("lerobot-16", _lerobot_case("l16", info=lambda d: d | {"features": d["features"] | {"action": d["features"]["action"] | {"shape": [7]}}}), testdata=True),
+    case("lerobot-19", _lerobot_case("l19", episodes=""), testdata=True),
+    # bags
+    case("bag-1", lambda i: _convert(i.sb_npz("b1.npz"), "--from", "ros1", "--inspect", out=None)),
+    case("bag-4", _sqlite_without_metadata),
+    case("bag-5", lambda i: _convert(i.folder("empty-bag"), "--from", "ros2", "--inspect", out=None)),
+    case("bag-6", _rosbag2_metadata("bag6", "[unclosed")),
+    case("bag-7", _rosbag2_metadata("bag7", "rosbag2_bagfile_information: {storage_identifier: bogus}")),
+    case("bag-8", _rosbag2_metadata("bag8", "rosbag2_bagfile_information: {storage_identifier: mcap, relative_file_paths: [gone.mcap]}")),
+    case("bag-9", lambda i: _convert(i.text("fake.bag", "#ROSBAG V2.0\ngarbage"), "--from", "ros1", "--inspect", out=None)),
+    case("bag-10", _damaged_mcap_bag, testdata=True),
+    # maps (against PlotJuggler's turtlesim bag)
+    case("map-1", lambda i: _convert(TURTLE, "--map", i.root / "absent.yaml"), testdata=True),
+    case("map-2", lambda i: _convert(TURTLE, "--map", i.text("bad.yaml", "a: [")), testdata=True),
+    case("map-3", lambda i: _convert(TURTLE, "--map", i.text("deep.yaml", "[" * 5000 + "]" * 5000)), testdata=True),
+    case("map-4", lambda i: _convert(TURTLE, "--map", i.text("list.yaml", "- 1\n")), testdata=True),
+    case("map-5", _map_case("m5.yaml", bogus=1), testdata=True),
+    case("map-6", _map_case("m6.yaml", rate_hz=0), testdata=True),
+    case("map-7", _map_case("m7.yaml", time="wall"), testdata=True),
+    case("map-8", _map_case("m8.yaml", align="cubic"), testdata=True),
+    case("map-9", _map_case("m9.yaml", env_id=5), testdata=True),
+    case("map-11", _map_case("m11.yaml", observation={"topic": "/turtle1/pose", "fields": ["x"]}), testdata=True),
+    case("map-12", _map_case("m12.yaml", reward={"topic": "/turtle1/pose", "fields": ["x", "y"]}), testdata=True),
+    case("map-13", _map_case("m13.yaml", observation=[5]), testdata=True),
+    case("map-14", _entry_case("m14.yaml", rate=3), testdata=True),
+    case("map-15", _map_case("m15.yaml", observation=[{"fields": ["x"]}]), testdata=True),
+    case("map-16", _entry_case("m16.yaml", fields=[]), testdata=True),
+    case("map-17", _entry_case("m17.yaml", fields=["a..b"]), testdata=True),
+    case("map-18", _entry_case("m18.yaml", align="cubic"), testdata=True),
+    case("map-19", _entry_case("m19.yaml", default="zero"), testdata=True),
+    case("map-20", _entry_case("m20.yaml", default=0.0, max_age=-1), testdata=True),
+    case("map-21", _entry_case("m21.yaml", max_age=1), testdata=True),
+    case("map-22", _map_case("m22.yaml", episodes={"split": "moon"}), testdata=True),
+    case("map-23", _map_case("m23.yaml", episodes={"split": "file", "seconds": 1}), testdata=True),
+    case("map-24", _map_case("m24.yaml", episodes={"split": "gap"}), testdata=True),
+    case("map-25", _map_case("m25.yaml", episodes={"split": "topic"}), testdata=True),
+    # ROS conversion
+    case("ros-4", lambda i: _convert(TESTDATA / "ros2" / "rosbag2_tests" / "bag_with_topics_and_service_events", "--map", i.text("r4.yaml", yaml.safe_dump(
+        {"rate_hz": 10, "observation": [{"topic": "/test_service1/_service_event", "fields": ["x"]}], "action": [{"topic": "/test_service1/_service_event", "fields": ["x"]}]})),
+        out=None) + ["--out", i.root / "r4.mcap"], testdata=True),
+    case("ros-5", lambda i: _convert(TESTDATA / "ros2" / "rosbag2_tests" / "talker", "--map", i.text("r5.yaml", yaml.safe_dump(
+        {"rate_hz": 10, "observation": [{"topic": "/rosout", "fields": ["level"]}], "action": [{"topic": "/parameter_events", "fields": ["stamp.sec"]}]})),
+        out=None) + ["--out", i.root / "r5.mcap"], testdata=True),
+    case("ros-8", lambda i: _convert(TURTLE, "--map", i.turtle_map("r8.yaml", action=[{"topic": "/turtle1/cmd_vel", "fields": ["linear.x", "angular.z"], "default": [0.0, 0.0, 0.0]}])), testdata=True),
+    case("ros-10", _map_case("r10.yaml", time="header"), testdata=True),
+    # export
+    case("export-2", lambda i: ["export", i.episodes_file("nothing.mcap", [], "CartPole-v1.mcap"), "--to", "lerobot", i.root / "nothing-lerobot"]),
+    case("export-3", lambda i: ["export", DATASETS / "CartPole-v1.mcap", "--to", "lerobot", i.text("full/keep.txt", "x").parent]),
+    case("export-4", lambda i: ["export", DATASETS / "CartPole-v1.mcap", "--to", "foxglove", i.folder("fox-folder")]),
+    case("export-5", lambda i: ["export", DATASETS / "CartPole-v1.mcap", "--to", "foxglove", DATASETS / "CartPole-v1.mcap"]),
+    # evaluation and the demo
+    case("eval-1", lambda i: ["eval", "reward", i.reward_run("no-demos", demos=False), "--env", "CartPole-v1", "--retrain-steps", "0", "--quiet"]),
+    case("eval-2", lambda i: ["eval", "reward", i.root / "any", "--env", "CartPole-v1", "--seeds", "0"]),
+    case("eval-3", lambda i: ["eval", "reward", i.root / "any", "--env", "CartPole-v1", "--retrain-steps", "-1"]),
+    case("eval-4", lambda i: ["eval", "reward", i.root / "any", "--env", "CartPole-v1", "--jobs", "0"]),
+    case("eval-5", lambda i: ["eval", "policy", i.policy_run("e5"), "--env", "CartPole-v1", "--episodes", "1", "--video", i.root / "v.avi"]),
+    case("eval-6", lambda i: ["eval", "policy", i.policy_run("e6"), "--env", "CartPole-v1", "--episodes", "1", "--video", i.root / "no-folder" / "v.gif"]),
+    case("demo-cmd-1", lambda i: ["demo", "--datasets", i.folder("no-datasets"), "--out", i.root / "demo-out", "--quick"]),
+]
+CASES = {entry_id: c for c in CASE_LIST for entry_id in c.ids}
+
+
+class _Opaque:
+    """Pickled by torch.save as a class reference: a weights-only load refuses it."""
+
+
+def _pth() -> bytes:
+    buffer = io.BytesIO()
+    torch.save({"action_net.weight": torch.zeros(2, 4)}, buffer)
+    return buffer.getvalue()
+
+
+def _pickled_elu() -> str:
+    import base64
+    import pickle
+
+    return base64.b64encode(pickle.dumps({"activation_fn": torch.nn.ELU}, protocol=4)).decode()
+
+
+def _npy(i: Inputs) -> Path:
+    path = i.path("array.npz")
+    with open(path, "wb") as stream:
+        np.save(stream, np.zeros(3))
+    return path
+
+
+def _edit(run: Path, name: str, content: bytes) -> Path:
+    (run / name).write_bytes(content)
+    return run
+
+
+def _replace(root: Path, relative: str, text: str) -> Path:
+    (root / relative).write_text(text)
+    return root
+
+
+def _remove(root: Path, relative: str) -> Path:
+    (root / relative).unlink()
+    return root
+
+
+def _dict_demos(i: Inputs) -> Path:
+    from imitation.data.store import write_episodes
+    from imitation.data.types import Episode
+
+    space = gym.spaces.Dict({"a": gym.spaces.Box(-1, 1, (2,), np.float32), "b": gym.spaces.Box(-1, 1, (1,), np.float32)})
+    episode = Episode(observations={"a": np.zeros((4, 2), np.float32), "b": np.zeros((4, 1), np.float32)}, actions=np.zeros((3, 1), np.float32), rewards=np.zeros(3))
+    return write_episodes(i.path("dict-obs.mcap"), [episode, episode], env_id="", observation_space=space, action_space=gym.spaces.Box(-1, 1, (1,), np.float32))
+
+
+# ------------------------------------------------------------------------------------------------
+# The run
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory) -> dict[str, object]:
+    inputs = Inputs(tmp_path_factory.mktemp("errors"))
+    run_cli_many([PREPARE_BC + [inputs.root / "bc-done"]])  # the finished BC run train-7's checkpoint copies
+    runnable = [c for c in CASE_LIST if not (c.testdata and not TESTDATA.is_dir())]
+    if torch.cuda.is_available():
+        runnable = [c for c in runnable if "train-27" not in c.ids]
+    argvs = [[str(a) for a in c.argv(inputs)] for c in runnable]
+    outcomes = run_cli_many(argvs, env={"PYTHONPATH": f"{REPO}:{REPO / 'tests'}"}, timeout=900)
+    return {c.ids[0]: (c, outcome) for c, outcome in zip(runnable, outcomes)}
+
+
+@pytest.mark.parametrize("name", [c.ids[0] for c in CASE_LIST])
+def test_each_message_through_the_cli(results, name: str) -> None:
+    if name not in results:
+        pytest.skip("needs ../shared/testdata (or runs only without CUDA)")
+    case_, outcome = results[name]
+    lines = [line for line in outcome.stderr.splitlines() if line.strip()]
+    assert outcome.returncode == 1, (outcome.returncode, outcome.stderr[-2000:])
+    assert len(lines) == 1 and lines[0].startswith("error: "), outcome.stderr[-2000:]
+    message = lines[0].removeprefix("error: ")
+    for entry_id in case_.ids:
+        template = ENTRIES[entry_id].template
+        assert pattern_regex(template).search(message), f"{entry_id}: {message!r} does not match {template!r}"
