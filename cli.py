@@ -249,7 +249,7 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
 
 
 def _train_gcl(args: argparse.Namespace) -> int:
-    from imitation.algorithms.gcl import GCLConfig
+    from imitation.algorithms.gcl import GCLConfig, default_steps
     from imitation.algorithms.ppo import PPOConfig, learned_reward_ppo_defaults
     from imitation.envs.make import make_env
     from imitation.training import gcl_job
@@ -258,7 +258,7 @@ def _train_gcl(args: argparse.Namespace) -> int:
         settings = learned_reward_ppo_defaults(args.env, env.action_space)
     config = GCLConfig(hidden_sizes=args.hidden if args.hidden is not None else [64, 64], seed=args.seed,
                        **({"learning_rate": args.lr} if args.lr is not None else {}))
-    ppo_config = PPOConfig(env_id=args.env, total_steps=args.steps, seed=args.seed, **settings)
+    ppo_config = PPOConfig(env_id=args.env, total_steps=args.steps if args.steps is not None else default_steps(args.env), seed=args.seed, **settings)
     result = gcl_job(args.demos, args.env, config, ppo_config, args.out, progress=not args.quiet)
     if args.json:
         _print_json(result)
@@ -506,7 +506,7 @@ def build_parser() -> argparse.ArgumentParser:
     irl.add_argument("--discount", type=float, default=1.0, metavar="G", help="tabular: discount γ of the visitation counts (default: 1)")
     irl.add_argument("--lr", type=float, metavar="LR", help="Adam learning rate of the reward (default: 0.05 tabular, 3e-4 gcl)")
     irl.add_argument("--hidden", type=_hidden_sizes, metavar="32,32", help="reward MLP widths, or 'linear' (default: linear tabular, 64,64 gcl)")
-    irl.add_argument("--steps", type=int, default=200_000, metavar="N", help="gcl: PPO environment steps in total (default: 200000)")
+    irl.add_argument("--steps", type=int, metavar="N", help="gcl: PPO environment steps in total (default: 500000 for Pendulum-v1, else 200000)")
     irl.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     _add_run_output(irl)
     irl.set_defaults(handler=cmd_train_irl)
@@ -535,7 +535,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     reward.add_argument("run", metavar="RUN_DIR", help="a reward run directory (`train irl`)")
     reward.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
-    reward.add_argument("--retrain-steps", type=int, metavar="N", help="PPO steps per retraining; 0 skips it (default: 300000 for the bundled envs, else 200000)")
+    reward.add_argument("--retrain-steps", type=int, metavar="N", help="PPO steps per retraining; 0 skips it (default: 600000 for Pendulum-v1, 300000 for fixed-horizon CartPole, else 200000)")
     reward.add_argument("--seeds", type=int, default=3, metavar="K", help="retraining seeds per reward (default: 3)")
     reward.add_argument("--demos", nargs="+", metavar="F.mcap", help="expert demos for the reference return and EPIC's coverage (default: those the reward was learned from)")
     reward.add_argument("--jobs", type=int, default=2, metavar="J", help="retrainings run side by side (default: 2)")
@@ -550,7 +550,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="the whole chain on the bundled data, with one report",
         description="Bundled demos → behavioural cloning and DAgger (CartPole-v1) → MaxEnt IRL on a gridworld and guided cost "
         "learning on fixed-horizon CartPole → PPO from scratch on the recovered reward → eval policy and eval reward, offline, "
-        "in about four minutes on 2 cores; writes DIR/report.md with every result and plot.",
+        "in about three minutes on 2 cores; writes DIR/report.md with every result and plot.",
     )
     demo.add_argument("--out", default="demo-output", metavar="DIR", help="output directory (default: demo-output)")
     demo.add_argument("--datasets", metavar="DIR", help="where the bundled datasets are (default: the repository's datasets/)")

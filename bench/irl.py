@@ -40,12 +40,13 @@ import numpy as np
 import torch
 
 from bc import BENCH, ROOT, _peer_env, ensure_imitation_venv
-from imitation.algorithms.gcl import GCLConfig
+from imitation.algorithms.gcl import GCLConfig, default_steps
 from imitation.algorithms.maxent_irl import Dynamics, MaxEntIRLConfig, state_visitation, train_maxent_irl
 from imitation.algorithms.ppo import PPOConfig, learned_reward_ppo_defaults
 from imitation.data.store import DemoDataset
 from imitation.envs.make import make_env
 from imitation.envs.tabular import TabularMDP
+from imitation.evaluation.reward import DEFAULT_RETRAIN_STEPS
 from imitation.evaluation.policy import evaluate_policy
 from imitation.experts.tabular import soft_optimal_policy
 from imitation.rewards import make_reward_model
@@ -56,10 +57,10 @@ CASES = (
     {"width": 100, "height": 20, "horizon": 110, "iterations": 10, "repeats": 1, "convergence_max_iter": 0},
 )
 LEARNING_RATE = 0.1
-# env id → (demo file, GCL steps, retraining steps): the settings of issue 5's acceptance runs.
+# env id → (demo file, GCL steps, retraining steps): the defaults of `train irl --method gcl` and `eval reward`.
 CONTINUOUS = {
-    "imitation/CartPoleFixedHorizon-v0": ("CartPoleFixedHorizon-v0.mcap", 200_000, 300_000),
-    "Pendulum-v1": ("Pendulum-v1.mcap", 300_000, 300_000),
+    env_id: (demos, default_steps(env_id), DEFAULT_RETRAIN_STEPS[env_id])
+    for env_id, demos in (("imitation/CartPoleFixedHorizon-v0", "CartPoleFixedHorizon-v0.mcap"), ("Pendulum-v1", "Pendulum-v1.mcap"))
 }
 OUR_CONVERGENCE_CAP = 20_000
 TARGET = 0.3

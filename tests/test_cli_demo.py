@@ -29,6 +29,9 @@ def test_quick_demo_writes_a_report_with_every_stage_and_plot(tmp_path) -> None:
     assert len(images) >= 10
     assert all((out / image).is_file() for image in images), [image for image in images if not (out / image).is_file()]
     assert (out / "ppo-on-gcl-reward.gif").is_file()
+    page = Path(summary["report_html"]).read_text()
+    assert page.startswith("<!doctype html>") and "<table>" in page
+    assert all(f'src="{image}"' in page for image in images)
     for stage in ("bc", "dagger"):
         assert summary[stage]["eval"]["reference"]["expert_return"] == 500.0
     assert summary["gcl_eval"]["evaluation"]["epic"] is not None

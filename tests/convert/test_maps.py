@@ -33,7 +33,7 @@ def test_a_good_map_and_its_defaults() -> None:
     ({"action": None}, "no action"),
     ({"action": []}, "no action"),
     ({"observation": None}, "no observation"),
-    ({"rate_hz": 0}, "rate_hz must be a positive number"),
+    ({"rate_hz": 0}, "rate_hz must be a number of samples per second"),
     ({"rate_hz": "fast"}, "rate_hz"),
     ({"time": "wall"}, "time must be log or header"),
     ({"episodes": {"split": "gap"}}, "split gap needs seconds"),

@@ -52,7 +52,7 @@ def test_tabular_true_reward_is_exact_and_controls_are_not(tmp_path) -> None:
     assert report["controls"]["constant"]["epic"] == pytest.approx(np.sqrt(0.5))
     assert report["controls"]["random"]["epic"] > 0.3 and report["controls"]["random"]["normalized"] < 0.5
     written = sorted(p.name for p in (tmp_path / "eval").iterdir())
-    assert {"metrics.json", "report.md", "reward_maps.png", "reward_scatter.png"} <= set(written)
+    assert {"metrics.json", "report.md", "report.html", "reward_maps.png", "reward_scatter.png"} <= set(written)
     text = (tmp_path / "eval" / "report.md").read_text()
     assert "| recovered reward | 0.000 | 1.000 |" in text and "![reward_maps](reward_maps.png)" in text
 

@@ -35,27 +35,36 @@ IMITATION_KEYS = {"obs", "acts", "indices", "terminal"}
 def npz_to_episodes(path: str | Path) -> Converted:
     """Read an SB GAIL or imitation npz file; ImitationError names the file and what is wrong."""
     path = Path(path)
-    arrays = _read_npz(path)
-    keys = set(arrays)
+    arrays, object_keys = _read_npz(path)
+    keys = set(arrays) | object_keys
     if SB_KEYS <= keys:
-        return _stable_baselines(path, {key: arrays[key] for key in SB_KEYS | ({"episode_returns"} & keys)})
+        return _stable_baselines(path, _used(path, arrays, object_keys, SB_KEYS | ({"episode_returns"} & keys)))
     if IMITATION_KEYS <= keys:
-        return _imitation(path, {key: arrays[key] for key in IMITATION_KEYS | ({"rews"} & keys)})
+        return _imitation(path, _used(path, arrays, object_keys, IMITATION_KEYS | ({"rews"} & keys)))
     raise ImitationError(
         f"{path}: unknown npz layout (keys {', '.join(sorted(keys))[:200]}); expected stable-baselines' "
         f"({', '.join(sorted(SB_KEYS))}) or imitation's ({', '.join(sorted(IMITATION_KEYS))})"
     )
 
 
-def _read_npz(path: Path) -> dict[str, np.ndarray]:
-    """Every array of the archive. Each member's .npy header is checked before its data is read:
-    object arrays are refused (reading them would unpickle), and so is a header promising more
-    bytes than the member holds (a damaged file must not make us allocate what it claims)."""
+def _used(path: Path, arrays: dict[str, np.ndarray], object_keys: set[str], keys: set[str]) -> dict[str, np.ndarray]:
+    """The arrays a layout reads; one it needs that holds Python objects is refused."""
+    if unreadable := sorted(keys & object_keys):
+        raise ImitationError(f"{path}: array {unreadable[0]!r} holds Python objects; it is not read (that would unpickle them)")
+    return {key: arrays[key] for key in keys}
+
+
+def _read_npz(path: Path) -> tuple[dict[str, np.ndarray], set[str]]:
+    """Every numeric array of the archive, and the names of its object arrays, which are left
+    unread (reading them would unpickle; imitation's `infos` is one, and is not needed). Each
+    member's .npy header is checked before its data is read: a header promising more bytes than
+    the member holds is refused (a damaged file must not make us allocate what it claims)."""
     try:
         with open(path, "rb") as stream:
             if stream.read(6) == b"\x93NUMPY":
                 raise ImitationError(f"{path}: a single .npy array, not an npz archive of named arrays")
-        arrays = {}
+        arrays: dict[str, np.ndarray] = {}
+        object_keys: set[str] = set()
         with zipfile.ZipFile(path) as archive:
             for info in archive.infolist():
                 key = info.filename.removesuffix(".npy")
@@ -64,12 +73,13 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
                     read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
                     shape, _, dtype = read_header(member)
                     if dtype.hasobject:
-                        raise ImitationError(f"{path}: array {key!r} holds Python objects; it is not read (that would unpickle them)")
+                        object_keys.add(key)
+                        continue
                     if math.prod(shape) * dtype.itemsize > info.file_size:
                         raise ImitationError(f"{path}: array {key!r} is damaged (its header promises more data than the archive holds)")
                 with archive.open(info) as member:
                     arrays[key] = np.lib.format.read_array(member, allow_pickle=False)
-        return arrays
+        return arrays, object_keys
     except ImitationError:
         raise
     except (OSError, EOFError, ValueError, KeyError, SyntaxError, TokenError, zipfile.BadZipFile, zlib.error, NotImplementedError) as error:
