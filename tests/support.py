@@ -65,3 +65,23 @@ def run_cli_many(cases: Sequence[Sequence[str]], *, timeout: float = 600, env: d
             raise RuntimeError(f"the batch runner failed ({process.returncode}): {process.stderr[-3000:]}")
         results = json.loads(results_path.read_text())
     return [subprocess.CompletedProcess(["imitation", *argv], r["returncode"], r["stdout"], r["stderr"]) for argv, r in zip(cases, results)]
+
+
+# The issue's turtlesim map: the pose as the observation, the keyboard teleop's command as the action.
+TURTLE_MAP = {
+    "rate_hz": 10,
+    "time": "log",
+    "observation": [{"topic": "/turtle1/pose", "fields": ["x", "y", "theta", "linear_velocity", "angular_velocity"]}],
+    "action": [{"topic": "/turtle1/cmd_vel", "fields": ["linear.x", "angular.z"]}],
+    "episodes": {"split": "file"},
+    "env_id": None,
+}
+
+
+def write_map(folder: Path, data: dict, name: str = "map.yaml") -> Path:
+    """A conversion map as YAML in `folder`."""
+    import yaml
+
+    path = folder / name
+    path.write_text(yaml.safe_dump(data))
+    return path

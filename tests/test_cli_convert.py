@@ -7,26 +7,11 @@ import json
 from pathlib import Path
 
 import pytest
-import yaml
-from support import DATASETS, run_cli
+from support import DATASETS, TURTLE_MAP, run_cli, write_map
 from test_cli import assert_one_line_error, last_json
 
 from imitation.data.store import DemoFile
 
-TURTLE_MAP = {
-    "rate_hz": 10,
-    "time": "log",
-    "observation": [{"topic": "/turtle1/pose", "fields": ["x", "y", "theta", "linear_velocity", "angular_velocity"]}],
-    "action": [{"topic": "/turtle1/cmd_vel", "fields": ["linear.x", "angular.z"]}],
-    "episodes": {"split": "file"},
-    "env_id": None,
-}
-
-
-def write_map(folder: Path, data: dict, name: str = "map.yaml") -> Path:
-    path = folder / name
-    path.write_text(yaml.safe_dump(data))
-    return path
 
 
 @pytest.mark.parametrize("command", [["convert"], ["export"]])

@@ -9,24 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from support import TURTLE_MAP, write_map
 
 from imitation.data.convert.job import convert, inspect
 from imitation.data.store import DemoFile
 
-TURTLE_MAP = {
-    "rate_hz": 10,
-    "time": "log",
-    "observation": [{"topic": "/turtle1/pose", "fields": ["x", "y", "theta", "linear_velocity", "angular_velocity"]}],
-    "action": [{"topic": "/turtle1/cmd_vel", "fields": ["linear.x", "angular.z"]}],
-    "episodes": {"split": "file"},
-    "env_id": None,
-}
-
-
-def write_map(tmp_path: Path, data: dict, name: str = "map.yaml") -> Path:
-    path = tmp_path / name
-    path.write_text(yaml.safe_dump(data))
-    return path
 
 
 def log_times(bag: Path, topic: str) -> np.ndarray:
