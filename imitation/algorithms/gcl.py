@@ -108,9 +108,10 @@ class GuidedCostLearning:
         if self.reward.config.normalize_observations and self.pool is None:
             # Where the space is unbounded, the first policy's states widen the demos' spread.
             self.reward.set_observation_statistics(self.demos.observations, flat_batch(rollout.observations, 2))
+        # Copies: PPO refills its rollout buffers in place, and the pool outlives this rollout.
         new = _Samples(
-            observations=flat_batch(rollout.observations, 2), env_actions=flat_batch(rollout.env_actions, 2),
-            next_observations=flat_batch(rollout.next_observations, 2), log_probs=rollout.log_probs.reshape(-1),
+            observations=flat_batch(rollout.observations, 2).clone(), env_actions=flat_batch(rollout.env_actions, 2).clone(),
+            next_observations=flat_batch(rollout.next_observations, 2).clone(), log_probs=rollout.log_probs.reshape(-1).clone(),
         )
         keep = slice(-self.config.buffer_steps, None) if self.config.buffer_steps else slice(None)
         self.pool = new if self.pool is None else _Samples(**{

@@ -13,6 +13,7 @@ from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning
 from imitation.algorithms.ppo import PPOConfig, Rollout, ppo_defaults, train_ppo
 from imitation.data.loader import load_transitions, transitions_to_torch
 from imitation.data.store import DemoDataset
+from imitation.policies import make_policy
 from imitation.rewards import make_reward_model
 
 ENV_ID = "imitation/CartPoleFixedHorizon-v0"
@@ -57,3 +58,23 @@ def test_observation_scale_is_the_space_range_where_finite_else_the_widest_sprea
     assert torch.allclose(reward.observation_mean, demos.mean(0))
     assert torch.allclose(reward.observation_std, expected)
     np.testing.assert_allclose(reward.inputs(wide[:1], wide[:1], wide[:1]).numpy(), ((wide[:1] - demos.mean(0)) / expected).numpy(), rtol=1e-6)
+
+
+def test_the_pool_keeps_each_rollout_although_ppo_refills_its_buffers_in_place() -> None:
+    env = gym.make(ENV_ID)
+    demos = transitions_to_torch(load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True))
+    torch.manual_seed(0)
+    reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8], normalize_observations=True)
+    learner = GuidedCostLearning(reward, demos, GCLConfig(warmup_steps=1, reward_steps=1, batch_size=8), updates=2)
+    policy = make_policy(env.observation_space, env.action_space)
+    steps = 6
+    buffers = Rollout(
+        observations=demos.observations[:steps].reshape(3, 2, 5).clone(), actions=torch.zeros(3, 2), env_actions=torch.zeros(3, 2),
+        next_observations=demos.next_observations[:steps].reshape(3, 2, 5).clone(), log_probs=torch.zeros(3, 2),
+        env_rewards=torch.zeros(3, 2), terminated=torch.zeros(3, 2, dtype=torch.bool), truncated=torch.zeros(3, 2, dtype=torch.bool),
+    )
+    first = buffers.observations.reshape(-1, 5).clone()
+    learner(buffers, policy)
+    buffers.observations.fill_(7.0)  # the next rollout, written into the same buffers
+    learner(buffers, policy)
+    assert torch.equal(learner.pool.observations[:steps], first) and (learner.pool.observations[steps:] == 7.0).all()
