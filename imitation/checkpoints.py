@@ -6,12 +6,19 @@ A checkpoint is a pair (tensors, state): tensors go to a safetensors file, every
 The run directory writes them (`imitation.runs.RunWriter.save_checkpoint`); trainers build and
 restore them with the helpers here:
 
+- `prefixed` / `unprefixed`: one part's tensors (a network, a pool of samples) among the rest;
 - `optimizer_checkpoint` / `restore_optimizer`: an optimiser's per-parameter tensors and its
   parameter groups;
 - `rng_checkpoint` / `restore_rng`: torch's CPU generator and numpy's global one;
 - `Checkpointing`: what a trainer is handed: where to save, how often, and what to resume from;
 - `StopAtBoundary`: defers Ctrl-C (SIGINT) to the end of the current update or epoch, where the
-  trainer saves a checkpoint and raises `TrainingInterrupted`; a second Ctrl-C stops at once.
+  trainer saves a checkpoint and raises `TrainingInterrupted`; a second Ctrl-C stops at once;
+- `Checkpointable`: a hook with state of its own inside a trainer (GCL's reward learner inside
+  PPO), which the trainer saves and restores with its own, in the same checkpoint.
+
+Trainers that checkpoint, and where: PPO after an update (with GCL's reward learner when it is
+the rollout hook), BC after an epoch, DAgger after a round, tabular MaxEnt/MCE IRL after an
+iteration.
 """
 
 from __future__ import annotations
@@ -20,7 +27,7 @@ import json
 import signal
 import threading
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 import torch
@@ -70,6 +77,25 @@ class StopAtBoundary:
     def __exit__(self, *exc: Any) -> None:
         if self._active:
             signal.signal(signal.SIGINT, self._previous)
+
+
+@runtime_checkable
+class Checkpointable(Protocol):
+    """State a trainer does not own but must save to resume exactly (see the module docstring)."""
+
+    def checkpoint(self) -> CheckpointData: ...
+
+    def restore(self, checkpoint: CheckpointData) -> None: ...
+
+
+def prefixed(prefix: str, tensors: Tensors) -> Tensors:
+    """`tensors` named `prefix.name`, to sit beside other parts' in one checkpoint."""
+    return {f"{prefix}.{name}": tensor for name, tensor in tensors.items()}
+
+
+def unprefixed(prefix: str, tensors: Tensors) -> Tensors:
+    """The tensors `prefixed(prefix, ...)` named, under their own names again."""
+    return {name.removeprefix(prefix + "."): tensor for name, tensor in tensors.items() if name.startswith(prefix + ".")}
 
 
 def optimizer_checkpoint(optimizer: torch.optim.Optimizer, prefix: str) -> CheckpointData:

@@ -37,8 +37,8 @@ from torch.distributions import Categorical, Normal, kl_divergence
 from tqdm import tqdm
 
 from imitation.checkpoints import (
-    CheckpointData, Checkpointing, StopAtBoundary, TrainingInterrupted, floats, optimizer_checkpoint, restore_optimizer, restore_rng,
-    rng_checkpoint, snapshot,
+    Checkpointable, CheckpointData, Checkpointing, StopAtBoundary, TrainingInterrupted, floats, optimizer_checkpoint, prefixed,
+    restore_optimizer, restore_rng, rng_checkpoint, snapshot, unprefixed,
 )
 from imitation.data.loader import resolve_device
 from imitation.envs.make import make_env
@@ -267,6 +267,7 @@ class Rollout:
 
 # Given each rollout and the current policy, returns the (T, n_envs) rewards PPO optimises in
 # place of the env's: a learned reward relabelling the rollout (and, for IRL, learning from it).
+# A hook that learns (GCL) is also `Checkpointable`, so that its state is in PPO's checkpoints.
 RolloutRewards = Callable[[Rollout, ActorCritic], torch.Tensor]
 
 
@@ -301,7 +302,8 @@ def train_ppo(
 
     With `checkpoints`, a checkpoint is saved every tenth of the run (by default), Ctrl-C stops
     after the current update with a checkpoint saved (TrainingInterrupted), and a run given
-    `checkpoints.resume` continues from one (see "Checkpoints" at the end of this module)."""
+    `checkpoints.resume` continues from one (see "Checkpoints" at the end of this module); a
+    `Checkpointable` `rollout_rewards` is saved and restored with the rest."""
     config.validate()
     # Measured on 2 cores: one thread runs these small MLPs ~10× faster than two, which
     # spend their time synchronising.
@@ -364,12 +366,13 @@ def _train(
     started = time.perf_counter()
     global_step = 0
     first_update = 0
+    learner = rollout_rewards if isinstance(rollout_rewards, Checkpointable) else None
     if checkpoints is not None and checkpoints.resume is not None:
         # Continue an interrupted run: networks, optimiser, normalisers, counters and logs as at
         # its checkpoint. The environments' state is not saved: they start new episodes.
         first_update, global_step, beta, elapsed = restore_ppo_checkpoint(
             checkpoints.resume, policy=policy, optimizer=optimizer, reward_scaler=reward_scaler, history=history,
-            recent_returns=recent_returns, recent_optimised_returns=recent_optimised_returns, timers=timers,
+            recent_returns=recent_returns, recent_optimised_returns=recent_optimised_returns, timers=timers, learner=learner,
         )
         started -= elapsed
 
@@ -545,7 +548,7 @@ def _train(
         if checkpoints is not None and (interrupted or ((update + 1) % checkpoints.interval(n_updates) == 0 and update + 1 < n_updates)):
             checkpoints.save(*ppo_checkpoint(
                 update + 1, global_step, beta, time.perf_counter() - started, policy=policy, optimizer=optimizer, reward_scaler=reward_scaler,
-                history=history, recent_returns=recent_returns, recent_optimised_returns=recent_optimised_returns, timers=timers,
+                history=history, recent_returns=recent_returns, recent_optimised_returns=recent_optimised_returns, timers=timers, learner=learner,
             ))
         if interrupted:
             bar.close()
@@ -561,9 +564,10 @@ def _train(
 def ppo_checkpoint(
     next_update: int, global_step: int, beta: float, seconds: float, *, policy: ActorCritic, optimizer: torch.optim.Optimizer,
     reward_scaler: RewardScaler | None, history: list[dict[str, float]], recent_returns: deque[float],
-    recent_optimised_returns: deque[float], timers: dict[str, float],
+    recent_optimised_returns: deque[float], timers: dict[str, float], learner: Checkpointable | None = None,
 ) -> CheckpointData:
-    """Everything `restore_ppo_checkpoint` needs to continue training after update `next_update`."""
+    """Everything `restore_ppo_checkpoint` needs to continue training after update `next_update`,
+    the reward `learner`'s state included."""
     optimizer_tensors, optimizer_state = optimizer_checkpoint(optimizer, "optimizer")
     rng_tensors, rng_state = rng_checkpoint()
     tensors = {f"policy.{name}": t for name, t in policy.state_dict().items()} | optimizer_tensors | rng_tensors
@@ -574,12 +578,16 @@ def ppo_checkpoint(
         "optimizer": optimizer_state, "rng": rng_state, "history": history, "recent_returns": list(recent_returns),
         "recent_optimised_returns": list(recent_optimised_returns), "timers": timers,
     }
+    if learner is not None:
+        learner_tensors, state["learner"] = learner.checkpoint()
+        tensors |= prefixed("learner", learner_tensors)
     return snapshot(tensors, state)
 
 
 def restore_ppo_checkpoint(
     checkpoint: CheckpointData, *, policy: ActorCritic, optimizer: torch.optim.Optimizer, reward_scaler: RewardScaler | None,
     history: list[dict[str, float]], recent_returns: deque[float], recent_optimised_returns: deque[float], timers: dict[str, float],
+    learner: Checkpointable | None = None,
 ) -> tuple[int, int, float, float]:
     """Load a `ppo_checkpoint` into fresh objects (the containers are filled in place); returns
     (next update, global step, β, seconds trained so far)."""
@@ -594,6 +602,8 @@ def restore_ppo_checkpoint(
         recent_returns.extend(state["recent_returns"])
         recent_optimised_returns.extend(state["recent_optimised_returns"])
         timers.update(state["timers"])
+        if learner is not None:
+            learner.restore((unprefixed("learner", tensors), state["learner"]))
         return int(state["update"]), int(state["global_step"]), float(state["beta"]), float(state["seconds"])
     except (KeyError, TypeError, ValueError, RuntimeError) as error:
         raise ImitationError(f"the checkpoint does not fit this PPO run ({type(error).__name__}: {str(error).splitlines()[0]})") from None
