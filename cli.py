@@ -217,7 +217,7 @@ def cmd_train_dagger(args: argparse.Namespace) -> int:
         beta_decay=args.beta_decay, seed=args.seed,
         bc=BCConfig(epochs=args.epochs, patience=args.patience, hidden_sizes=args.hidden, seed=args.seed, device=args.device),
     )
-    result = dagger_job(args.env, args.expert, config, args.out, demos=args.demos or [], progress=not args.quiet)
+    result = dagger_job(args.env, args.expert, config, args.out, demos=args.demos or [], progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
     else:
@@ -488,6 +488,7 @@ def build_parser() -> argparse.ArgumentParser:
     dagger.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     dagger.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
     _add_run_output(dagger)
+    _add_resume(dagger)
     dagger.set_defaults(handler=cmd_train_dagger)
 
     irl = algorithms.add_parser(

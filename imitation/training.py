@@ -38,7 +38,7 @@ from imitation.rewards import load_reward, make_reward_model, relabel_rollout, r
 from imitation.runs import RunWriter, plot_curve
 
 # What may differ between an interrupted run and its --resume: where and how fast it runs.
-RESUME_IGNORE = ("creator", "ppo.device", "ppo.threads", "ppo.async_envs", "bc.device", "bc.threads")
+RESUME_IGNORE = ("creator", "ppo.device", "ppo.threads", "ppo.async_envs", "bc.device", "bc.threads", "dagger.bc.device", "dagger.bc.threads")
 EVAL_SEED = 10_000  # evaluation episodes start here, away from training and demo seeds
 EVAL_EPISODES = 10
 
@@ -135,10 +135,12 @@ def _bc_split(dataset: DemoDataset, config: BCConfig, *, offline: bool) -> tuple
 
 
 def dagger_job(
-    env_id: str, expert_spec: str, config: DAggerConfig, out: str | os.PathLike, *, demos: list[str] = (), progress: bool = True
+    env_id: str, expert_spec: str, config: DAggerConfig, out: str | os.PathLike, *, demos: list[str] = (), progress: bool = True,
+    resume: bool = False,
 ) -> dict[str, Any]:
     """DAgger with `expert_spec` into run directory `out`; each round's labelled rollouts are
-    written to `out/rounds/round-NN.mcap`."""
+    written to `out/rounds/round-NN.mcap`. `resume` continues the interrupted run in
+    `out`.partial from its checkpoint, with the rounds it had finished."""
     env = make_env_for_expert(env_id, expert_spec)
     expert = load_expert(expert_spec, env, seed=config.seed)
     if demos:
@@ -152,8 +154,8 @@ def dagger_job(
     with closing(env), RunWriter(out, config={
         "kind": "dagger", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "expert": expert_spec,
         "demos": [str(p) for p in demos], "dagger": {**vars(config), "bc": vars(config.bc).copy()}, "policy": policy.config.to_json(),
-    }, x_axis="round") as run:
-        bar = tqdm(total=config.rounds, desc="dagger", unit="round", disable=None if progress else True, dynamic_ncols=True)
+    }, x_axis="round", resume=resume, resume_ignore=RESUME_IGNORE) as run, _resumable(run):
+        bar = tqdm(total=config.rounds, initial=len(run.history), desc="dagger", unit="round", disable=None if progress else True, dynamic_ncols=True)
 
         def log(row: dict[str, float]) -> None:
             run.log(row)
@@ -161,7 +163,10 @@ def dagger_job(
             bar.set_postfix(beta=f"{row['beta']:.2f}", labels=int(row["expert_labels"]), ret=f"{row['return']:.1f}")
 
         with bar:
-            result = train_dagger(env, expert, policy, config, round_dir=run.file("rounds"), env_id=env_id, demos=demos, evaluate=env_return, log=log)
+            result = train_dagger(
+                env, expert, policy, config, round_dir=run.file("rounds"), env_id=env_id, demos=demos, evaluate=env_return, log=log,
+                checkpoints=Checkpointing(save=run.save_checkpoint, resume=run.resumed),
+            )
         run.save_weights(policy_tensors(result.policy.cpu()))
         plot_curve(run.file("return_curve.png"), run.history, x="expert_labels", ys=["return", "rollout_return"], title=f"DAgger on {env_id}")
         plot_curve(run.file("loss_curve.png"), run.history, x="round", ys=["validation_loss"], title=f"DAgger on {env_id}: validation loss")

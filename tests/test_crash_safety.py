@@ -1,6 +1,7 @@
-"""Crash safety of real processes: Ctrl-C during `train ppo` and `train bc` keeps the last
-checkpoint, which loads and which `--resume` continues to the requested total; `kill -9` during
-DAgger leaves every finished round readable and nothing under a final name that is not whole.
+"""Crash safety of real processes: Ctrl-C during `train ppo`, `train bc` and `train dagger` keeps
+the last checkpoint, which loads, which `--resume` with other settings refuses and which
+`--resume` continues to the requested total; `kill -9` during DAgger leaves every finished round
+readable and nothing under a final name that is not whole.
 (`kill -9` and Ctrl-C during `record`: tests/data/test_recorder.py.)"""
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import torch
 from support import DATASETS, REPO, run_cli_many
 from test_cli import assert_one_line_error, last_json
 
+from imitation.checkpoints import unprefixed
 from imitation.data.store import DemoFile
 from imitation.policies import ActorCritic, PolicyConfig
 from imitation.runs import read_checkpoint
@@ -49,6 +51,12 @@ def interrupt_after_first_checkpoint(*args: str, out: Path) -> str:
     assert process.returncode == 130, stderr
     assert "Traceback" not in stderr
     return [line for line in stderr.splitlines() if line.strip()][-1]
+
+
+def changed(args: list[str], flag: str, value: str) -> list[str]:
+    """`args` with `flag`'s value replaced: the same command with one setting changed."""
+    at = args.index(flag) + 1
+    return [*args[:at], value, *args[at + 1 :]]
 
 
 def progress_rows(run: Path) -> list[dict[str, float]]:
@@ -150,3 +158,39 @@ def test_kill_9_during_dagger_leaves_every_finished_round_readable(tmp_path: Pat
         assert all(len(episode) > 0 for episode in demo)
     leftovers = {path.name for path in rounds.iterdir()} - {path.name for path in finished}
     assert all(name.endswith(".mcap.partial") for name in leftovers), leftovers
+
+
+def test_ctrl_c_during_train_dagger_keeps_a_checkpoint_that_resume_finishes_with_the_recorded_rounds(tmp_path: Path) -> None:
+    out = tmp_path / "dagger"
+    partial = tmp_path / "dagger.partial"
+    # 4 rounds: a checkpoint after each; Ctrl-C stops after the round it lands in.
+    args = ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--rounds", "4", "--episodes-per-round", "2", "--epochs", "3",
+            "--hidden", "16", "--quiet", "--out", str(out)]
+    message = interrupt_after_first_checkpoint(*args, out=out)
+    assert message.startswith("interrupted: DAgger stopped after round ") and f"of 4; its checkpoint is in {partial}" in message
+    assert message.endswith("run the same command with --resume to continue")
+    assert not out.exists() and partial.is_dir()
+    stopped_at = int(message.split("after round ")[1].split(" ")[0])
+    assert 1 <= stopped_at < 4
+
+    tensors, state = read_checkpoint(partial)
+    trainer = state["trainer"]
+    recorded = [f"round-{i:02d}.mcap" for i in range(1, stopped_at + 1)]
+    assert trainer["round"] == stopped_at + 1 and trainer["round_files"] == recorded and len(state["history"]) == stopped_at
+    policy = ActorCritic(PolicyConfig.from_json(json.loads((partial / "config.json").read_text())["policy"]))
+    policy.load_state_dict(unprefixed("policy", tensors))
+    files = {name: os.stat(partial / "rounds" / name) for name in recorded}
+
+    other, resumed, evaluation = run_cli_many([
+        [*changed(args, "--episodes-per-round", "3"), "--resume"], [*args, "--resume", "--json"],
+        ["eval", "policy", str(out), "--env", "CartPole-v1", "--episodes", "2", "--json"],
+    ])
+    assert_one_line_error(other, f"--resume: {partial} was started with other settings (dagger.episodes_per_round: 2 there, 3 now)")
+    result = last_json(resumed)
+    assert result["rounds"] == 4 and not partial.exists()
+    assert [row["round"] for row in progress_rows(out)] == [1.0, 2.0, 3.0, 4.0]
+    assert [Path(path).name for path in result["round_files"]] == [f"round-{i:02d}.mcap" for i in range(1, 5)]
+    for name, before in files.items():  # reused, not recorded again
+        after = os.stat(out / "rounds" / name)
+        assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns), name
+    assert last_json(evaluation)["episodes"] == 2

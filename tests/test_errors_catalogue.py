@@ -466,17 +466,24 @@ def _checkpoint_case(name: str, **files) -> Callable[[Inputs], list]:
     return build
 
 
-def _bc_checkpoint_mismatch(i: Inputs) -> list:
-    from imitation.runs import save_checkpoint
+def _checkpoint_mismatch(prepare: list, name: str, trainer: dict) -> Callable[[Inputs], list]:
+    """`prepare`'s command resumed from a partial run with its settings (copied from the
+    finished run the first batch made) and a checkpoint that is not the trainer's."""
+    def build(i: Inputs) -> list:
+        from imitation.runs import save_checkpoint
 
-    finished = i.root / "bc-done"  # made by the first batch (PREPARE)
-    partial = i.folder("bc-garbage.partial")
-    shutil.copy(finished / "config.json", partial / "config.json")
-    save_checkpoint(partial, {"x": torch.zeros(1)}, {"history": [], "trainer": {"epoch": 2}})
-    return PREPARE_BC + [i.root / "bc-garbage", "--resume"]
+        partial = i.folder(f"{name}-garbage.partial")
+        shutil.copy(i.root / f"{name}-done" / "config.json", partial / "config.json")
+        save_checkpoint(partial, {"x": torch.zeros(1)}, {"history": [], "trainer": trainer})
+        return prepare + [i.root / f"{name}-garbage", "--resume"]
+
+    return build
 
 
+# Finished runs made before the cases, whose settings the checkpoint cases copy: command + --out.
 PREPARE_BC = ["train", "bc", "--demos", str(DATASETS / "CartPole-v1.mcap"), "--env", "CartPole-v1", "--epochs", "1", "--hidden", "8", "--quiet", "--out"]
+PREPARE_DAGGER = ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--rounds", "1", "--episodes-per-round", "1", "--epochs", "1",
+                  "--hidden", "8", "--quiet", "--out"]
 
 
 # Each case: the entries it triggers (the first is its name), a function building the argv, and
@@ -543,7 +550,7 @@ CASE_LIST = [
     case("train-1", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--patience", "0", "--out", i.root / "t1")),
     case("train-2", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--lr", "0", "--out", i.root / "t2")),
     case("train-5", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--loss", "mse", "--out", i.root / "t5")),
-    case("train-7", _bc_checkpoint_mismatch),
+    case("train-7", _checkpoint_mismatch(PREPARE_BC, "bc", {"epoch": 2})),
     case("train-11", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "10", "--out", i.root / "t11"]),
     case("train-13", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "2048", "--quiet", "--out", i.root / "t13",
                                 "--reward", i.reward_run("nan-reward", weights=_nan_weights)]),
@@ -562,6 +569,7 @@ CASE_LIST = [
     case("train-28", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--validation", "1", "--out", i.root / "t28")),
     case("dagger-2", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--rounds", "0", "--out", i.root / "d2"]),
     case("dagger-3", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--beta-decay", "2", "--out", i.root / "d3"]),
+    case("dagger-5", _checkpoint_mismatch(PREPARE_DAGGER, "dagger", {"round": 2})),
     case("irl-1", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--discount", "0", "--out", i.root / "i1"]),
     case("irl-6", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--iterations", "0", "--out", i.root / "i6"]),
     case("irl-11", _grid(_state_99)),
@@ -760,7 +768,7 @@ def _dict_demos(i: Inputs) -> Path:
 @pytest.fixture(scope="module")
 def results(tmp_path_factory) -> dict[str, object]:
     inputs = Inputs(tmp_path_factory.mktemp("errors"))
-    run_cli_many([PREPARE_BC + [inputs.root / "bc-done"]])  # the finished BC run train-7's checkpoint copies
+    run_cli_many([PREPARE_BC + [inputs.root / "bc-done"], PREPARE_DAGGER + [inputs.root / "dagger-done"]])
     runnable = [c for c in CASE_LIST if not (c.testdata and not TESTDATA.is_dir())]
     if torch.cuda.is_available():
         runnable = [c for c in runnable if "train-27" not in c.ids]

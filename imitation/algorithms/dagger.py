@@ -13,6 +13,13 @@ removes BC's compounding error (the notes' O(εT²) → O(εT)).
 Each round's labelled rollouts are written as an MCAP demo file (round-NN.mcap) whose actions
 are the expert's labels, so the aggregate dataset stays on disk and can be reloaded; the
 episodes' metadata record the round, β and which steps the expert actually drove.
+
+With checkpoints, the learner, the β-mixture's generator, the label count, the logged rows and
+the finished rounds' file names are saved after a round; a resumed run goes on with the next
+round and trains on the finished rounds' files as they are. Each round's BC starts afresh from
+its seed (a new optimiser, the normaliser refitted), and rollouts are reset with seeds fixed by
+the round, so the resumed run ends exactly where an uninterrupted one does, as long as the
+expert is deterministic (`random` and tabular soft-optimal experts restart their generators).
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ import gymnasium as gym
 import numpy as np
 
 from imitation.algorithms.bc import BCConfig, train_bc
+from imitation.checkpoints import CheckpointData, Checkpointing, StopAtBoundary, TrainingInterrupted, floats, prefixed, snapshot, unprefixed
 from imitation.data.loader import load_transitions, split_episodes, transitions_to_torch
 from imitation.data.store import DemoDataset, DemoWriter
 from imitation.data.types import Episode, stack_samples
@@ -120,8 +128,13 @@ def train_dagger(
     demos: Sequence[str | os.PathLike] = (),
     evaluate: Callable[[ActorCritic], float] | None = None,
     log: Callable[[dict[str, float]], None] | None = None,
+    checkpoints: Checkpointing | None = None,
 ) -> DAggerResult:
-    """Run DAgger; round files go to `round_dir`, and the aggregate (demos + rounds) trains BC."""
+    """Run DAgger; round files go to `round_dir`, and the aggregate (demos + rounds) trains BC.
+
+    With `checkpoints`, a checkpoint is saved every tenth of the rounds (by default), Ctrl-C
+    stops after the current round with a checkpoint saved (TrainingInterrupted), and a run given
+    `checkpoints.resume` continues with the round after it."""
     config.validate()
     rng = np.random.default_rng(config.seed)
     round_dir = Path(round_dir)
@@ -129,39 +142,78 @@ def train_dagger(
     files: list[Path] = []
     history: list[dict[str, float]] = []
     learner: Policy | None = None
-    if demos:
-        policy, _ = _fit(policy, list(demos), config)
-        learner = SingleObservationPolicy(policy, deterministic=True)
     labels = 0
-    for round_index in range(1, config.rounds + 1):
-        beta = beta_for_round(round_index, config)
-        episodes = collect_round(
-            env, learner, expert, beta=beta, episodes=config.episodes_per_round,
-            seed=config.seed * 100_000 + round_index * 1_000, rng=rng, metadata={"round": round_index, "beta": beta},
-        )
-        path = round_dir / f"round-{round_index:02d}.mcap"
-        with DemoWriter(
-            path, env_id=env_id, observation_space=env.observation_space, action_space=env.action_space,
-            dt=control_period(env), source=f"dagger round {round_index}", metadata={"round": round_index, "beta": beta},
-        ) as writer:
-            for episode in episodes:
-                writer.write(episode)
-        files.append(path)
-        labels += sum(len(episode) for episode in episodes)
-        policy, validation_loss = _fit(policy, list(demos) + files, config)
-        learner = SingleObservationPolicy(policy, deterministic=True)
-        row = {
-            "round": float(round_index),
-            "beta": beta,
-            "expert_labels": float(labels),
-            "rollout_return": float(np.mean([episode.episode_return for episode in episodes])),
-            "validation_loss": validation_loss,
-            "return": evaluate(policy) if evaluate is not None else float("nan"),
-        }
-        history.append(row)
-        if log is not None:
-            log(row)
+    first_round = 1
+    with StopAtBoundary(enabled=checkpoints is not None) as stop:
+        if checkpoints is not None and checkpoints.resume is not None:
+            first_round, labels = restore_dagger_checkpoint(checkpoints.resume, policy=policy, rng=rng, round_dir=round_dir, files=files, history=history)
+            learner = SingleObservationPolicy(policy, deterministic=True)
+        elif demos:
+            policy, _ = _fit(policy, list(demos), config)
+            learner = SingleObservationPolicy(policy, deterministic=True)
+        for round_index in range(first_round, config.rounds + 1):
+            beta = beta_for_round(round_index, config)
+            episodes = collect_round(
+                env, learner, expert, beta=beta, episodes=config.episodes_per_round,
+                seed=config.seed * 100_000 + round_index * 1_000, rng=rng, metadata={"round": round_index, "beta": beta},
+            )
+            path = round_dir / f"round-{round_index:02d}.mcap"
+            with DemoWriter(
+                path, env_id=env_id, observation_space=env.observation_space, action_space=env.action_space,
+                dt=control_period(env), source=f"dagger round {round_index}", metadata={"round": round_index, "beta": beta},
+            ) as writer:
+                for episode in episodes:
+                    writer.write(episode)
+            files.append(path)
+            labels += sum(len(episode) for episode in episodes)
+            policy, validation_loss = _fit(policy, list(demos) + files, config)
+            learner = SingleObservationPolicy(policy, deterministic=True)
+            row = {
+                "round": float(round_index),
+                "beta": beta,
+                "expert_labels": float(labels),
+                "rollout_return": float(np.mean([episode.episode_return for episode in episodes])),
+                "validation_loss": validation_loss,
+                "return": evaluate(policy) if evaluate is not None else float("nan"),
+            }
+            history.append(row)
+            if log is not None:
+                log(row)
+            # A checkpoint every tenth of the rounds; Ctrl-C stops here (a finished run just finishes).
+            interrupted = stop.requested and round_index < config.rounds
+            if checkpoints is not None and (interrupted or (round_index % checkpoints.interval(config.rounds) == 0 and round_index < config.rounds)):
+                checkpoints.save(*dagger_checkpoint(round_index + 1, labels, policy=policy, rng=rng, files=files, history=history))
+            if interrupted:
+                raise TrainingInterrupted(f"DAgger stopped after round {round_index} of {config.rounds}")
     return DAggerResult(policy=policy, history=history, round_files=files)
+
+
+def dagger_checkpoint(
+    next_round: int, labels: int, *, policy: ActorCritic, rng: np.random.Generator, files: list[Path], history: list[dict[str, float]]
+) -> CheckpointData:
+    """Everything `restore_dagger_checkpoint` needs to go on with `next_round`: the learner, the
+    mixture's generator, the label count, the rows and the finished rounds' files (by name: the
+    run directory is renamed when it finishes)."""
+    state = {
+        "round": next_round, "labels": labels, "rng": rng.bit_generator.state, "round_files": [path.name for path in files], "history": history,
+    }
+    return snapshot(prefixed("policy", policy.state_dict()), state)
+
+
+def restore_dagger_checkpoint(
+    checkpoint: CheckpointData, *, policy: ActorCritic, rng: np.random.Generator, round_dir: Path, files: list[Path],
+    history: list[dict[str, float]],
+) -> tuple[int, int]:
+    """Load a `dagger_checkpoint` (files and history are filled in place); returns (next round, labels so far)."""
+    tensors, state = checkpoint
+    try:
+        policy.load_state_dict(unprefixed("policy", tensors))
+        rng.bit_generator.state = state["rng"]
+        files += [round_dir / name for name in state["round_files"]]
+        history += [floats(row) for row in state["history"]]
+        return int(state["round"]), int(state["labels"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as error:
+        raise ImitationError(f"the checkpoint does not fit this DAgger run ({type(error).__name__}: {str(error).splitlines()[0]})") from None
 
 
 def _fit(policy: ActorCritic, paths: list[str | os.PathLike], config: DAggerConfig) -> tuple[ActorCritic, float]:

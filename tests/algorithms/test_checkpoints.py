@@ -1,6 +1,7 @@
-"""Checkpoints hold the whole training state: BC resumed from one ends bit for bit where an
-uninterrupted run ends; PPO's round trip restores networks, optimiser, normalisers and random
-generators exactly; Ctrl-C stops at an update boundary with a checkpoint saved."""
+"""Checkpoints hold the whole training state: BC and DAgger resumed from one end bit for bit where
+an uninterrupted run ends; PPO's round trip restores networks, optimiser, normalisers and random
+generators exactly; Ctrl-C stops at an update boundary with a checkpoint saved.
+(PPO itself does not resume bit for bit: its environments start new episodes.)"""
 
 from __future__ import annotations
 
@@ -9,17 +10,20 @@ import signal
 from collections import deque
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
 from support import DATASETS
 
 from imitation.algorithms.bc import BCConfig, policy_options, train_bc
+from imitation.algorithms.dagger import DAggerConfig, train_dagger
 from imitation.algorithms.ppo import PPOConfig, RewardScaler, ppo_checkpoint, restore_ppo_checkpoint, train_ppo
-from imitation.checkpoints import Checkpointing, TrainingInterrupted
+from imitation.checkpoints import Checkpointing, TrainingInterrupted, snapshot
 from imitation.data.loader import load_transitions, transitions_to_torch
 from imitation.data.store import DemoFile
 from imitation.errors import ImitationError
+from imitation.experts.scripted import cartpole
 from imitation.policies import make_policy
 from imitation.runs import read_checkpoint, save_checkpoint
 
@@ -113,3 +117,44 @@ def test_ppo_resumes_to_the_requested_total() -> None:
     resumed = train_ppo(config, progress=False, checkpoints=Checkpointing(save=lambda *a: None, resume=saved[0]))
     assert resumed.steps == 2560 and [row["step"] for row in resumed.history] == [256.0 * (i + 1) for i in range(10)]
     assert resumed.history[:3] == saved[0][1]["history"]
+
+
+def press_ctrl_c(*_) -> float:
+    """An evaluate/log callback: Ctrl-C in the middle of a round, iteration or update."""
+    os.kill(os.getpid(), signal.SIGINT)
+    return 0.0
+
+
+def through_files(folder: Path, checkpoint):
+    """A checkpoint written and read back as a run does."""
+    folder.mkdir(exist_ok=True)
+    save_checkpoint(folder, *snapshot(checkpoint[0], {"trainer": checkpoint[1]}))
+    tensors, state = read_checkpoint(folder)
+    return tensors, state["trainer"]
+
+
+def test_dagger_resumed_from_a_ctrl_c_checkpoint_ends_exactly_where_an_uninterrupted_run_does(tmp_path: Path) -> None:
+    env = gym.make("CartPole-v1")
+    config = DAggerConfig(rounds=3, episodes_per_round=1, seed=2, bc=BCConfig(epochs=3, patience=3, hidden_sizes=[16], seed=2, device="cpu"))
+
+    def run(folder: str, **options):
+        torch.manual_seed(0)
+        policy = make_policy(env.observation_space, env.action_space, **policy_options(config.bc))
+        return train_dagger(env, cartpole, policy, config, round_dir=tmp_path / folder, env_id="CartPole-v1", **options)
+
+    whole = run("whole")
+    saved = []
+    with pytest.raises(TrainingInterrupted, match="DAgger stopped after round 1 of 3"):
+        run("stopped", evaluate=press_ctrl_c, checkpoints=Checkpointing(save=lambda *checkpoint: saved.append(through_files(tmp_path / "ckpt", checkpoint))))
+    assert [state["round"] for _, state in saved] == [2] and saved[0][1]["round_files"] == ["round-01.mcap"]
+    recorded = (tmp_path / "stopped" / "round-01.mcap").stat()
+    torch.manual_seed(123)  # the resumed process's generators start elsewhere: the checkpoint and the seeds must set them
+    resumed = run("stopped", checkpoints=Checkpointing(save=lambda *a: None, resume=saved[0]))
+    assert (tmp_path / "stopped" / "round-01.mcap").stat().st_mtime_ns == recorded.st_mtime_ns, "round 1 is reused, not recorded again"
+    assert [path.name for path in resumed.round_files] == ["round-01.mcap", "round-02.mcap", "round-03.mcap"]
+    for column in ("beta", "expert_labels", "rollout_return", "validation_loss"):
+        np.testing.assert_array_equal([row[column] for row in resumed.history], [row[column] for row in whole.history], err_msg=column)
+    for name, tensor in whole.policy.state_dict().items():
+        assert torch.equal(resumed.policy.state_dict()[name], tensor), name
+    with pytest.raises(ImitationError, match="the checkpoint does not fit this DAgger run"):
+        run("other", checkpoints=Checkpointing(save=lambda *a: None, resume=({}, {})))
