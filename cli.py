@@ -238,7 +238,7 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
         method=args.method, discount=args.discount, iterations=args.iterations, tolerance=args.tolerance,
         hidden_sizes=args.hidden if args.hidden is not None else [], seed=args.seed, **({"learning_rate": args.lr} if args.lr is not None else {}),
     )
-    result = tabular_irl_job(args.demos, args.env, config, args.out, progress=not args.quiet)
+    result = tabular_irl_job(args.demos, args.env, config, args.out, progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
     else:
@@ -259,7 +259,7 @@ def _train_gcl(args: argparse.Namespace) -> int:
     config = GCLConfig(hidden_sizes=args.hidden if args.hidden is not None else [64, 64], seed=args.seed,
                        **({"learning_rate": args.lr} if args.lr is not None else {}))
     ppo_config = PPOConfig(env_id=args.env, total_steps=args.steps if args.steps is not None else default_steps(args.env), seed=args.seed, **settings)
-    result = gcl_job(args.demos, args.env, config, ppo_config, args.out, progress=not args.quiet)
+    result = gcl_job(args.demos, args.env, config, ppo_config, args.out, progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
     else:
@@ -510,6 +510,7 @@ def build_parser() -> argparse.ArgumentParser:
     irl.add_argument("--steps", type=int, metavar="N", help="gcl: PPO environment steps in total (default: 500000 for Pendulum-v1, else 200000)")
     irl.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     _add_run_output(irl)
+    _add_resume(irl)
     irl.set_defaults(handler=cmd_train_irl)
 
     evaluate = commands.add_parser("eval", help="evaluate a policy or a recovered reward", description="Evaluate a trained policy or reward.")

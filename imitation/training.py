@@ -223,8 +223,11 @@ def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True,
     return {"run": str(run.path), **metrics}
 
 
-def tabular_irl_job(demos: list[str], env_id: str, config: MaxEntIRLConfig, out: str | os.PathLike, *, progress: bool = True) -> dict[str, Any]:
-    """Tabular MaxEnt or MCE IRL on `demos` of a tabular env into run directory `out`.
+def tabular_irl_job(
+    demos: list[str], env_id: str, config: MaxEntIRLConfig, out: str | os.PathLike, *, progress: bool = True, resume: bool = False
+) -> dict[str, Any]:
+    """Tabular MaxEnt or MCE IRL on `demos` of a tabular env into run directory `out`; `resume`
+    continues the interrupted run in `out`.partial from its checkpoint.
 
     The reward is judged by the true return of the policy that is soft-optimal for it, computed
     exactly from the known dynamics and normalised between the uniform random policy (0) and
@@ -243,8 +246,10 @@ def tabular_irl_job(demos: list[str], env_id: str, config: MaxEntIRLConfig, out:
     with RunWriter(out, config={
         "kind": "reward", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "demos": [str(p) for p in demos],
         "irl": vars(config).copy(), "reward": model.config.to_json(),
-    }, x_axis="iteration") as run:
-        bar = tqdm(total=config.iterations, desc=f"irl {config.method}", unit="it", disable=None if progress else True, dynamic_ncols=True)
+    }, x_axis="iteration", resume=resume, resume_ignore=RESUME_IGNORE) as run, _resumable(run):
+        bar = tqdm(
+            total=config.iterations, initial=len(run.history), desc=f"irl {config.method}", unit="it", disable=None if progress else True, dynamic_ncols=True,
+        )
 
         def log(row: dict[str, float]) -> None:
             run.log(row)
@@ -252,7 +257,7 @@ def tabular_irl_job(demos: list[str], env_id: str, config: MaxEntIRLConfig, out:
             bar.set_postfix(error=f"{row['occupancy_error']:.2e}", loss=f"{row['loss']:.3f}")
 
         with bar:
-            result = train_maxent_irl(mdp, occupancy_target, model, config, log=log)
+            result = train_maxent_irl(mdp, occupancy_target, model, config, log=log, checkpoints=Checkpointing(save=run.save_checkpoint, resume=run.resumed))
         run.save_weights(reward_tensors(model))
         learned_reward = all_state_rewards(model, mdp.n_states).detach().double().numpy()
         returns = tabular_policy_returns(mdp, learned_reward, discount=config.discount)
@@ -287,10 +292,12 @@ def tabular_policy_returns(mdp: TabularMDP, learned_reward: np.ndarray, *, disco
 
 
 def gcl_job(
-    demos: list[str], env_id: str, config: GCLConfig, ppo_config: PPOConfig, out: str | os.PathLike, *, progress: bool = True
+    demos: list[str], env_id: str, config: GCLConfig, ppo_config: PPOConfig, out: str | os.PathLike, *, progress: bool = True,
+    resume: bool = False,
 ) -> dict[str, Any]:
     """Guided cost learning on `demos` into run directory `out`: the reward model (for `train ppo
-    --reward`) and the PPO policy trained alongside it."""
+    --reward`) and the PPO policy trained alongside it. `resume` continues the interrupted run in
+    `out`.partial from its checkpoint (PPO's, holding the reward learner's state too)."""
     ppo_config.validate()
     with closing(make_env(env_id)) as env:
         dataset = DemoDataset(demos)
@@ -307,12 +314,13 @@ def gcl_job(
     with RunWriter(out, config={
         "kind": "reward", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "demos": [str(p) for p in demos],
         "irl": {"method": "gcl", **vars(config)}, "ppo": vars(ppo_config).copy(), "reward": reward.config.to_json(),
-    }) as run:
+    }, resume=resume, resume_ignore=RESUME_IGNORE) as run, _resumable(run):
 
         def log(row: dict[str, float]) -> None:
             run.log({**row, **learner.history[-1]})
 
-        result = train_ppo(ppo_config, rollout_rewards=learner, log=log, progress=progress)
+        checkpoints = Checkpointing(save=run.save_checkpoint, resume=run.resumed)
+        result = train_ppo(ppo_config, rollout_rewards=learner, log=log, progress=progress, checkpoints=checkpoints)
         run.save_weights(reward_tensors(reward) | policy_tensors(result.policy))
         run.update_config(policy=result.policy.config.to_json())
         plot_curve(run.file("learning_curve.png"), run.history, x="step", ys=["return", "optimised_return"], title=f"GCL on {env_id}: PPO's returns")

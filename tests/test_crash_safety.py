@@ -1,7 +1,7 @@
-"""Crash safety of real processes: Ctrl-C during `train ppo`, `train bc` and `train dagger` keeps
-the last checkpoint, which loads, which `--resume` with other settings refuses and which
-`--resume` continues to the requested total; `kill -9` during DAgger leaves every finished round
-readable and nothing under a final name that is not whole.
+"""Crash safety of real processes: Ctrl-C during `train ppo`, `train bc`, `train dagger` and
+`train irl` (gcl, and tabular mce) keeps the last checkpoint, which loads, which `--resume` with
+other settings refuses and which `--resume` continues to the requested total; `kill -9` during
+DAgger leaves every finished round readable and nothing under a final name that is not whole.
 (`kill -9` and Ctrl-C during `record`: tests/data/test_recorder.py.)"""
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from support import DATASETS, REPO, run_cli_many
@@ -23,6 +24,7 @@ from test_cli import assert_one_line_error, last_json
 from imitation.checkpoints import unprefixed
 from imitation.data.store import DemoFile
 from imitation.policies import ActorCritic, PolicyConfig
+from imitation.rewards import RewardConfig, RewardNet, load_reward
 from imitation.runs import read_checkpoint
 
 
@@ -194,3 +196,67 @@ def test_ctrl_c_during_train_dagger_keeps_a_checkpoint_that_resume_finishes_with
         after = os.stat(out / "rounds" / name)
         assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns), name
     assert last_json(evaluation)["episodes"] == 2
+
+
+def test_ctrl_c_during_train_irl_gcl_keeps_a_checkpoint_with_the_reward_learner_that_resume_finishes(tmp_path: Path) -> None:
+    out = tmp_path / "gcl"
+    partial = tmp_path / "gcl.partial"
+    env_id = "imitation/CartPoleFixedHorizon-v0"
+    # The env's defaults: 8 envs × 32 steps = 256 steps per update, 20 updates, a checkpoint every 2.
+    args = ["train", "irl", "--method", "gcl", "--env", env_id, "--demos", str(DATASETS / "CartPoleFixedHorizon-v0.mcap"), "--steps", "5120",
+            "--hidden", "16", "--quiet", "--out", str(out)]
+    message = interrupt_after_first_checkpoint(*args, out=out)
+    assert message.startswith("interrupted: PPO stopped after update ") and f"of 5120; its checkpoint is in {partial}" in message
+    assert not out.exists() and partial.is_dir()
+    stopped_at = int(message.split("after update ")[1].split("/")[0])
+
+    # PPO's checkpoint holds the reward learner: r_θ, its optimiser, every rollout in the pool, its rows.
+    tensors, state = read_checkpoint(partial)
+    trainer = state["trainer"]
+    assert trainer["update"] == stopped_at and len(trainer["learner"]["history"]) == stopped_at
+    learner = unprefixed("learner", tensors)
+    assert learner["pool.log_probs"].shape == (256 * stopped_at,) and "generator" in learner
+    assert any(name.startswith("optimizer.") for name in learner)
+    reward = RewardNet(RewardConfig.from_json(json.loads((partial / "config.json").read_text())["reward"]))
+    reward.load_state_dict(unprefixed("reward", learner))
+    assert torch.isfinite(reward(torch.zeros(3, 5), torch.zeros(3, dtype=torch.int64), torch.zeros(3, 5))).all()
+
+    other, resumed, evaluation = run_cli_many([
+        [*changed(args, "--steps", "10240"), "--resume"], [*args, "--resume", "--json"],
+        ["eval", "policy", str(out), "--env", env_id, "--episodes", "2", "--json"],
+    ])
+    assert_one_line_error(other, f"--resume: {partial} was started with other settings (ppo.total_steps: 5120 there, 10240 now)")
+    result = last_json(resumed)
+    assert result["steps"] == 5120 and not partial.exists()
+    rows = progress_rows(out)
+    assert [row["step"] for row in rows] == [256.0 * (i + 1) for i in range(20)] and all(np.isfinite(row["reward_loss"]) for row in rows)
+    assert torch.isfinite(load_reward(out)(torch.zeros(3, 5), torch.zeros(3, dtype=torch.int64), torch.zeros(3, 5))).all()
+    assert last_json(evaluation)["episodes"] == 2
+
+
+def test_ctrl_c_during_tabular_train_irl_keeps_a_checkpoint_that_resume_finishes(tmp_path: Path) -> None:
+    out = tmp_path / "mce"
+    partial = tmp_path / "mce.partial"
+    env_id = "imitation/GridWorld8x8-v0"
+    # Tolerance 0: all 1000 iterations run (~1 ms each), a checkpoint every 100.
+    args = ["train", "irl", "--method", "mce", "--env", env_id, "--demos", str(DATASETS / "GridWorld8x8-v0.mcap"), "--iterations", "1000",
+            "--tolerance", "0", "--quiet", "--out", str(out)]
+    message = interrupt_after_first_checkpoint(*args, out=out)
+    assert message.startswith("interrupted: mce IRL stopped after iteration ") and f"of 1000; its checkpoint is in {partial}" in message
+    assert not out.exists() and partial.is_dir()
+    stopped_at = int(message.split("after iteration ")[1].split(" ")[0])
+
+    tensors, state = read_checkpoint(partial)
+    assert state["trainer"]["iteration"] == stopped_at + 1 and len(state["history"]) == stopped_at
+    reward = RewardNet(RewardConfig.from_json(json.loads((partial / "config.json").read_text())["reward"]))
+    reward.load_state_dict(unprefixed("reward", tensors))
+
+    other, resumed, evaluation = run_cli_many([
+        [*changed(args, "--iterations", "2000"), "--resume"], [*args, "--resume", "--json"],
+        ["eval", "reward", str(out), "--env", env_id, "--retrain-steps", "0", "--quiet", "--json"],
+    ])
+    assert_one_line_error(other, f"--resume: {partial} was started with other settings (irl.iterations: 1000 there, 2000 now)")
+    result = last_json(resumed)
+    assert result["iterations"] == 1000 and not partial.exists()
+    assert [row["iteration"] for row in progress_rows(out)] == [float(i) for i in range(1, 1001)]
+    assert "epic" in last_json(evaluation)

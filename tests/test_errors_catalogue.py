@@ -484,6 +484,8 @@ def _checkpoint_mismatch(prepare: list, name: str, trainer: dict) -> Callable[[I
 PREPARE_BC = ["train", "bc", "--demos", str(DATASETS / "CartPole-v1.mcap"), "--env", "CartPole-v1", "--epochs", "1", "--hidden", "8", "--quiet", "--out"]
 PREPARE_DAGGER = ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--rounds", "1", "--episodes-per-round", "1", "--epochs", "1",
                   "--hidden", "8", "--quiet", "--out"]
+PREPARE_IRL = ["train", "irl", "--method", "mce", "--env", "imitation/GridWorld8x8-v0", "--demos", str(DATASETS / "GridWorld8x8-v0.mcap"),
+               "--iterations", "2", "--quiet", "--out"]
 
 
 # Each case: the entries it triggers (the first is its name), a function building the argv, and
@@ -576,6 +578,7 @@ CASE_LIST = [
     case("irl-13", lambda i: ["train", "irl", "--method", "maxent", "--env", "imitation/GridWorld8x8Slippery-v0", "--demos", DATASETS / "GridWorld8x8Slippery-v0.mcap",
                               "--out", i.root / "i13"]),
     case("irl-14", _grid(_too_long)),
+    case("irl-21", _checkpoint_mismatch(PREPARE_IRL, "irl", {"iteration": 2})),
     # run directories
     case("run-1", lambda i: ["eval", "policy", i.root / "no-run", "--env", "CartPole-v1"]),
     case("run-2", lambda i: ["eval", "policy", i.folder("empty-run"), "--env", "CartPole-v1"]),
@@ -768,7 +771,7 @@ def _dict_demos(i: Inputs) -> Path:
 @pytest.fixture(scope="module")
 def results(tmp_path_factory) -> dict[str, object]:
     inputs = Inputs(tmp_path_factory.mktemp("errors"))
-    run_cli_many([PREPARE_BC + [inputs.root / "bc-done"], PREPARE_DAGGER + [inputs.root / "dagger-done"]])
+    run_cli_many([PREPARE_BC + [inputs.root / "bc-done"], PREPARE_DAGGER + [inputs.root / "dagger-done"], PREPARE_IRL + [inputs.root / "irl-done"]])
     runnable = [c for c in CASE_LIST if not (c.testdata and not TESTDATA.is_dir())]
     if torch.cuda.is_available():
         runnable = [c for c in runnable if "train-27" not in c.ids]

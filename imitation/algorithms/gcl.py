@@ -27,6 +27,9 @@ rate annealed to 0 so that PPO ends on a settled reward), demo steps weighted ag
 the current policy, and (3) r_θ is shifted to mean 0 over the demos and relabels the rollout,
 on which PPO then updates. A gradient penalty on r_θ's inputs keeps it smooth. The recovered
 r_θ is what `train ppo --reward` later optimises from scratch.
+
+The learner is `Checkpointable`: PPO's checkpoints hold r_θ, its Adam state, the pool, the
+minibatch generator's position and the logged rows, so an interrupted run resumes with them.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ import torch
 from torch import nn
 
 from imitation.algorithms.ppo import Rollout
+from imitation.checkpoints import CheckpointData, floats, optimizer_checkpoint, prefixed, restore_optimizer, unprefixed
 from imitation.data.loader import TransitionTensors
 from imitation.errors import ImitationError
 from imitation.policies import ActorCritic
@@ -127,6 +131,24 @@ class GuidedCostLearning:
         loss, demo_accuracy, sample_accuracy = np.mean(statistics, axis=0)
         self.history.append({"reward_loss": float(loss), "demo_accuracy": float(demo_accuracy), "sample_accuracy": float(sample_accuracy)})
         return relabel_rollout(self.reward, rollout)
+
+    def checkpoint(self) -> CheckpointData:
+        """Everything `restore` needs to go on as if never stopped (live tensors: PPO snapshots them)."""
+        optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")
+        tensors = prefixed("reward", self.reward.state_dict()) | optimizer_tensors | {"generator": self.generator.get_state()}
+        if self.pool is not None:
+            tensors |= prefixed("pool", vars(self.pool))
+        return tensors, {"optimizer": optimizer_state, "history": self.history}
+
+    def restore(self, checkpoint: CheckpointData) -> None:
+        """Continue from a `checkpoint()` (KeyError or RuntimeError when it is not one)."""
+        tensors, state = checkpoint
+        self.reward.load_state_dict(unprefixed("reward", tensors))
+        restore_optimizer(self.optimizer, tensors, state["optimizer"], "optimizer")
+        self.generator.set_state(tensors["generator"])
+        pool = unprefixed("pool", tensors)
+        self.pool = _Samples(**pool) if pool else None
+        self.history = [floats(row) for row in state["history"]]
 
     def _step(self, policy: ActorCritic, step: int, steps: int) -> tuple[float, float, float]:
         size = self.config.batch_size

@@ -22,6 +22,10 @@ is soft-optimal for r_θ. Each iteration computes D_θ in two passes:
 With H = None the MDP is infinite-horizon and discounted (γ < 1 is then required): V and π are
 stationary, found by iterating the backward step to a fixed point, and D_θ sums to 1/(1-γ).
 
+Learning runs Adam on r_θ's parameters; with `checkpoints` it saves them, Adam's state and the
+logged rows every tenth of the iterations and on Ctrl-C, and resumes from them exactly (nothing
+in an iteration is random).
+
 Large MDPs store their dynamics sparsely, as K successors per (s, a): gridworlds have K ≤ 3, so
 both passes cost O(S·A·K) per step instead of the O(S²·A) of a dense P; small ones use dense
 matrix products, which cost fewer numpy calls.
@@ -36,6 +40,10 @@ from typing import Callable, Iterable
 import numpy as np
 import torch
 
+from imitation.checkpoints import (
+    CheckpointData, Checkpointing, StopAtBoundary, TrainingInterrupted, floats, optimizer_checkpoint, prefixed, restore_optimizer, snapshot,
+    unprefixed,
+)
 from imitation.data.types import Episode, Transitions
 from imitation.envs.tabular import TabularMDP
 from imitation.errors import ImitationError
@@ -299,9 +307,14 @@ def train_maxent_irl(
     config: MaxEntIRLConfig,
     *,
     log: Callable[[dict[str, float]], None] | None = None,
+    checkpoints: Checkpointing | None = None,
 ) -> MaxEntIRLResult:
     """Gradient ascent on the demos' likelihood with Adam, until the learned visitation matches
-    D̃ to `tolerance` (L∞) or `iterations` run out."""
+    D̃ to `tolerance` (L∞) or `iterations` run out.
+
+    With `checkpoints`, a checkpoint is saved every tenth of the iterations (by default), Ctrl-C
+    stops after the current iteration with a checkpoint saved (TrainingInterrupted), and a run
+    given `checkpoints.resume` continues from one exactly as if it had not stopped."""
     config.validate()
     horizon = mdp.horizon
     _check_horizon(horizon, config.discount)
@@ -316,34 +329,68 @@ def train_maxent_irl(
     target = torch.as_tensor(demo_occupancy)
     history: list[dict[str, float]] = []
     started = time.perf_counter()
-    for iteration in range(1, config.iterations + 1):
-        rewards = all_state_rewards(reward_model, mdp.n_states).double()
-        if not torch.isfinite(rewards).all():
-            raise ImitationError(f"{config.method} IRL iteration {iteration}: the learned reward is not finite (diverged; try a lower --lr)")
-        with np.errstate(over="ignore", invalid="ignore"):  # overflow shows as a non-finite loss, checked below
-            policy, values = soft_value_iteration(
-                dynamics, rewards.detach().numpy(), horizon=horizon, discount=config.discount, method=config.method
-            )
-        occupancy = state_visitation(dynamics, mdp.initial, policy, horizon=horizon, discount=config.discount)
-        # Its gradient is Σ_s (D_θ(s) - D̃(s)) ∇r_θ(s) = -∇L(θ): descending it ascends the likelihood.
-        surrogate = (torch.as_tensor(occupancy) - target) @ rewards
-        optimizer.zero_grad(set_to_none=True)
-        surrogate.backward()
-        gradient_norm = float(torch.cat([p.grad.reshape(-1) for p in reward_model.parameters()]).norm())
-        error = float(np.abs(occupancy - demo_occupancy).max())
-        # The negative log-likelihood (dual): log Z = E_ρ₀[V_0] minus the demos' score μ̃ᵀr.
-        row = {
-            "iteration": float(iteration),
-            "loss": float(mdp.initial @ values - demo_occupancy @ rewards.detach().numpy()),
-            "occupancy_error": error,
-            "gradient_norm": gradient_norm,
-        }
-        if not (np.isfinite(row["loss"]) and np.isfinite(gradient_norm)):
-            raise ImitationError(f"{config.method} IRL iteration {iteration}: the loss is {row['loss']} (diverged; try a lower --lr)")
-        history.append(row)
-        if log is not None:
-            log(row)
-        if error <= config.tolerance:
-            break
-        optimizer.step()
+    first_iteration = 1
+    if checkpoints is not None and checkpoints.resume is not None:
+        first_iteration, elapsed = restore_irl_checkpoint(checkpoints.resume, reward_model=reward_model, optimizer=optimizer, history=history)
+        started -= elapsed
+    with StopAtBoundary(enabled=checkpoints is not None) as stop:
+        for iteration in range(first_iteration, config.iterations + 1):
+            rewards = all_state_rewards(reward_model, mdp.n_states).double()
+            if not torch.isfinite(rewards).all():
+                raise ImitationError(f"{config.method} IRL iteration {iteration}: the learned reward is not finite (diverged; try a lower --lr)")
+            with np.errstate(over="ignore", invalid="ignore"):  # overflow shows as a non-finite loss, checked below
+                policy, values = soft_value_iteration(
+                    dynamics, rewards.detach().numpy(), horizon=horizon, discount=config.discount, method=config.method
+                )
+            occupancy = state_visitation(dynamics, mdp.initial, policy, horizon=horizon, discount=config.discount)
+            # Its gradient is Σ_s (D_θ(s) - D̃(s)) ∇r_θ(s) = -∇L(θ): descending it ascends the likelihood.
+            surrogate = (torch.as_tensor(occupancy) - target) @ rewards
+            optimizer.zero_grad(set_to_none=True)
+            surrogate.backward()
+            gradient_norm = float(torch.cat([p.grad.reshape(-1) for p in reward_model.parameters()]).norm())
+            error = float(np.abs(occupancy - demo_occupancy).max())
+            # The negative log-likelihood (dual): log Z = E_ρ₀[V_0] minus the demos' score μ̃ᵀr.
+            row = {
+                "iteration": float(iteration),
+                "loss": float(mdp.initial @ values - demo_occupancy @ rewards.detach().numpy()),
+                "occupancy_error": error,
+                "gradient_norm": gradient_norm,
+            }
+            if not (np.isfinite(row["loss"]) and np.isfinite(gradient_norm)):
+                raise ImitationError(f"{config.method} IRL iteration {iteration}: the loss is {row['loss']} (diverged; try a lower --lr)")
+            history.append(row)
+            if log is not None:
+                log(row)
+            if error <= config.tolerance:
+                break
+            optimizer.step()
+            # A checkpoint every tenth of the iterations; Ctrl-C stops here (a finished run just finishes).
+            interrupted = stop.requested and iteration < config.iterations
+            if checkpoints is not None and (interrupted or (iteration % checkpoints.interval(config.iterations) == 0 and iteration < config.iterations)):
+                checkpoints.save(*irl_checkpoint(iteration + 1, time.perf_counter() - started, reward_model=reward_model, optimizer=optimizer, history=history))
+            if interrupted:
+                raise TrainingInterrupted(f"{config.method} IRL stopped after iteration {iteration} of {config.iterations}")
     return MaxEntIRLResult(reward_model=reward_model, policy=policy, occupancy=occupancy, history=history, seconds=time.perf_counter() - started)
+
+
+def irl_checkpoint(
+    next_iteration: int, seconds: float, *, reward_model: RewardNet, optimizer: torch.optim.Optimizer, history: list[dict[str, float]]
+) -> CheckpointData:
+    """Everything `restore_irl_checkpoint` needs to continue at `next_iteration`: r_θ, Adam's state, the logged rows."""
+    optimizer_tensors, optimizer_state = optimizer_checkpoint(optimizer, "optimizer")
+    tensors = prefixed("reward", reward_model.state_dict()) | optimizer_tensors
+    return snapshot(tensors, {"iteration": next_iteration, "seconds": seconds, "optimizer": optimizer_state, "history": history})
+
+
+def restore_irl_checkpoint(
+    checkpoint: CheckpointData, *, reward_model: RewardNet, optimizer: torch.optim.Optimizer, history: list[dict[str, float]]
+) -> tuple[int, float]:
+    """Load an `irl_checkpoint` (history is filled in place); returns (next iteration, seconds trained so far)."""
+    tensors, state = checkpoint
+    try:
+        reward_model.load_state_dict(unprefixed("reward", tensors))
+        restore_optimizer(optimizer, tensors, state["optimizer"], "optimizer")
+        history += [floats(row) for row in state["history"]]
+        return int(state["iteration"]), float(state["seconds"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as error:
+        raise ImitationError(f"the checkpoint does not fit this tabular IRL run ({type(error).__name__}: {str(error).splitlines()[0]})") from None

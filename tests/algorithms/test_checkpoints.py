@@ -1,6 +1,7 @@
-"""Checkpoints hold the whole training state: BC and DAgger resumed from one end bit for bit where
-an uninterrupted run ends; PPO's round trip restores networks, optimiser, normalisers and random
-generators exactly; Ctrl-C stops at an update boundary with a checkpoint saved.
+"""Checkpoints hold the whole training state: BC, DAgger and tabular IRL resumed from one end bit
+for bit where an uninterrupted run ends; PPO's round trip restores networks, optimiser,
+normalisers and random generators exactly, and GCL's reward learner, saved in PPO's checkpoint,
+goes on exactly as the original would; Ctrl-C stops at an update boundary with a checkpoint saved.
 (PPO itself does not resume bit for bit: its environments start new episodes.)"""
 
 from __future__ import annotations
@@ -16,15 +17,21 @@ import pytest
 import torch
 from support import DATASETS
 
+import imitation.envs  # noqa: F401  (registers the ids)
 from imitation.algorithms.bc import BCConfig, policy_options, train_bc
 from imitation.algorithms.dagger import DAggerConfig, train_dagger
-from imitation.algorithms.ppo import PPOConfig, RewardScaler, ppo_checkpoint, restore_ppo_checkpoint, train_ppo
+from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning
+from imitation.algorithms.maxent_irl import Dynamics, MaxEntIRLConfig, state_visitation, train_maxent_irl
+from imitation.algorithms.ppo import PPOConfig, Rollout, RewardScaler, ppo_checkpoint, ppo_defaults, restore_ppo_checkpoint, train_ppo
 from imitation.checkpoints import Checkpointing, TrainingInterrupted, snapshot
 from imitation.data.loader import load_transitions, transitions_to_torch
 from imitation.data.store import DemoFile
+from imitation.envs.tabular import gridworld
 from imitation.errors import ImitationError
 from imitation.experts.scripted import cartpole
+from imitation.experts.tabular import soft_optimal_policy
 from imitation.policies import make_policy
+from imitation.rewards import make_reward_model
 from imitation.runs import read_checkpoint, save_checkpoint
 
 CONFIG = BCConfig(epochs=12, patience=12, batch_size=128, hidden_sizes=[16], seed=4, device="cpu")
@@ -158,3 +165,92 @@ def test_dagger_resumed_from_a_ctrl_c_checkpoint_ends_exactly_where_an_uninterru
         assert torch.equal(resumed.policy.state_dict()[name], tensor), name
     with pytest.raises(ImitationError, match="the checkpoint does not fit this DAgger run"):
         run("other", checkpoints=Checkpointing(save=lambda *a: None, resume=({}, {})))
+
+
+def test_tabular_irl_resumed_from_a_ctrl_c_checkpoint_ends_exactly_where_an_uninterrupted_run_does(tmp_path: Path) -> None:
+    mdp = gridworld()
+    target = state_visitation(Dynamics.of(mdp.transition), mdp.initial, soft_optimal_policy(mdp), horizon=mdp.horizon, discount=1.0)
+    config = MaxEntIRLConfig(iterations=30, tolerance=0.0, hidden_sizes=[8])
+
+    def model():
+        torch.manual_seed(0)
+        return make_reward_model(gym.spaces.Discrete(mdp.n_states), gym.spaces.Discrete(mdp.n_actions), feature_table=mdp.features, hidden_sizes=[8])
+
+    whole = train_maxent_irl(mdp, target, model(), config)
+    saved = []
+
+    def log(row) -> None:
+        if row["iteration"] == 7:
+            press_ctrl_c()
+
+    with pytest.raises(TrainingInterrupted, match="mce IRL stopped after iteration 7 of 30"):
+        train_maxent_irl(mdp, target, model(), config, log=log, checkpoints=Checkpointing(save=lambda *c: saved.append(through_files(tmp_path, c)), every=5))
+    assert [state["iteration"] for _, state in saved] == [6, 8], "every 5 iterations, and at the interruption"
+    resumed = train_maxent_irl(mdp, target, model(), config, checkpoints=Checkpointing(save=lambda *a: None, resume=saved[-1]))
+    assert [row["iteration"] for row in resumed.history] == list(range(1, 31))
+    assert [row["loss"] for row in resumed.history] == [row["loss"] for row in whole.history]
+    for name, tensor in whole.reward_model.state_dict().items():
+        assert torch.equal(resumed.reward_model.state_dict()[name], tensor), name
+    with pytest.raises(ImitationError, match="the checkpoint does not fit this tabular IRL run"):
+        train_maxent_irl(mdp, target, model(), config, checkpoints=Checkpointing(save=lambda *a: None, resume=({}, {})))
+
+
+GCL_ENV = "imitation/CartPoleFixedHorizon-v0"
+
+
+def gcl_learner(seed: int, updates: int = 3) -> GuidedCostLearning:
+    env = gym.make(GCL_ENV)
+    demos = transitions_to_torch(load_transitions(DATASETS / "CartPoleFixedHorizon-v0.mcap", next_observations=True))
+    torch.manual_seed(seed)
+    reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[16], normalize_observations=True)
+    return GuidedCostLearning(reward, demos, GCLConfig(warmup_steps=20, reward_steps=4, batch_size=64), updates=updates)
+
+
+def demo_rollout(start: int) -> Rollout:
+    """64 demo steps shaped as a rollout of 32 steps × 2 envs (fresh tensors, as PPO's are not)."""
+    demos = transitions_to_torch(load_transitions(DATASETS / "CartPoleFixedHorizon-v0.mcap", next_observations=True))
+    rows = slice(start, start + 64)
+
+    def shaped(tensor: torch.Tensor) -> torch.Tensor:
+        return tensor[rows].reshape(32, 2, *tensor.shape[1:]).clone()
+
+    return Rollout(
+        observations=shaped(demos.observations), actions=shaped(demos.actions), env_actions=shaped(demos.actions),
+        next_observations=shaped(demos.next_observations), log_probs=torch.full((32, 2), -0.7), env_rewards=torch.zeros(32, 2),
+        terminated=torch.zeros(32, 2, dtype=torch.bool), truncated=torch.zeros(32, 2, dtype=torch.bool),
+    )
+
+
+def test_gcl_learner_restored_from_its_checkpoint_goes_on_exactly_as_the_original(tmp_path: Path) -> None:
+    torch.set_num_threads(1)
+    env = gym.make(GCL_ENV)
+    policy = make_policy(env.observation_space, env.action_space)
+    original = gcl_learner(seed=0)
+    original(demo_rollout(0), policy)
+    tensors, state = through_files(tmp_path, original.checkpoint())
+    copy = gcl_learner(seed=1)  # other initial weights: the checkpoint must set them
+    copy.restore((tensors, state))
+    assert torch.equal(copy(demo_rollout(64), policy), original(demo_rollout(64), policy))
+    for name, tensor in original.reward.state_dict().items():
+        assert torch.equal(copy.reward.state_dict()[name], tensor), name
+    assert torch.equal(copy.pool.observations, original.pool.observations) and len(copy.pool.log_probs) == 128
+    assert torch.equal(copy.generator.get_state(), original.generator.get_state())
+    assert copy.history == original.history and len(copy.history) == 2
+    for mine, theirs in zip(original.optimizer.state.values(), copy.optimizer.state.values()):
+        assert all(torch.equal(mine[key], theirs[key]) for key in mine)
+
+
+def test_gcl_learner_rides_in_ppo_checkpoints_and_resumes_with_them() -> None:
+    config = PPOConfig(env_id=GCL_ENV, total_steps=4 * 256, **ppo_defaults(GCL_ENV) | {"device": "cpu"})
+    saved = []
+    train_ppo(config, rollout_rewards=gcl_learner(seed=0, updates=4), progress=False,
+              checkpoints=Checkpointing(save=lambda tensors, state: saved.append((tensors, state)), every=2))
+    tensors, state = saved[0]
+    assert state["update"] == 2 and len(state["learner"]["history"]) == 2 and tensors["learner.pool.log_probs"].shape == (512,)
+    resumed = gcl_learner(seed=1, updates=4)
+    train_ppo(config, rollout_rewards=resumed, progress=False, checkpoints=Checkpointing(save=lambda *a: None, resume=saved[0]))
+    assert len(resumed.history) == 4 and resumed.history[:2] == state["learner"]["history"]
+    assert len(resumed.pool.log_probs) == 4 * 256, "the pool kept the rollouts from before the interruption"
+    with pytest.raises(ImitationError, match="the checkpoint does not fit this PPO run"):
+        train_ppo(config, rollout_rewards=gcl_learner(seed=1), progress=False,
+                  checkpoints=Checkpointing(save=lambda *a: None, resume=(tensors, {k: v for k, v in state.items() if k != "learner"})))
