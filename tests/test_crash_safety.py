@@ -1,7 +1,8 @@
 """Crash safety of real processes: Ctrl-C during `train ppo`, `train bc`, `train dagger` and
 `train irl` (gcl, and tabular mce) keeps the last checkpoint, which loads, which `--resume` with
 other settings refuses and which `--resume` continues to the requested total; `kill -9` during
-DAgger leaves every finished round readable and nothing under a final name that is not whole.
+DAgger leaves every finished round readable, and during `convert` every episode of the partial
+file's complete chunks, with nothing under a final name that is not whole.
 (`kill -9` and Ctrl-C during `record`: tests/data/test_recorder.py.)"""
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from support import DATASETS, REPO, run_cli_many
 from test_cli import assert_one_line_error, last_json
 
 from imitation.checkpoints import unprefixed
+from imitation.data.convert.npz import npz_to_episodes
 from imitation.data.store import DemoFile
 from imitation.policies import ActorCritic, PolicyConfig
 from imitation.rewards import RewardConfig, RewardNet, load_reward
@@ -260,3 +262,33 @@ def test_ctrl_c_during_tabular_train_irl_keeps_a_checkpoint_that_resume_finishes
     assert result["iterations"] == 1000 and not partial.exists()
     assert [row["iteration"] for row in progress_rows(out)] == [float(i) for i in range(1, 1001)]
     assert "epic" in last_json(evaluation)
+
+
+def test_kill_9_during_convert_leaves_no_final_file_and_a_partial_one_whose_complete_episodes_read_back(tmp_path: Path) -> None:
+    # 30,000 short episodes: writing them takes seconds, and the writer flushes a chunk every ~1 MB.
+    episodes, length = 30_000, 10
+    rows = episodes * length
+    rng = np.random.default_rng(0)
+    source = tmp_path / "rollouts.npz"
+    np.savez(source, obs=rng.normal(size=(rows, 4)).astype(np.float32), actions=rng.integers(0, 2, (rows, 1)), rewards=rng.normal(size=rows),
+             episode_starts=np.arange(rows) % length == 0)
+    out = tmp_path / "converted.mcap"
+    partial = tmp_path / "converted.mcap.partial"
+    process = start("convert", str(source), "--out", str(out), "--quiet")
+    try:
+        deadline = time.monotonic() + 120
+        while not (partial.exists() and partial.stat().st_size > 2_000_000):  # past the first chunks
+            assert process.poll() is None, f"convert ended before it was killed: {process.communicate()[1][-2000:]}"
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+    finally:
+        os.kill(process.pid, signal.SIGKILL)
+        process.wait()
+    assert not out.exists(), "the final name appears only for a finished file"
+    demo = DemoFile(partial, salvage=True, verify=True)
+    assert demo.damage is not None and 0 < len(demo) < episodes
+    expected = npz_to_episodes(source).episodes
+    for k, episode in enumerate(demo):
+        np.testing.assert_array_equal(episode.observations, expected[k].observations)
+        np.testing.assert_array_equal(episode.actions, expected[k].actions)
+        np.testing.assert_array_equal(episode.rewards, expected[k].rewards)
