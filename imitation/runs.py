@@ -12,7 +12,8 @@ A run is written under `RUN_DIR.partial` and renamed to RUN_DIR only when it is 
 existing RUN_DIR is replaced at that moment, not before, so an interrupted or failed run never
 destroys the previous one.
 
-Trainers that can resume (PPO, BC) save a checkpoint into `RUN_DIR.partial/checkpoint/`
+Trainers that can resume (PPO, with GCL's reward learner when `train irl --method gcl` runs it;
+BC; DAgger; tabular MaxEnt/MCE IRL) save a checkpoint into `RUN_DIR.partial/checkpoint/`
 (`tensors.safetensors` and `state.json`, see imitation.checkpoints) every tenth of the run and
 when Ctrl-C stops them. An interrupted run's partial directory is kept when it holds a
 checkpoint (a failed one is removed), and `RunWriter(..., resume=True)` reopens it: the logged
