@@ -8,7 +8,6 @@ import base64
 import builtins
 import io
 import json
-import os
 import pickle
 import zipfile
 from pathlib import Path

@@ -30,7 +30,6 @@ import contextlib
 import io
 import json
 import math
-import os
 import random
 import resource
 import shutil
@@ -252,7 +251,7 @@ def rewrite_mcap(data: bytes, rng: random.Random) -> bytes:
     """Read every record and write the file again through python-mcap's Writer with 1-3 semantic
     edits: the result has valid structure, chunk CRCs and summary, so it reaches the checks on
     what the records say (spaces, dtypes, shapes, episode facts, log times, schemas)."""
-    from mcap.records import Channel, Footer, Header, Message, Metadata, Schema
+    from mcap.records import Channel, Header, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
     from mcap.writer import CompressionType, Writer
 

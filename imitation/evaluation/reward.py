@@ -296,6 +296,6 @@ def reward_report(results: dict[str, Any], *, heading: str = "#", image_prefix: 
         "",
     ]
     if retrain.get("seed_returns"):
-        lines += [f"Recovered reward, per seed: " + ", ".join(f"seed {s}: {r:.1f} ({n:.2f})" for s, r, n in zip(retrain["seeds"], retrain["seed_returns"], retrain["seed_normalized"])), ""]
+        lines += ["Recovered reward, per seed: " + ", ".join(f"seed {s}: {r:.1f} ({n:.2f})" for s, r, n in zip(retrain["seeds"], retrain["seed_returns"], retrain["seed_normalized"])), ""]
     lines += [f"![{name}]({image_prefix}{file})" for name, file in results["plots"].items()]
     return "\n".join(lines) + "\n"
