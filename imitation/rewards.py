@@ -159,9 +159,11 @@ def flat_batch(tensor: torch.Tensor, leading_dims: int) -> torch.Tensor:
 def relabel_rollout(model: RewardNet, rollout: Rollout) -> torch.Tensor:
     """r_φ(s_t, a_t, s_{t+1}) for every step of a PPO rollout, shape (T, n_envs)."""
     steps, n_envs = rollout.env_rewards.shape
+    device = next(model.parameters()).device
+    inputs = (flat_batch(getattr(rollout, name), 2).to(device) for name in ("observations", "env_actions", "next_observations"))
     with torch.no_grad():
-        rewards = model(flat_batch(rollout.observations, 2), flat_batch(rollout.env_actions, 2), flat_batch(rollout.next_observations, 2))
-    return rewards.reshape(steps, n_envs)
+        rewards = model(*inputs)
+    return rewards.reshape(steps, n_envs).to(rollout.env_rewards.device)
 
 
 def reward_tensors(model: RewardNet) -> dict[str, torch.Tensor]:
