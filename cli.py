@@ -264,7 +264,7 @@ def _train_gcl(args: argparse.Namespace) -> int:
         _print_json(result)
     else:
         evaluation = result["eval"]
-        print(f"GCL on {args.env}: {result['steps']} PPO steps in {result['seconds']:.0f} s; the policy trained alongside earns "
+        print(f"GCL on {args.env}: {result['steps']} PPO steps in {result['seconds']:.0f} s; the maximum-entropy sampler trained alongside (not for use) earns "
               f"{evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f} (demos {result['demo_return']:.1f}); "
               f"reward model for `train ppo --reward`: {result['run']}")
     return 0

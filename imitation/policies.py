@@ -201,6 +201,20 @@ class ActorCritic(nn.Module):
             return distribution.log_prob(actions.reshape(actions.shape[0], -1)).sum(-1)
         return distribution.log_prob(actions.long().reshape(-1))
 
+    def env_action_log_prob(self, distribution: Distribution, env_actions: torch.Tensor) -> torch.Tensor:
+        """log π of the action the env received. Box actions are clipped to the bounds, so the
+        Gaussian N(μ, σ) puts a probability mass Φ((low − μ)/σ) on `low` itself (1 − Φ((high − μ)/σ)
+        on `high`): at a bound the log of that mass stands in for the log-density (a censored
+        Gaussian), which is what makes saturated actions, e.g. a demo's full torque, comparable."""
+        if not self.is_continuous:
+            return self.log_prob(distribution, self.from_env_action(env_actions))
+        actions = env_actions.reshape(env_actions.shape[0], -1).float()
+        assert isinstance(distribution, Normal)
+        below = torch.special.log_ndtr((self.action_low - distribution.mean) / distribution.stddev)
+        above = torch.special.log_ndtr((distribution.mean - self.action_high) / distribution.stddev)
+        log_probs = torch.where(actions <= self.action_low, below, torch.where(actions >= self.action_high, above, distribution.log_prob(actions)))
+        return log_probs.sum(-1)
+
     def entropy(self, distribution: Distribution) -> torch.Tensor:
         """H[π(·|s)]; for the Gaussian, the sum over action dimensions."""
         entropy = distribution.entropy()

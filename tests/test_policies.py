@@ -50,6 +50,28 @@ def test_gaussian_env_actions_are_clipped_to_the_bounds() -> None:
     assert env_actions.dtype == np.float32 and env_actions[:, 0].tolist() == [-2.0, 0.5, 1.0]
 
 
+def test_env_action_log_prob_is_the_censored_gaussian_at_the_bounds_and_the_density_inside() -> None:
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, gym.spaces.Box(np.array([-2.0, -1.0]), np.array([2.0, 1.0]), dtype=np.float32), hidden_sizes=[8], log_std_init=-0.5)
+    features = torch.randn(3, 4)
+    distribution = policy.distribution(features)
+    mean, sigma = distribution.mean, distribution.stddev
+    actions = torch.tensor([[2.0, 0.3], [-2.0, -1.0], [0.5, 1.0]])
+    normal = torch.distributions.Normal(mean, sigma)
+    expected = torch.stack([
+        torch.log(1 - normal.cdf(torch.tensor([2.0, 1.0])))[0, 0] + normal.log_prob(actions)[0, 1],  # high bound: P(a ≥ 2)
+        torch.log(normal.cdf(torch.tensor([-2.0, -1.0])))[1].sum(),  # both at the low bound: P(a ≤ low)
+        normal.log_prob(actions)[2, 0] + torch.log(1 - normal.cdf(torch.tensor([2.0, 1.0])))[2, 1],
+    ])
+    assert torch.allclose(policy.env_action_log_prob(distribution, actions), expected, atol=1e-5)
+    # Inside the bounds it is the policy's own log-density.
+    inside = torch.tensor([[0.1, -0.2], [1.9, 0.99], [-1.5, 0.0]])
+    assert torch.allclose(policy.env_action_log_prob(distribution, inside), policy.log_prob(distribution, inside))
+    discrete = make_policy(BOX4, gym.spaces.Discrete(3, start=1), hidden_sizes=[8])
+    categorical = discrete.distribution(features)
+    assert torch.allclose(discrete.env_action_log_prob(categorical, torch.tensor([1, 3, 2])), discrete.log_prob(categorical, torch.tensor([0, 2, 1])))
+
+
 def test_discrete_observations_are_one_hot() -> None:
     policy = make_policy(gym.spaces.Discrete(5, start=1), gym.spaces.Discrete(2))
     assert policy.encode(torch.tensor([1, 5])).tolist() == [[1, 0, 0, 0, 0], [0, 0, 0, 0, 1]]

@@ -44,7 +44,8 @@ def test_reward_learns_to_rate_demo_states_above_policy_states(objective: str) -
     assert on_demos.mean().item() == pytest.approx(0.0, abs=1e-4)  # centred on the demos
     failed = rollout.observations.reshape(-1, 5)[:, 4] == 1.0
     assert failed.any() and on_failures[failed].mean() < on_demos.mean() - 0.5
-    assert torch.allclose(rewards.reshape(-1), on_failures)  # the rollout is relabelled with the updated reward
+    # PPO optimises the updated reward with the entropy term: r_θ(s) - α log π_k(a|s), α = 1.
+    assert torch.allclose(rewards.reshape(-1), on_failures - rollout.log_probs.reshape(-1), atol=1e-5)
 
 
 def test_observation_scale_is_the_space_range_where_finite_else_the_widest_spread() -> None:
@@ -78,3 +79,20 @@ def test_the_pool_keeps_each_rollout_although_ppo_refills_its_buffers_in_place()
     buffers.observations.fill_(7.0)  # the next rollout, written into the same buffers
     learner(buffers, policy)
     assert torch.equal(learner.pool.observations[:steps], first) and (learner.pool.observations[steps:] == 7.0).all()
+
+
+def test_centring_the_reward_on_the_demos_leaves_the_discriminator_unchanged() -> None:
+    """r_θ's mean over the demos is set to 0 after each update; log Z moves with it, so the
+    classifier the loss fitted is the same before and after."""
+    env = gym.make(ENV_ID)
+    demos = transitions_to_torch(load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True))
+    torch.manual_seed(0)
+    reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[16], normalize_observations=True)
+    learner = GuidedCostLearning(reward, demos, GCLConfig(), updates=1)
+    with torch.no_grad():
+        reward.net[-1].bias += 3.0
+        before = reward(demos.observations, demos.actions, demos.next_observations) - learner.log_partition
+        learner._center_on_demos()
+        after = reward(demos.observations, demos.actions, demos.next_observations) - learner.log_partition
+    assert reward(demos.observations, demos.actions, demos.next_observations).mean().item() == pytest.approx(0.0, abs=1e-5)
+    assert torch.allclose(before, after, atol=1e-5)
