@@ -361,7 +361,9 @@ def train_maxent_irl(
             history.append(row)
             if log is not None:
                 log(row)
-            if error <= config.tolerance:
+            # The last iteration takes no step, so the reward returned is the one the policy,
+            # occupancy and row above were computed for.
+            if error <= config.tolerance or iteration == config.iterations:
                 break
             optimizer.step()
             # A checkpoint every tenth of the iterations; Ctrl-C stops here (a finished run just finishes).
