@@ -1,8 +1,9 @@
 """Crash safety of real processes: Ctrl-C during `train ppo`, `train bc`, `train dagger` and
 `train irl` (gcl, and tabular mce) keeps the last checkpoint, which loads, which `--resume` with
 other settings refuses and which `--resume` continues to the requested total; `kill -9` during
-DAgger leaves every finished round readable, and during `convert` every episode of the partial
-file's complete chunks, with nothing under a final name that is not whole.
+DAgger leaves every finished round readable, and during `convert` every finished episode (each is
+flushed as its own chunk; tests/data/test_store.py checks that episode by episode), with nothing
+under a final name that is not whole.
 (`kill -9` and Ctrl-C during `record`: tests/data/test_recorder.py.)"""
 
 from __future__ import annotations
@@ -265,7 +266,7 @@ def test_ctrl_c_during_tabular_train_irl_keeps_a_checkpoint_that_resume_finishes
 
 
 def test_kill_9_during_convert_leaves_no_final_file_and_a_partial_one_whose_complete_episodes_read_back(tmp_path: Path) -> None:
-    # 30,000 short episodes: writing them takes seconds, and the writer flushes a chunk every ~1 MB.
+    # 30,000 short episodes: writing them takes seconds, each flushed as its own chunk.
     episodes, length = 30_000, 10
     rows = episodes * length
     rng = np.random.default_rng(0)

@@ -15,8 +15,9 @@ The format is specified in docs/FORMAT.md. In short:
 - On close, an `imitation.episodes` Metadata record repeats every episode's facts, so `info` and
   random access need only the summary and two small records.
 
-Crash safety: with `durable=True` the writer closes the MCAP chunk after each episode and flushes
-it to disk, so a killed process leaves a file whose complete chunks hold every finished episode.
+Crash safety: with `flush_episodes=True` the writer closes the MCAP chunk after each episode and
+hands it to the operating system, so a killed process leaves a file whose complete chunks hold
+every finished episode; `durable=True` also fsyncs it, so that a power cut does too.
 `DemoFile(..., salvage=True)` scans such a file record by record and recovers them.
 """
 
@@ -224,8 +225,10 @@ class DemoWriter:
     never holds a half-written file. Used as a context manager, a KeyboardInterrupt still closes
     the file properly (finished episodes are kept); any other exception discards it.
 
-    With `durable=True` every episode is flushed (and fsync'd) as its own chunk as soon as it is
-    written, so if the process is killed, `<path>.partial` holds every finished episode.
+    With `flush_episodes=True` every episode is flushed as its own chunk as soon as it is written,
+    so if the process is killed, `<path>.partial` holds every finished episode; `durable=True`
+    also fsyncs it (power cuts too; measured on 10-step episodes, per-episode chunks cost 1.9× the
+    time and 1.7× the size, the fsync 4× the time again; on 500-step episodes the size grows 3 %).
 
     NaN and ±inf in float observations, actions or rewards are refused where they enter, with the
     episode and step named; `finite_only=False` stores them as they are (bit-exact round trips of
@@ -243,6 +246,7 @@ class DemoWriter:
         source: str = "",
         metadata: dict[str, Any] | None = None,
         block_steps: int = DEFAULT_BLOCK_STEPS,
+        flush_episodes: bool = False,
         durable: bool = False,
         chunk_size: int = 1024 * 1024,
         compression: str = "zstd",
@@ -256,6 +260,7 @@ class DemoWriter:
         self._fields = _fields_for(observation_space, action_space)
         self._block_steps = block_steps
         self._durable = durable
+        self._flush_episodes = flush_episodes or durable
         if compression not in COMPRESSIONS:
             raise ImitationError(f"compression must be one of {', '.join(COMPRESSIONS)}, got {compression!r}")
         if dt is not None and not dt > 0:
@@ -356,8 +361,9 @@ class DemoWriter:
         self._add(EPISODE_TOPIC, facts.t_end_ns, to_json_text(facts.to_json()).encode())
         self._facts.append(facts)
         self._next_time_ns = facts.t_end_ns + self._dt_ns
-        if self._durable:
+        if self._flush_episodes:
             self._writer.flush()
+        if self._durable:
             os.fsync(self._file.fileno())
         return facts
 

@@ -78,6 +78,20 @@ def test_random_access_reads_only_the_chunks_of_that_episode(tmp_path, monkeypat
         demo[40]
 
 
+def test_flushed_episodes_are_readable_from_the_partial_file_while_the_writer_is_still_open(tmp_path) -> None:
+    """What a `kill -9` would leave: every episode `write` returned for is in `<path>.partial`."""
+    episodes = [random_episode(BOX4, DISCRETE2, 20, seed=i) for i in range(7)]
+    writer = DemoWriter(tmp_path / "f.mcap", env_id="Test-v0", observation_space=BOX4, action_space=DISCRETE2, flush_episodes=True, finite_only=False)
+    try:
+        for count, episode in enumerate(episodes, start=1):
+            writer.write(episode)
+            salvaged = DemoFile(writer.partial_path, salvage=True)
+            assert len(salvaged) == count
+            assert_episodes_equal(salvaged[count - 1], episode)
+    finally:
+        writer.close()
+
+
 def test_iteration_is_lazy(tmp_path, monkeypatch) -> None:
     import imitation.data.store as store
 

@@ -99,7 +99,9 @@ def fit_to_env(converted: Converted, env_id: str) -> Converted:
 
 
 def write_converted(converted: Converted, out: str | Path, *, progress: bool = True) -> dict[str, Any]:
-    """Write the episodes to demo file `out` (atomically) and describe what was written."""
+    """Write the episodes to demo file `out` (atomically) and describe what was written. Each
+    episode is flushed as it is written, so a killed conversion leaves every finished one in
+    `out`.partial, readable with `DemoFile(..., salvage=True)`."""
     out = Path(out)
     if out.is_dir():
         raise ImitationError(f"--out {out}: is a directory; give a file name such as {out / 'demos.mcap'}")
@@ -107,7 +109,7 @@ def write_converted(converted: Converted, out: str | Path, *, progress: bool = T
         raise ImitationError(f"{converted.source}: no episode to write")
     writer = DemoWriter(
         out, env_id=converted.env_id, observation_space=converted.observation_space, action_space=converted.action_space,
-        dt=converted.dt, source=converted.source, metadata=converted.metadata,
+        dt=converted.dt, source=converted.source, metadata=converted.metadata, flush_episodes=True,
     )
     with writer:
         for episode in _bar(converted.episodes, progress):
