@@ -13,6 +13,7 @@ from support import TURTLE_MAP, write_map
 
 from imitation.data.convert.job import convert, inspect
 from imitation.data.store import DemoFile
+from imitation.errors import ImitationError
 
 
 
@@ -167,3 +168,33 @@ def test_rosbag2_sqlite_imu_and_pose_to_battery_voltage(testdata: Path, tmp_path
     assert 0.9 * 62.5 * 25 < demo.num_transitions <= 62.6 * 25  # 62.6 s of 25 Hz messages
     voltages = np.concatenate([e.actions[:, 0] for e in demo])
     assert np.all(np.isfinite(voltages)) and voltages.std() > 0
+
+
+def test_a_message_stamped_beyond_what_a_timestamp_holds_is_one_line(testdata: Path, tmp_path: Path) -> None:
+    """A damaged log time (here 2^63 + 5 ns, which MCAP's u64 allows) is refused by name, not
+    an overflow deep in numpy (found by tools/fuzz.py)."""
+    import shutil
+
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    source = testdata / "ros2/rosbag2parquet/array_msgs"
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    shutil.copy(source / "metadata.yaml", bag / "metadata.yaml")
+    with open(source / "array_msgs_0.mcap", "rb") as stream, open(bag / "array_msgs_0.mcap", "wb") as out:
+        writer, schemas, channels = Writer(out), {}, {}
+        writer.start(profile="ros2", library="test")
+        for schema, channel, message in make_reader(stream).iter_messages(log_time_order=True):
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding, schemas[schema.id], channel.metadata)
+            late = channel.topic == "/one_shot/imu"
+            writer.add_message(channels[channel.id], 2**63 + 5 if late else message.log_time, message.data, message.publish_time)
+        writer.finish()
+    arrays = {"rate_hz": 10, "observation": [{"topic": "/one_shot/joint_state", "fields": ["position"]}],
+              "action": [{"topic": "/one_shot/imu", "fields": ["linear_acceleration.z"]}]}
+    with pytest.raises(ImitationError, match=r"a message on /one_shot/imu is stamped 9223372036854775813 ns, outside what a timestamp can hold"):
+        convert(bag, tmp_path / "out.mcap", map_path=write_map(tmp_path, arrays), progress=False)
+    assert not (tmp_path / "out.mcap").exists()

@@ -68,6 +68,8 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
         for topic, log_ns, message in bag.messages(sorted(wanted)):
             bar.update()
             time_ns = _time_of(message, log_ns, recording_map, topic)
+            if not 0 <= time_ns < 2**63:
+                raise ImitationError(f"{bag.path}: a message on {topic} is stamped {time_ns} ns, outside what a timestamp can hold (a damaged bag?)")
             if topic == marker_topic:
                 markers.append(time_ns)
             for column in by_topic.get(topic, []):
