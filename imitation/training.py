@@ -22,7 +22,7 @@ from imitation.algorithms.maxent_irl import (
     MaxEntIRLConfig, Dynamics, all_state_rewards, demo_visitation, expected_return, train_maxent_irl,
 )
 from imitation.algorithms.ppo import PPOConfig, Rollout, train_ppo
-from imitation.checkpoints import Checkpointing, TrainingInterrupted
+from imitation.checkpoints import Checkpointing, TrainingInterrupted, prefixed
 from imitation.data.loader import TransitionTensors, check_episodes_finite, load_transitions, split_episode_tails, split_episodes, transitions_to_torch
 from imitation.data.spaces import check_spaces_fit
 from imitation.data.store import DemoDataset
@@ -203,7 +203,7 @@ def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True,
         result = train_ppo(config, rollout_rewards=rollout_rewards, log=run.log, progress=progress, checkpoints=checkpoints)
         tensors = policy_tensors(result.policy)
         if result.reward_scaler is not None:
-            tensors |= {f"reward_scaler.{name}": t for name, t in result.reward_scaler.stats.state_dict().items()}
+            tensors |= prefixed("reward_scaler", result.reward_scaler.stats.state_dict())
         run.save_weights(tensors)
         run.update_config(policy=result.policy.config.to_json())
         ys = ["return"] + (["optimised_return"] if config.reward_run else [])

@@ -25,8 +25,8 @@ import torch
 from tqdm import tqdm
 
 from imitation.checkpoints import (
-    CheckpointData, Checkpointing, StopAtBoundary, TrainingInterrupted, floats, optimizer_checkpoint, restore_optimizer, restore_rng,
-    rng_checkpoint, snapshot,
+    CheckpointData, Checkpointing, StopAtBoundary, TrainingInterrupted, floats, optimizer_checkpoint, prefixed, restore_optimizer,
+    restore_rng, rng_checkpoint, snapshot, unprefixed,
 )
 from imitation.data.loader import MinibatchLoader, TransitionTensors, resolve_device
 from imitation.errors import ImitationError
@@ -199,7 +199,7 @@ def bc_checkpoint(
     optimizer_tensors, optimizer_state = optimizer_checkpoint(optimizer, "optimizer")
     rng_tensors, rng_state = rng_checkpoint()
     tensors = (
-        {f"policy.{name}": t for name, t in policy.state_dict().items()} | {f"best.{name}": t for name, t in best_state.items()}
+        prefixed("policy", policy.state_dict()) | prefixed("best", best_state)
         | optimizer_tensors | rng_tensors | {"loader.generator": loader.generator_state()}
     )
     state = {
@@ -217,8 +217,8 @@ def restore_bc_checkpoint(
     epoch, best weights, samples seen, seconds trained so far)."""
     tensors, state = checkpoint
     try:
-        policy.load_state_dict({name.removeprefix("policy."): t for name, t in tensors.items() if name.startswith("policy.")})
-        best_state = {name.removeprefix("best."): t.to(device) for name, t in tensors.items() if name.startswith("best.")}
+        policy.load_state_dict(unprefixed("policy", tensors))
+        best_state = {name: t.to(device) for name, t in unprefixed("best", tensors).items()}
         restore_optimizer(optimizer, tensors, state["optimizer"], "optimizer")
         restore_rng(tensors, state["rng"])
         loader.set_generator_state(tensors["loader.generator"])

@@ -38,8 +38,8 @@ which PPO then updates. A gradient penalty on r_θ's inputs keeps it smooth. The
 is what `train ppo --reward` later optimises from scratch; the policy trained alongside is the
 soft-optimal one, deliberately random, and is not meant for use.
 
-The learner is `Checkpointable`: PPO's checkpoints hold r_θ, its Adam state, the pool, the
-minibatch generator's position and the logged rows, so an interrupted run resumes with them.
+The learner is `Checkpointable`: PPO's checkpoints hold r_θ, log Z, their Adam state, the pool,
+the minibatch generator's position and the logged rows, so an interrupted run resumes with them.
 """
 
 from __future__ import annotations

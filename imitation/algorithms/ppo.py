@@ -570,9 +570,9 @@ def ppo_checkpoint(
     the reward `learner`'s state included."""
     optimizer_tensors, optimizer_state = optimizer_checkpoint(optimizer, "optimizer")
     rng_tensors, rng_state = rng_checkpoint()
-    tensors = {f"policy.{name}": t for name, t in policy.state_dict().items()} | optimizer_tensors | rng_tensors
+    tensors = prefixed("policy", policy.state_dict()) | optimizer_tensors | rng_tensors
     if reward_scaler is not None:
-        tensors |= {f"reward_scaler.{name}": t for name, t in reward_scaler.stats.state_dict().items()}
+        tensors |= prefixed("reward_scaler", reward_scaler.stats.state_dict())
     state = {
         "update": next_update, "global_step": global_step, "beta": beta, "seconds": seconds, "policy": policy.config.to_json(),
         "optimizer": optimizer_state, "rng": rng_state, "history": history, "recent_returns": list(recent_returns),
@@ -593,10 +593,10 @@ def restore_ppo_checkpoint(
     (next update, global step, β, seconds trained so far)."""
     tensors, state = checkpoint
     try:
-        policy.load_state_dict({name.removeprefix("policy."): t for name, t in tensors.items() if name.startswith("policy.")})
+        policy.load_state_dict(unprefixed("policy", tensors))
         restore_optimizer(optimizer, tensors, state["optimizer"], "optimizer")
         if reward_scaler is not None:
-            reward_scaler.stats.load_state_dict({name.removeprefix("reward_scaler."): t for name, t in tensors.items() if name.startswith("reward_scaler.")})
+            reward_scaler.stats.load_state_dict(unprefixed("reward_scaler", tensors))
         restore_rng(tensors, state["rng"])
         history += [floats(row) for row in state["history"]]
         recent_returns.extend(state["recent_returns"])
