@@ -148,12 +148,7 @@ def check_finite(transitions: Transitions, dataset: DemoDataset) -> None:
         return
     row, shift, name, value = min(candidates)
     episode = int(transitions.episode_index[row])
-    step = row - int(np.searchsorted(transitions.episode_index, episode)) + shift
-    demo, local = dataset.locate(episode)
-    raise ImitationError(
-        f"{demo.path}: episode {local}, step {step}: the {name} is {value}; "
-        "learners need finite observations, actions and rewards (fix the source and write the file again)"
-    )
+    raise _nonfinite_error(dataset, episode, row - int(np.searchsorted(transitions.episode_index, episode)) + shift, name, value)
 
 
 def check_episodes_finite(episodes: Sequence[Episode], dataset: DemoDataset, indices: Sequence[int] | None = None) -> None:
@@ -162,11 +157,16 @@ def check_episodes_finite(episodes: Sequence[Episode], dataset: DemoDataset, ind
     for k, episode in zip(range(len(episodes)) if indices is None else indices, episodes):
         for what, tree in (("observation", episode.observations), ("action", episode.actions), ("reward", episode.rewards)):
             if (found := first_nonfinite(tree, what)) is not None:
-                demo, local = dataset.locate(int(k))
-                raise ImitationError(
-                    f"{demo.path}: episode {local}, step {found[0]}: the {found[1]} is {found[2]}; "
-                    "learners need finite observations, actions and rewards (fix the source and write the file again)"
-                )
+                raise _nonfinite_error(dataset, int(k), *found)
+
+
+def _nonfinite_error(dataset: DemoDataset, episode: int, step: int, name: str, value: float) -> ImitationError:
+    """The error for a NaN or ±inf at dataset-wide `episode`, named by its file and place there."""
+    demo, local = dataset.locate(episode)
+    return ImitationError(
+        f"{demo.path}: episode {local}, step {step}: the {name} is {value}; "
+        "learners need finite observations, actions and rewards (fix the source and write the file again)"
+    )
 
 
 def split_episodes(num_episodes: int, *, validation_fraction: float, seed: int) -> tuple[list[int], list[int]]:
