@@ -18,11 +18,10 @@ MESSAGE_HELPERS = {"fail": "{}: ", "_Damage": ""}
 class Site:
     path: str
     line: int
-    kind: str
     template: str
 
 
-def _template(node: ast.expr) -> str | None:
+def _template(node: ast.expr) -> str:
     if isinstance(node, ast.Constant) and isinstance(node.value, str):
         return node.value
     if isinstance(node, ast.JoinedStr):
@@ -34,8 +33,7 @@ def _template(node: ast.expr) -> str | None:
                 parts.append("{}")
         return "".join(parts)
     if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Add):
-        left, right = _template(node.left), _template(node.right)
-        return None if left is None or right is None else left + right
+        return _template(node.left) + _template(node.right)
     return "{}"  # a message built elsewhere (a variable): matches any catalogue entry's placeholder
 
 
@@ -49,9 +47,9 @@ def error_sites(paths: list[Path], root: Path) -> list[Site]:
             name = node.func.id if isinstance(node.func, ast.Name) else node.func.attr if isinstance(node.func, ast.Attribute) else None
             if name in ERROR_TYPES or name in MESSAGE_HELPERS:
                 template = _template(node.args[0])
-                if template is not None and template != "{}":
+                if template != "{}":
                     prefix = MESSAGE_HELPERS.get(name, "")
-                    sites.append(Site(str(path.relative_to(root)), node.lineno, name, prefix + template))
+                    sites.append(Site(str(path.relative_to(root)), node.lineno, prefix + template))
     return sites
 
 

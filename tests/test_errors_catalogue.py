@@ -23,7 +23,8 @@ import pytest
 import torch
 import yaml
 from error_sites import error_sites, normalise, pattern_regex
-from support import DATASETS, REPO, TESTDATA, run_cli_many
+from sb3_zips import sb3_weights, space_entry
+from support import DATASETS, REPO, TESTDATA, TURTLE_MAP, run_cli_many, write_map
 
 DOC = REPO / "docs" / "ERRORS.md"
 NOT_RAISED = {"cli-3", "cli-4"}  # printed by cli.py itself, not raised as ImitationError
@@ -261,23 +262,12 @@ class Inputs:
 
     def sb3_zip(self, name: str, *, weights: dict | None = None, data: dict | None = None, members: dict | None = None,
                 observation: gym.Space | None = None, action: gym.Space | None = None) -> Path:
-        def entry(space: gym.Space) -> dict:
-            base = {":type:": f"<class '{type(space).__module__}.{type(space).__name__}'>", ":serialized:": "bm90IG9wZW5lZA==", "_shape": list(space.shape)}
-            if isinstance(space, gym.spaces.Discrete):
-                return base | {"n": str(space.n), "start": "0", "dtype": "int64"}
-            if isinstance(space, gym.spaces.Box):
-                return base | {"dtype": str(space.dtype), "low": str(space.low), "high": str(space.high)}
-            return base
-
         if weights is None:
-            weights = {}
-            for net in ("policy_net", "value_net"):
-                weights |= {f"mlp_extractor.{net}.0.weight": torch.randn(8, 4), f"mlp_extractor.{net}.0.bias": torch.randn(8)}
-            weights |= {"action_net.weight": torch.randn(2, 8), "action_net.bias": torch.randn(2), "value_net.weight": torch.randn(1, 8), "value_net.bias": torch.randn(1)}
+            weights = sb3_weights(4, 2, pi=[8], vf=[8])
         buffer = io.BytesIO()
         torch.save(weights, buffer)
-        fields = {"observation_space": entry(observation or gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)),
-                  "action_space": entry(action or gym.spaces.Discrete(2)), "policy_kwargs": {}, "use_sde": False} | (data or {})
+        fields = {"observation_space": space_entry(observation or gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)),
+                  "action_space": space_entry(action or gym.spaces.Discrete(2)), "policy_kwargs": {}, "use_sde": False} | (data or {})
         path = self.path(name)
         with zipfile.ZipFile(path, "w") as archive:
             for member, content in (members if members is not None else {"data": json.dumps(fields).encode(), "policy.pth": buffer.getvalue()}).items():
@@ -325,13 +315,9 @@ class Inputs:
         return root
 
     def turtle_map(self, name: str, **changes) -> Path:
-        data = {
-            "rate_hz": 10, "time": "log",
-            "observation": [{"topic": "/turtle1/pose", "fields": ["x", "y", "theta"]}],
-            "action": [{"topic": "/turtle1/cmd_vel", "fields": ["linear.x", "angular.z"]}],
-        }
-        data.update(changes)
-        return self.text(name, yaml.safe_dump({k: v for k, v in data.items() if v is not None}))
+        """The turtlesim map with `changes` (a key set to None is left out)."""
+        data = {**TURTLE_MAP, **changes}
+        return write_map(self.root, {k: v for k, v in data.items() if v is not None}, name)
 
     def entry_map(self, name: str, **entry) -> Path:
         """The turtle map with its observation entry edited."""

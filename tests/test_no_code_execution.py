@@ -16,6 +16,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from sb3_zips import sb3_weights, space_entry
 from source_scan import scan_files, scan_source
 from support import REPO, run_cli_many
 from test_cli import assert_one_line_error, last_json
@@ -129,30 +130,16 @@ def torch_saved_payload(marker: Path) -> bytes:
 CARTPOLE = (gym.spaces.Box(-np.inf, np.inf, (4,), np.float32), gym.spaces.Discrete(2))
 
 
-def space_entry(space: gym.Space, serialized: bytes) -> dict:
-    entry = {":type:": f"<class '{type(space).__module__}.{type(space).__name__}'>", ":serialized:": base64.b64encode(serialized).decode(), "_shape": list(space.shape)}
-    if isinstance(space, gym.spaces.Discrete):
-        return entry | {"n": str(space.n), "start": "0", "dtype": "int64"}
-    return entry | {"dtype": str(space.dtype), "low": str(space.low), "high": str(space.high)}
-
-
-def sb3_weights() -> dict[str, torch.Tensor]:
-    weights = {}
-    for net in ("policy_net", "value_net"):
-        weights |= {f"mlp_extractor.{net}.0.weight": torch.randn(8, 4), f"mlp_extractor.{net}.0.bias": torch.randn(8)}
-    return weights | {"action_net.weight": torch.randn(2, 8), "action_net.bias": torch.randn(2), "value_net.weight": torch.randn(1, 8), "value_net.bias": torch.randn(1)}
-
-
 def sb3_zip(path: Path, marker: Path, *, policy_pth: bytes | None = None, policy_kwargs_payload: bool = False) -> Path:
     """An SB3 PPO zip for CartPole whose every opaque `:serialized:` field is the payload."""
     if policy_pth is None:
         buffer = io.BytesIO()
-        torch.save(sb3_weights(), buffer)
+        torch.save(sb3_weights(4, 2, pi=[8], vf=[8]), buffer)
         policy_pth = buffer.getvalue()
     evil = payload(marker)
     data = {
-        "observation_space": space_entry(CARTPOLE[0], evil),
-        "action_space": space_entry(CARTPOLE[1], evil),
+        "observation_space": space_entry(CARTPOLE[0], base64.b64encode(evil).decode()),
+        "action_space": space_entry(CARTPOLE[1], base64.b64encode(evil).decode()),
         "learning_rate": {":type:": "<class 'function'>", ":serialized:": base64.b64encode(evil).decode()},
         "policy_kwargs": {":type:": "<class 'dict'>", ":serialized:": base64.b64encode(evil).decode()} if policy_kwargs_payload else {},
         "use_sde": False,

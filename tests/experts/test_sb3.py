@@ -10,12 +10,13 @@ import json
 import pickle
 import zipfile
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from sb3_zips import sb3_weights, space_entry
 from support import run_cli
 from test_cli import assert_one_line_error, last_json
 
@@ -30,35 +31,6 @@ def cartpole_zip(testdata: Path) -> Path:
     return testdata / "experts" / "sb3_ppo_cartpole" / "CartPole-v1.zip"
 
 
-def _space_entry(space: gym.Space) -> dict[str, Any]:
-    """A space as SB3 2.x writes it into `data`: an opaque pickle plus readable attributes, with
-    numpy values as their str() (so Discrete's n is "3", Box bounds are '[-2. -2.]')."""
-    entry = {":type:": f"<class '{type(space).__module__}.{type(space).__name__}'>", ":serialized:": "bm90IG9wZW5lZA==", "_shape": list(space.shape)}
-    if isinstance(space, gym.spaces.Discrete):
-        return entry | {"n": str(space.n), "start": str(space.start), "dtype": "int64"}
-    return entry | {"dtype": str(space.dtype), "low": str(space.low), "high": str(space.high)}
-
-
-def _sb3_weights(obs_size: int, actions: int, *, pi: Sequence[int], vf: Sequence[int], shared: Sequence[int] = (), box: bool = False) -> dict[str, torch.Tensor]:
-    """A random state dict with the names and shapes of SB3's ActorCriticPolicy."""
-    weights: dict[str, torch.Tensor] = {}
-    width = obs_size
-    for net, sizes in (("shared_net", shared), ("policy_net", pi), ("value_net", vf)):
-        inputs = width
-        for i, size in enumerate(sizes):
-            weights[f"mlp_extractor.{net}.{2 * i}.weight"] = torch.randn(size, inputs)
-            weights[f"mlp_extractor.{net}.{2 * i}.bias"] = torch.randn(size)
-            inputs = size
-        if net == "shared_net":
-            width = inputs
-    pi_out, vf_out = (pi or shared or [obs_size])[-1], (vf or shared or [obs_size])[-1]
-    weights |= {"action_net.weight": torch.randn(actions, pi_out), "action_net.bias": torch.randn(actions)}
-    weights |= {"value_net.weight": torch.randn(1, vf_out), "value_net.bias": torch.randn(1)}
-    if box:
-        weights["log_std"] = torch.randn(actions)
-    return weights
-
-
 def _write_zip(path: Path, members: dict[str, bytes]) -> Path:
     with zipfile.ZipFile(path, "w") as archive:
         for name, content in members.items():
@@ -69,7 +41,7 @@ def _write_zip(path: Path, members: dict[str, bytes]) -> Path:
 def _sb3_zip(path: Path, observation_space: gym.Space, action_space: gym.Space, weights: dict[str, torch.Tensor], **data: Any) -> Path:
     buffer = io.BytesIO()
     torch.save(weights, buffer)
-    fields = {"observation_space": _space_entry(observation_space), "action_space": _space_entry(action_space), "policy_kwargs": {}, "use_sde": False}
+    fields = {"observation_space": space_entry(observation_space), "action_space": space_entry(action_space), "policy_kwargs": {}, "use_sde": False}
     return _write_zip(path, {"data": json.dumps(fields | data).encode(), "policy.pth": buffer.getvalue(), "_stable_baselines3_version": b"2.3.0"})
 
 
@@ -105,7 +77,7 @@ def test_cartpole_expert_has_the_zips_architecture_and_solves_cartpole(cartpole_
 
 
 def test_loading_never_unpickles(cartpole_zip: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    relu_zip = _sb3_zip(tmp_path / "relu.zip", *PENDULUM_SPACES, _sb3_weights(3, 1, pi=[32, 32], vf=[32, 32], box=True), policy_kwargs=_relu_kwargs())
+    relu_zip = _sb3_zip(tmp_path / "relu.zip", *PENDULUM_SPACES, sb3_weights(3, 1, pi=[32, 32], vf=[32, 32], box=True), policy_kwargs=_relu_kwargs())
 
     def refuse(*args: Any, **kwargs: Any) -> None:
         raise AssertionError("the loader unpickled something")
@@ -127,7 +99,7 @@ def test_loading_never_unpickles(cartpole_zip: Path, tmp_path: Path, monkeypatch
 @pytest.mark.parametrize("shared", [False, True])
 def test_box_actions_relu_and_shared_trunk(tmp_path: Path, shared: bool) -> None:
     sizes = {"shared": [32, 32], "pi": [], "vf": []} if shared else {"pi": [32, 32], "vf": [32, 32]}
-    weights = _sb3_weights(3, 1, box=True, **sizes)
+    weights = sb3_weights(3, 1, box=True, **sizes)
     policy = load_sb3_policy(_sb3_zip(tmp_path / "pendulum.zip", *PENDULUM_SPACES, weights, policy_kwargs=_relu_kwargs()))
     assert policy.config.hidden_sizes == [32, 32] and policy.config.activation == "relu" and policy.config.shared_trunk is shared
     assert policy.is_continuous and torch.equal(policy.log_std.data, weights["log_std"])
@@ -151,14 +123,14 @@ def _bad_zip(tmp_path: Path, case: str) -> Path:
     if case == "no policy.pth":
         return _write_zip(path, {"data": b"{}"})
     if case == "CNN weights":
-        weights = _sb3_weights(4, 2, pi=[64], vf=[64]) | {"features_extractor.cnn.0.weight": torch.randn(32, 4, 8, 8)}
+        weights = sb3_weights(4, 2, pi=[64], vf=[64]) | {"features_extractor.cnn.0.weight": torch.randn(32, 4, 8, 8)}
         return _sb3_zip(path, *spaces, weights)
     if case == "actor and critic differ":
-        return _sb3_zip(path, *spaces, _sb3_weights(4, 2, pi=[64, 64], vf=[256, 256]))
+        return _sb3_zip(path, *spaces, sb3_weights(4, 2, pi=[64, 64], vf=[256, 256]))
     if case == "weights do not fit spaces":
-        return _sb3_zip(path, *spaces, _sb3_weights(4, 3, pi=[64], vf=[64]))
+        return _sb3_zip(path, *spaces, sb3_weights(4, 3, pi=[64], vf=[64]))
     if case == "gSDE":
-        return _sb3_zip(path, *spaces, _sb3_weights(4, 2, pi=[64], vf=[64]), use_sde=True)
+        return _sb3_zip(path, *spaces, sb3_weights(4, 2, pi=[64], vf=[64]), use_sde=True)
     if case == "policy.pth not a state dict":
         buffer = io.BytesIO()
         torch.save([torch.zeros(1)], buffer)
