@@ -78,6 +78,7 @@ def test_the_pool_keeps_each_rollout_although_ppo_refills_its_buffers_in_place()
     learner(buffers, policy)
     buffers.observations.fill_(7.0)  # the next rollout, written into the same buffers
     learner(buffers, policy)
+    assert len(learner.pool.observations) == 2 * steps
     assert torch.equal(learner.pool.observations[:steps], first) and (learner.pool.observations[steps:] == 7.0).all()
 
 
