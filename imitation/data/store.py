@@ -227,8 +227,8 @@ class DemoWriter:
 
     With `flush_episodes=True` every episode is flushed as its own chunk as soon as it is written,
     so if the process is killed, `<path>.partial` holds every finished episode; `durable=True`
-    also fsyncs it (power cuts too; measured on 10-step episodes, per-episode chunks cost 1.9× the
-    time and 1.7× the size, the fsync 4× the time again; on 500-step episodes the size grows 3 %).
+    also fsyncs it (power cuts too). bench/flush.py: on 10-step episodes a chunk per episode
+    costs 1.7× the time and 1.7× the size, the fsync 3× the time again; on 500-step ones, 3 %.
 
     NaN and ±inf in float observations, actions or rewards are refused where they enter, with the
     episode and step named; `finite_only=False` stores them as they are (bit-exact round trips of
