@@ -1,11 +1,16 @@
 """Actor-critic MLP policies shared by PPO, BC and DAgger, and their save/load.
 
-Two policy classes, chosen by the action space:
+Three policy heads, chosen by the action space:
 
 - Discrete actions: a categorical (softmax) policy, π(a|s) = softmax(f(s))_a.
+- MultiDiscrete actions: one independent categorical per component, π(a|s) = Π_i softmax(f_i(s))_{a_i}.
 - Box actions: a diagonal Gaussian with a state-independent log-std,
   π(a|s) = Π_i N(a_i; μ_i(s), σ_i²), σ = exp(log_std); actions sent to the env are clipped to
   the space bounds, while log-probs are of the unclipped sample (as in CleanRL and SB3).
+
+The heads index classes 0 … n-1; a space with `start` ≠ 0 takes env actions a = index + start,
+so env actions (from demos, experts, the env) go through `from_env_action` before log π is taken
+and policy actions through `to_env_action` before the env sees them.
 
 Observations go through an optional running mean/std normaliser that is part of the module
 (saved with the weights), so evaluation sees exactly what training saw. Discrete observations
@@ -24,7 +29,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 from torch import nn
-from torch.distributions import Categorical, Distribution, Normal
+from torch.distributions import Categorical, Distribution, Normal, kl_divergence, register_kl
 
 from imitation.data.spaces import check_spaces_fit, space_from_json, space_to_json
 from imitation.errors import ImitationError, SpaceError
@@ -139,8 +144,51 @@ def observation_size(space: gym.Space) -> int:
     raise ImitationError(f"policies take Box or Discrete observations, not {type(space).__name__}")
 
 
+class MultiCategorical(Distribution):
+    """Independent categoricals over the components of a MultiDiscrete action: the logits of
+    component i are columns sizes[0] + … + sizes[i-1] onward; log-probs and entropies add up."""
+
+    arg_constraints: dict = {}
+
+    def __init__(self, logits: torch.Tensor, sizes: list[int]) -> None:
+        self.sizes = sizes
+        self.parts = [Categorical(logits=part, validate_args=False) for part in torch.split(logits, sizes, dim=-1)]
+        super().__init__(batch_shape=logits.shape[:-1], validate_args=False)
+
+    @property
+    def logits(self) -> torch.Tensor:
+        return torch.cat([part.logits for part in self.parts], -1)
+
+    @property
+    def mode(self) -> torch.Tensor:
+        return torch.stack([part.probs.argmax(-1) for part in self.parts], -1)
+
+    def sample(self, sample_shape: torch.Size = torch.Size()) -> torch.Tensor:
+        return torch.stack([part.sample(sample_shape) for part in self.parts], -1)
+
+    def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        return sum(part.log_prob(value[..., i]) for i, part in enumerate(self.parts))
+
+    def entropy(self) -> torch.Tensor:
+        return sum(part.entropy() for part in self.parts)
+
+
+@register_kl(MultiCategorical, MultiCategorical)
+def _multi_categorical_kl(p: MultiCategorical, q: MultiCategorical) -> torch.Tensor:
+    return sum(kl_divergence(a, b) for a, b in zip(p.parts, q.parts))
+
+
+def action_logits_size(space: gym.Space) -> int:
+    """Width of the action head for a Discrete, MultiDiscrete or Box action space."""
+    if isinstance(space, gym.spaces.Discrete):
+        return int(space.n)
+    if isinstance(space, gym.spaces.MultiDiscrete):
+        return int(space.nvec.sum())
+    return observation_size(space)
+
+
 class ActorCritic(nn.Module):
-    """An MLP actor (categorical or Gaussian head) and critic, with separate or shared trunks."""
+    """An MLP actor (categorical, multi-categorical or Gaussian head) and critic, with separate or shared trunks."""
 
     def __init__(self, config: PolicyConfig) -> None:
         super().__init__()
@@ -155,9 +203,18 @@ class ActorCritic(nn.Module):
         self.actor_trunk = _mlp(obs_size, config.hidden_sizes, config.activation)
         self.critic_trunk = self.actor_trunk if config.shared_trunk else _mlp(obs_size, config.hidden_sizes, config.activation)
         self.value_head = _layer(hidden, 1, 1.0)
+        # Component sizes of a MultiDiscrete action (None for the other spaces).
+        self.action_sizes: list[int] | None = None
         if isinstance(self.action_space, gym.spaces.Discrete):
             self.is_continuous = False
             self.action_head = _layer(hidden, int(self.action_space.n), 0.01)
+        elif isinstance(self.action_space, gym.spaces.MultiDiscrete):
+            if self.action_space.nvec.ndim != 1:
+                raise ImitationError(f"policies take MultiDiscrete actions of one dimension, not of shape {self.action_space.nvec.shape}")
+            self.is_continuous = False
+            self.action_sizes = [int(n) for n in self.action_space.nvec]
+            self.action_head = _layer(hidden, sum(self.action_sizes), 0.01)
+            self.register_buffer("action_start", torch.as_tensor(self.action_space.start, dtype=torch.int64), persistent=False)
         elif isinstance(self.action_space, gym.spaces.Box):
             self.is_continuous = True
             action_dim = int(np.prod(self.action_space.shape))
@@ -166,7 +223,7 @@ class ActorCritic(nn.Module):
             self.register_buffer("action_low", torch.as_tensor(self.action_space.low, dtype=torch.float32).reshape(-1))
             self.register_buffer("action_high", torch.as_tensor(self.action_space.high, dtype=torch.float32).reshape(-1))
         else:
-            raise ImitationError(f"policies take Discrete or Box actions, not {type(self.action_space).__name__}")
+            raise ImitationError(f"policies take Discrete, MultiDiscrete or Box actions, not {type(self.action_space).__name__}")
 
     # -- observations ---------------------------------------------------------------------------
 
@@ -187,18 +244,26 @@ class ActorCritic(nn.Module):
     # -- the policy -------------------------------------------------------------------------------
 
     def distribution(self, features: torch.Tensor) -> Distribution:
-        """π(·|s) for encoded observations: Categorical(logits) or Normal(μ, σ) per action dim."""
-        hidden = self.actor_trunk(features)
+        """π(·|s) for encoded observations: Categorical(logits), MultiCategorical or Normal(μ, σ) per action dim."""
+        return self.distribution_from(self.action_head(self.actor_trunk(features)))
+
+    def distribution_from(self, parameters: torch.Tensor, log_std: torch.Tensor | None = None) -> Distribution:
+        """π(·|s) from the action head's output (the Gaussian's σ from `log_std`, by default the policy's own)."""
         # No argument validation: it costs more than the network on small batches.
         if self.is_continuous:
-            mean = self.action_head(hidden)
-            return Normal(mean, self.log_std.exp().expand_as(mean), validate_args=False)
-        return Categorical(logits=self.action_head(hidden), validate_args=False)
+            log_std = self.log_std if log_std is None else log_std
+            return Normal(parameters, log_std.exp().expand_as(parameters), validate_args=False)
+        if self.action_sizes is not None:
+            return MultiCategorical(parameters, self.action_sizes)
+        return Categorical(logits=parameters, validate_args=False)
 
     def log_prob(self, distribution: Distribution, actions: torch.Tensor) -> torch.Tensor:
-        """log π(a|s); for the Gaussian, the sum over action dimensions."""
+        """log π(a|s) of the policy's own action values (class indices, not env actions: see
+        `from_env_action`); for the Gaussian, the sum over action dimensions."""
         if self.is_continuous:
             return distribution.log_prob(actions.reshape(actions.shape[0], -1)).sum(-1)
+        if self.action_sizes is not None:
+            return distribution.log_prob(actions.long().reshape(actions.shape[0], -1))
         return distribution.log_prob(actions.long().reshape(-1))
 
     def env_action_log_prob(self, distribution: Distribution, env_actions: torch.Tensor) -> torch.Tensor:
@@ -216,7 +281,7 @@ class ActorCritic(nn.Module):
         return log_probs.sum(-1)
 
     def entropy(self, distribution: Distribution) -> torch.Tensor:
-        """H[π(·|s)]; for the Gaussian, the sum over action dimensions."""
+        """H[π(·|s)]; for the Gaussian and MultiDiscrete, the sum over action dimensions."""
         entropy = distribution.entropy()
         return entropy.sum(-1) if self.is_continuous else entropy
 
@@ -236,6 +301,11 @@ class ActorCritic(nn.Module):
             action = out + self.log_std.exp() * noise
             log_prob = (-0.5 * noise**2 - self.log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
             return action, log_prob, out
+        if self.action_sizes is not None:
+            parts = [torch.log_softmax(part, -1) for part in torch.split(out, self.action_sizes, dim=-1)]
+            action = torch.cat([torch.multinomial(part.exp(), 1) for part in parts], -1)
+            log_prob = sum(part.gather(-1, action[:, i : i + 1]).squeeze(-1) for i, part in enumerate(parts))
+            return action, log_prob, torch.cat(parts, -1)
         log_probs = torch.log_softmax(out, -1)
         action = torch.multinomial(log_probs.exp(), 1).squeeze(-1)
         return action, log_probs.gather(-1, action[:, None]).squeeze(-1), log_probs
@@ -247,7 +317,7 @@ class ActorCritic(nn.Module):
         """Sample (or take the mode of) π(·|s): action, its log-prob, and V(s)."""
         distribution = self.distribution(features)
         if deterministic:
-            action = distribution.mean if self.is_continuous else distribution.probs.argmax(-1)
+            action = distribution.mode
         else:
             action = distribution.sample()
         log_prob, _ = self.log_prob_and_entropy(distribution, action)
@@ -257,6 +327,8 @@ class ActorCritic(nn.Module):
         """Env actions (e.g. from demos) → the policy's own action values, for log π(a|s)."""
         if self.is_continuous:
             return actions.float()
+        if self.action_sizes is not None:
+            return actions.long().reshape(actions.shape[0], -1) - self.action_start
         return actions.long() - int(self.action_space.start)
 
     def to_env_action(self, actions: torch.Tensor) -> np.ndarray:
@@ -264,6 +336,8 @@ class ActorCritic(nn.Module):
         if self.is_continuous:
             clipped = torch.clamp(actions, self.action_low, self.action_high)
             return clipped.cpu().numpy().astype(self.action_space.dtype).reshape(-1, *self.action_space.shape)
+        if self.action_sizes is not None:
+            return (actions.long() + self.action_start).cpu().numpy().astype(self.action_space.dtype)
         return actions.cpu().numpy().astype(np.int64) + int(self.action_space.start)
 
     @torch.no_grad()
@@ -288,7 +362,7 @@ class SingleObservationPolicy:
 
     def __call__(self, observation: Any) -> Any:
         action = self.policy.predict(np.asarray(observation)[None], deterministic=self.deterministic)[0]
-        return int(action) if not self.policy.is_continuous else action
+        return int(action) if isinstance(self.policy.action_space, gym.spaces.Discrete) else action
 
 
 POLICY_PREFIX = "policy."
@@ -308,7 +382,7 @@ def load_policy(path: str | os.PathLike) -> ActorCritic:
     try:
         policy_config = PolicyConfig.from_json(config["policy"])
         observations, actions = space_from_json(policy_config.observation_space), space_from_json(policy_config.action_space)
-        outputs = int(actions.n) if isinstance(actions, gym.spaces.Discrete) else observation_size(actions)
+        outputs = action_logits_size(actions)
         trunks = 1 if policy_config.shared_trunk else 2
         planned = trunks * mlp_weight_count(observation_size(observations), policy_config.hidden_sizes, 0) + (policy_config.hidden_sizes or [observation_size(observations)])[-1] * (outputs + 1)
         check_weights_cover(path, planned, state)

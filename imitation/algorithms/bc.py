@@ -2,7 +2,8 @@
 
     θ* = argmin_θ  E_{(s,a)~D} [ -log π_θ(a|s) ]  -  c_H · E_s[ H[π_θ(·|s)] ]  +  c_2 · ||θ||²
 
-For Discrete actions -log π_θ is the categorical negative log-likelihood (cross-entropy). For
+For Discrete and MultiDiscrete actions -log π_θ is the categorical negative log-likelihood
+(cross-entropy) of the class index a - start of the demo's action a. For
 Box actions it is the Gaussian NLL of the state-independent-log-std policy, or (loss="mse") the
 squared error of the mean, ||μ_θ(s) - a||². The policy is the same `ActorCritic` PPO trains, so a
 BC run can be evaluated, recorded with, or fine-tuned by PPO; its critic stays untrained.
@@ -72,7 +73,7 @@ def bc_loss(policy: ActorCritic, batch: TransitionTensors, config: BCConfig) -> 
     if config.loss == "mse":
         fit = ((distribution.mean - batch.actions.reshape(len(batch), -1).float()) ** 2).sum(-1).mean()
     else:
-        fit = -policy.log_prob(distribution, batch.actions).mean()
+        fit = -policy.log_prob(distribution, policy.from_env_action(batch.actions)).mean()
     loss = fit
     if config.entropy_coef:
         loss = loss - config.entropy_coef * policy.entropy(distribution).mean()

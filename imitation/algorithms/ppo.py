@@ -33,7 +33,7 @@ from typing import Any, Callable
 import gymnasium as gym
 import numpy as np
 import torch
-from torch.distributions import Categorical, Normal, kl_divergence
+from torch.distributions import kl_divergence
 from tqdm import tqdm
 
 from imitation.checkpoints import (
@@ -280,13 +280,6 @@ class PPOResult:
     seconds: float
 
 
-def _distribution_from(policy: ActorCritic, parameters: torch.Tensor, log_std: torch.Tensor | None):
-    if policy.is_continuous:
-        assert log_std is not None
-        return Normal(parameters, log_std.exp().expand_as(parameters))
-    return Categorical(logits=parameters)
-
-
 def train_ppo(
     config: PPOConfig,
     *,
@@ -472,7 +465,7 @@ def _train(
                 if config.objective == "clip":
                     policy_loss = -clipped_surrogate(ratio, batch_advantages, config.clip_range).mean()
                 else:
-                    old = _distribution_from(policy, flat_parameters[index], old_log_std)
+                    old = policy.distribution_from(flat_parameters[index], old_log_std)
                     kl = kl_divergence(old, distribution)
                     kl = kl.sum(-1) if policy.is_continuous else kl
                     policy_loss = -(ratio * batch_advantages).mean() + beta * kl.mean()
@@ -510,7 +503,7 @@ def _train(
             entropy_mean = policy.entropy(policy.distribution(flat_features)).mean().item()
         if config.objective == "kl":
             with torch.no_grad():
-                old = _distribution_from(policy, flat_parameters, old_log_std)
+                old = policy.distribution_from(flat_parameters, old_log_std)
                 new = policy.distribution(flat_features)
                 kl_all = kl_divergence(old, new)
                 mean_kl = float((kl_all.sum(-1) if policy.is_continuous else kl_all).mean())
