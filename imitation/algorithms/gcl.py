@@ -2,48 +2,59 @@
 
 The MaxEnt model of notes §5.3 is kept, p_θ(τ) ∝ p(τ | dynamics) exp R_θ(τ), but the partition
 function Z = Σ_τ exp R_θ(τ) can no longer be summed over a tabular MDP. It is estimated from
-samples of the current policy q = π_k, which PPO keeps close to the soft-optimal policy of the
-current reward, with importance weights exp R_θ(τ) / q(τ) (the dynamics cancel):
+samples of a density q, drawn by the policies π_k that PPO keeps close to the soft-optimal
+policy of the current reward, with importance weights exp R_θ(τ) / q(τ) (the dynamics cancel):
 
     L(θ) = -E_demo[R_θ(τ)] + log E_{τ ~ q}[exp R_θ(τ) / q(τ)]
 
 Following Finn, Christiano, Abbeel & Levine (2016, "A connection between GANs, IRL and
-energy-based models"), the importance sampling runs on the mixture μ = ½ p_demo + ½ q of
-demos and policy samples, per step (trajectories of one step, which keeps the weights' variance
-bounded), with the current model's density standing in for p_demo; the gradient of L(θ) is then
-exactly the gradient of the logistic loss of the discriminator
+energy-based models"), q is one density for every point, the mixture of all the samplers so far,
 
-    D_θ(s, a) = exp r_θ(s) / (exp r_θ(s) + Z π_k(a|s)),   logit D_θ = r_θ(s) - log Z - log π_k(a|s),
+    q(a|s) = (1/K) Σ_{k=1}^{K} π_k(a|s)     (π_1 … π_K: the policies whose rollouts are pooled),
 
-trained to tell demo steps (label 1) from policy steps (label 0), log Z a parameter of its own
+per step (trajectories of one step, which keeps the weights' variance bounded, the samplers'
+state distributions taken as common so that, like the dynamics, they cancel), and the importance
+sampling runs on μ = ½ p̂ + ½ q of demos and pooled samples, with the current model
+p̂(a|s) = exp r_θ(s) / Z standing in for the demos' density. The gradient of L(θ) is then the
+gradient of the logistic loss of the discriminator
+
+    D_θ(s, a) = exp r_θ(s) / (exp r_θ(s) + Z q(a|s)),   logit D_θ = r_θ(s) - log Z - log q(a|s),
+
+trained to tell demo steps (label 1) from pooled steps (label 0), log Z a parameter of its own
 (`objective="discriminator"`, the default). `objective="importance"` minimises the
-self-normalised estimate of L(θ) itself, -mean_demo r + log mean_{demo ∪ samples} exp(r - log q).
+self-normalised estimate of L(θ) itself over B = demos ∪ samples, |B| = 2N,
+
+    -mean_demo r + log (1/2N) Σ_{j ∈ B} exp r_j / μ_j,    μ_j = ½ exp(r_j - log Z) + ½ q_j,
+
+with log Z in μ the previous step's estimate, log (1/2N) Σ_j exp r_j / μ_j.
 
 The model holds only if π_k is the soft-optimal policy of r_θ, so PPO alongside optimises the
 maximum-entropy objective, the reward r_θ(s) - α log π_k(a|s) with α = 1 (`policy_entropy`),
-which is log D_θ - log(1 - D_θ) up to log Z (as in AIRL, Fu et al. 2018). With PPO on r_θ alone,
+AIRL's log D_θ - log(1 - D_θ) with q = π_k, up to log Z (Fu et al. 2018). With PPO on r_θ alone,
 its policy grew sharper than the (near-deterministic) demos' actions allow, D_θ told them apart
 by log π_k alone, and r_θ stayed flat (measured on Pendulum-v1: bench/RESULTS.md, issue 5).
 Box actions are clipped to the bounds, so log π_k is that of the clipped (censored) Gaussian,
 demos and samples alike (`ActorCritic.env_action_log_prob`): a demo's full torque is then as
 likely to the policy as its own saturated actions.
 
-Each PPO rollout of the bundled trainer (1) joins the pool of samples, every step with its
-log π_k(a|s) (by default the pool keeps all rollouts so far: GCL's mixture of past samplers, so
-states the policy has stopped visiting stay rated), (2) `reward_steps` minibatch steps of the
+Each PPO rollout of the bundled trainer (1) joins the pool of samples and its policy π_K the
+mixture (the pool keeps every rollout, so states the policy has stopped visiting stay rated):
+log Σ_k π_k(a|s) is brought up to date for every pooled and demo step, one pass of π_K over
+the old steps and of π_1 … π_K over the new ones; (2) `reward_steps` minibatch steps of the
 loss are taken (`warmup_steps` more on the first rollout, the learning rate annealed to 0 so
-that PPO ends on a settled reward), demo steps weighted against log π_k of the current policy,
-and (3) r_θ is shifted to mean 0 over the demos (log Z with it) and relabels the rollout, on
-which PPO then updates. A gradient penalty on r_θ's inputs keeps it smooth. The recovered r_θ
+that PPO ends on a settled reward); and (3) r_θ is shifted to mean 0 over the demos (log Z with
+it) and relabels the rollout, on which PPO then updates. A gradient penalty on r_θ's inputs keeps it smooth. The recovered r_θ
 is what `train ppo --reward` later optimises from scratch; the policy trained alongside is the
 soft-optimal one, deliberately random, and is not meant for use.
 
 The learner is `Checkpointable`: PPO's checkpoints hold r_θ, log Z, their Adam state, the pool,
-the minibatch generator's position and the logged rows, so an interrupted run resumes with them.
+the samplers π_1 … π_K, the minibatch generator's position and the logged rows, so an
+interrupted run resumes with them.
 """
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,7 +65,7 @@ from imitation.algorithms.ppo import Rollout
 from imitation.checkpoints import CheckpointData, floats, optimizer_checkpoint, prefixed, restore_optimizer, unprefixed
 from imitation.data.loader import TransitionTensors
 from imitation.errors import ImitationError
-from imitation.policies import ActorCritic
+from imitation.policies import ActorCritic, PolicyConfig
 from imitation.rewards import RewardNet, flat_batch, relabel_rollout
 
 
@@ -78,8 +89,6 @@ class GCLConfig:
     learning_rate: float = 3e-4
     reward_steps: int = 8
     batch_size: int = 256
-    # Policy steps kept as samples (None: all so far, GCL's mixture of every past policy).
-    buffer_steps: int | None = None
     gradient_penalty: float = 1.0
     warmup_steps: int = 200
     objective: str = "discriminator"
@@ -102,7 +111,8 @@ class _Samples:
     observations: torch.Tensor
     env_actions: torch.Tensor
     next_observations: torch.Tensor
-    log_probs: torch.Tensor
+    # log Σ_k π_k(a|s) over the samplers so far (log q + log K).
+    log_mass: torch.Tensor
 
 
 class GuidedCostLearning:
@@ -122,6 +132,9 @@ class GuidedCostLearning:
         self.log_partition = nn.Parameter(torch.zeros(()))
         self.optimizer = torch.optim.Adam([*reward.parameters(), self.log_partition], lr=config.learning_rate)
         self.pool: _Samples | None = None
+        # π_1 … π_K, CPU copies of the policy as it was at each pooled rollout.
+        self.samplers: list[ActorCritic] = []
+        self.demo_log_mass = torch.full((len(demos),), -float("inf"))
         self.generator = torch.Generator().manual_seed(config.seed)
         self.history: list[dict[str, float]] = []
 
@@ -133,34 +146,42 @@ class GuidedCostLearning:
             # Where the space is unbounded, the first policy's states widen the demos' spread.
             self.reward.set_observation_statistics(self.demos.observations, flat_batch(rollout.observations, 2))
         observations, env_actions = flat_batch(rollout.observations, 2), flat_batch(rollout.env_actions, 2)
+        sampler = copy.deepcopy(policy).to("cpu").eval()
+        own_log_probs = _env_action_log_probs(sampler, observations, env_actions)
         new = _Samples(
             observations=observations, env_actions=env_actions, next_observations=flat_batch(rollout.next_observations, 2),
-            log_probs=_env_action_log_probs(policy, observations, env_actions),
+            log_mass=torch.logsumexp(torch.stack([own_log_probs, *(_env_action_log_probs(old, observations, env_actions) for old in self.samplers)]), 0),
         )
-        keep = slice(-self.config.buffer_steps, None) if self.config.buffer_steps else slice(None)
-        self.pool = new if self.pool is None else _Samples(**{
-            name: torch.cat([getattr(self.pool, name), getattr(new, name)])[keep] for name in _Samples.__dataclass_fields__
-        })
+        self.demo_log_mass = torch.logaddexp(self.demo_log_mass, _env_action_log_probs(sampler, self.demos.observations, self.demos.actions))
+        if self.pool is None:
+            self.pool = new
+        else:
+            self.pool.log_mass = torch.logaddexp(self.pool.log_mass, _env_action_log_probs(sampler, self.pool.observations, self.pool.env_actions))
+            self.pool = _Samples(**{name: torch.cat([getattr(self.pool, name), getattr(new, name)]) for name in _Samples.__dataclass_fields__})
+        self.samplers.append(sampler)
         self.reward.train()
         if self.config.anneal_lr:
             self.optimizer.param_groups[0]["lr"] = self.config.learning_rate * max(0.0, 1.0 - len(self.history) / self.updates)
         steps = self.config.reward_steps + (self.config.warmup_steps if len(self.history) == 0 else 0)
-        statistics = [self._step(policy, step, steps) for step in range(1, steps + 1)]
+        statistics = [self._step(step, steps) for step in range(1, steps + 1)]
         self.reward.eval()
         self._center_on_demos()
         loss, demo_accuracy, sample_accuracy = np.mean(statistics, axis=0)
         self.history.append({"reward_loss": float(loss), "demo_accuracy": float(demo_accuracy), "sample_accuracy": float(sample_accuracy)})
-        return relabel_rollout(self.reward, rollout) - self.config.policy_entropy * new.log_probs.reshape(rollout.env_rewards.shape)
+        return relabel_rollout(self.reward, rollout) - self.config.policy_entropy * own_log_probs.reshape(rollout.env_rewards.shape)
 
     def checkpoint(self) -> CheckpointData:
         """Everything `restore` needs to go on as if never stopped (live tensors: PPO snapshots them)."""
         optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")
         tensors = prefixed("reward", self.reward.state_dict()) | optimizer_tensors | {
-            "generator": self.generator.get_state(), "log_partition": self.log_partition.detach(),
+            "generator": self.generator.get_state(), "log_partition": self.log_partition.detach(), "demo_log_mass": self.demo_log_mass,
         }
         if self.pool is not None:
             tensors |= prefixed("pool", vars(self.pool))
-        return tensors, {"optimizer": optimizer_state, "history": self.history}
+        for k, sampler in enumerate(self.samplers):
+            tensors |= prefixed(f"sampler.{k}", sampler.state_dict())
+        samplers = self.samplers[0].config.to_json() if self.samplers else None
+        return tensors, {"optimizer": optimizer_state, "history": self.history, "samplers": len(self.samplers), "sampler_policy": samplers}
 
     def restore(self, checkpoint: CheckpointData) -> None:
         """Continue from a `checkpoint()` (KeyError or RuntimeError when it is not one)."""
@@ -170,30 +191,31 @@ class GuidedCostLearning:
             self.log_partition.copy_(tensors["log_partition"])
         restore_optimizer(self.optimizer, tensors, state["optimizer"], "optimizer")
         self.generator.set_state(tensors["generator"])
+        self.demo_log_mass = tensors["demo_log_mass"].clone()
         pool = unprefixed("pool", tensors)
         self.pool = _Samples(**pool) if pool else None
+        self.samplers = []
+        for k in range(int(state["samplers"])):
+            sampler = ActorCritic(PolicyConfig.from_json(state["sampler_policy"]))
+            sampler.load_state_dict(unprefixed(f"sampler.{k}", tensors))
+            self.samplers.append(sampler.eval())
         self.history = [floats(row) for row in state["history"]]
 
-    def _step(self, policy: ActorCritic, step: int, steps: int) -> tuple[float, float, float]:
+    def _step(self, step: int, steps: int) -> tuple[float, float, float]:
         size = self.config.batch_size
         demo_index = torch.randint(len(self.demos), (size,), generator=self.generator)
-        demo_observations = self.demos.observations[demo_index]
-        demo_actions = self.demos.actions[demo_index]
-        demo_log_probs = _env_action_log_probs(policy, demo_observations, demo_actions)
         samples = self._sample_batch(size)
-
         inputs = self.reward.inputs(
-            torch.cat([demo_observations, samples.observations]),
-            torch.cat([demo_actions, samples.env_actions]),
+            torch.cat([self.demos.observations[demo_index], samples.observations]),
+            torch.cat([self.demos.actions[demo_index], samples.env_actions]),
             torch.cat([self.demos.next_observations[demo_index], samples.next_observations]),
         ).requires_grad_(self.config.gradient_penalty > 0)
         rewards = self.reward.net(inputs).squeeze(-1)
-        log_ratios = rewards - torch.cat([demo_log_probs, samples.log_probs])
-        logits = log_ratios - self.log_partition
+        log_q = torch.cat([self.demo_log_mass[demo_index], samples.log_mass]) - np.log(len(self.samplers))
+        logits = rewards - self.log_partition - log_q
         demo_logits, sample_logits = logits[:size], logits[size:]
         if self.config.objective == "importance":
-            # -E_demo[r] + log (1/|B|) Σ_{j ∈ B} exp(r_j) / q(a_j|s_j), B = demos ∪ samples
-            loss = -rewards[:size].mean() + torch.logsumexp(log_ratios, 0) - np.log(len(log_ratios))
+            loss = -rewards[:size].mean() + self._log_partition_estimate(rewards, log_q)
         else:
             labels = torch.cat([torch.ones(size), torch.zeros(size)])
             loss = nn.functional.binary_cross_entropy_with_logits(logits, labels)
@@ -211,6 +233,15 @@ class GuidedCostLearning:
         self.optimizer.step()
         return loss.item(), float((demo_logits > 0).float().mean()), float((sample_logits < 0).float().mean())
 
+    def _log_partition_estimate(self, rewards: torch.Tensor, log_q: torch.Tensor) -> torch.Tensor:
+        """log Ẑ = log (1/|B|) Σ_{j ∈ B} exp r_j / μ_j over demos and samples, μ = ½ p̂ + ½ q with
+        p̂ = exp(r - log Z) at the previous estimate of log Z, which this one then replaces."""
+        log_mu = torch.logaddexp(rewards.detach() - self.log_partition.detach(), log_q) - np.log(2.0)
+        estimate = torch.logsumexp(rewards - log_mu, 0) - np.log(len(rewards))
+        with torch.no_grad():
+            self.log_partition.copy_(estimate)
+        return estimate
+
     @torch.no_grad()
     def _center_on_demos(self) -> None:
         """Shift r_θ so that its mean over the demos' steps is 0: the constant is arbitrary (log Z
@@ -223,16 +254,24 @@ class GuidedCostLearning:
         self.log_partition -= offset
 
     def _sample_batch(self, size: int) -> _Samples:
-        """`size` policy steps drawn uniformly from the pool."""
+        """`size` pooled steps drawn uniformly."""
         assert self.pool is not None
-        index = torch.randint(len(self.pool.log_probs), (size,), generator=self.generator)
+        index = torch.randint(len(self.pool.log_mass), (size,), generator=self.generator)
         return _Samples(**{name: getattr(self.pool, name)[index] for name in _Samples.__dataclass_fields__})
+
+
+# Steps per forward pass when a sampler scores the pool: bounds the activations' memory.
+_CHUNK = 65_536
 
 
 @torch.no_grad()
 def _env_action_log_probs(policy: ActorCritic, observations: torch.Tensor, env_actions: torch.Tensor) -> torch.Tensor:
-    """log π_k(a|s) of env actions (clipped ones as the mass at the bound, on the same footing for
-    demos and samples: `ActorCritic.env_action_log_prob`), computed where the policy is, on the CPU."""
+    """log π(a|s) of env actions (clipped ones as the mass at the bound, on the same footing for
+    demos and samples: `ActorCritic.env_action_log_prob`), computed where the policy is, returned on the CPU."""
     device = policy.action_head.weight.device
-    distribution = policy.distribution(policy.encode(observations.to(device)))
-    return policy.env_action_log_prob(distribution, env_actions.to(device)).cpu()
+    parts = []
+    for start in range(0, len(observations), _CHUNK):
+        chunk = slice(start, start + _CHUNK)
+        distribution = policy.distribution(policy.encode(observations[chunk].to(device)))
+        parts.append(policy.env_action_log_prob(distribution, env_actions[chunk].to(device)).cpu())
+    return torch.cat(parts) if parts else torch.zeros(0)

@@ -233,7 +233,7 @@ def test_gcl_learner_restored_from_its_checkpoint_goes_on_exactly_as_the_origina
     assert torch.equal(copy(demo_rollout(64), policy), original(demo_rollout(64), policy))
     for name, tensor in original.reward.state_dict().items():
         assert torch.equal(copy.reward.state_dict()[name], tensor), name
-    assert torch.equal(copy.pool.observations, original.pool.observations) and len(copy.pool.log_probs) == 128
+    assert torch.equal(copy.pool.observations, original.pool.observations) and len(copy.pool.log_mass) == 128 and len(copy.samplers) == len(original.samplers) > 0
     assert torch.equal(copy.generator.get_state(), original.generator.get_state())
     assert copy.history == original.history and len(copy.history) == 2
     assert torch.equal(copy.log_partition, original.log_partition)
@@ -248,11 +248,11 @@ def test_gcl_learner_rides_in_ppo_checkpoints_and_resumes_with_them() -> None:
     train_ppo(config, rollout_rewards=gcl_learner(seed=0, updates=4), progress=False,
               checkpoints=Checkpointing(save=lambda tensors, state: saved.append((tensors, state)), every=2))
     tensors, state = saved[0]
-    assert state["update"] == 2 and len(state["learner"]["history"]) == 2 and tensors["learner.pool.log_probs"].shape == (512,)
+    assert state["update"] == 2 and len(state["learner"]["history"]) == 2 and tensors["learner.pool.log_mass"].shape == (512,)
     resumed = gcl_learner(seed=1, updates=4)
     train_ppo(config, rollout_rewards=resumed, progress=False, checkpoints=Checkpointing(save=lambda *a: None, resume=saved[0]))
     assert len(resumed.history) == 4 and resumed.history[:2] == state["learner"]["history"]
-    assert len(resumed.pool.log_probs) == 4 * 256, "the pool kept the rollouts from before the interruption"
+    assert len(resumed.pool.log_mass) == 4 * 256 and len(resumed.samplers) == 4, "the pool kept the rollouts from before the interruption"
     with pytest.raises(ImitationError, match="the checkpoint does not fit this PPO run"):
         train_ppo(config, rollout_rewards=gcl_learner(seed=1), progress=False,
                   checkpoints=Checkpointing(save=lambda *a: None, resume=(tensors, {k: v for k, v in state.items() if k != "learner"})))

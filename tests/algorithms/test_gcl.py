@@ -97,3 +97,57 @@ def test_centring_the_reward_on_the_demos_leaves_the_discriminator_unchanged() -
         after = reward(demos.observations, demos.actions, demos.next_observations) - learner.log_partition
     assert reward(demos.observations, demos.actions, demos.next_observations).mean().item() == pytest.approx(0.0, abs=1e-5)
     assert torch.allclose(before, after, atol=1e-5)
+
+
+def _two_rollouts_under_two_policies():
+    """A learner that has pooled one rollout of each of two different policies."""
+    env = gym.make(ENV_ID)
+    demos = transitions_to_torch(load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True))
+    torch.manual_seed(0)
+    reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8], normalize_observations=True)
+    learner = GuidedCostLearning(reward, demos, GCLConfig(warmup_steps=1, reward_steps=1, batch_size=8), updates=2)
+    policies = [make_policy(env.observation_space, env.action_space, hidden_sizes=[8]) for _ in range(2)]
+    with torch.no_grad():
+        policies[1].action_head.bias.copy_(torch.tensor([2.0, -2.0]))  # far from uniform: the two densities differ
+    steps = 6
+    for k, policy in enumerate(policies):
+        rows = slice(k * steps, (k + 1) * steps)
+        learner(Rollout(
+            observations=demos.observations[rows].reshape(3, 2, 5), actions=demos.actions[rows].reshape(3, 2).float(),
+            env_actions=demos.actions[rows].reshape(3, 2).float(), next_observations=demos.next_observations[rows].reshape(3, 2, 5),
+            log_probs=torch.zeros(3, 2), env_rewards=torch.zeros(3, 2), terminated=torch.zeros(3, 2, dtype=torch.bool),
+            truncated=torch.zeros(3, 2, dtype=torch.bool),
+        ), policy)
+    return learner, policies, demos
+
+
+def _probability(policy, observations: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+    with torch.no_grad():
+        return policy.distribution(policy.encode(observations)).probs.gather(-1, actions.long().reshape(-1, 1)).squeeze(-1)
+
+
+def test_every_point_is_weighted_by_one_density_the_mixture_of_the_pooled_samplers() -> None:
+    """Finn et al.'s q(a|s) = (1/K) Σ_k π_k(a|s), for rollout 1's steps, rollout 2's and the demos
+    alike, not each step under the policy that drew it."""
+    learner, (first, second), demos = _two_rollouts_under_two_policies()
+    pool = learner.pool
+    mixture = 0.5 * (_probability(first, pool.observations, pool.env_actions) + _probability(second, pool.observations, pool.env_actions))
+    assert not torch.allclose(_probability(first, pool.observations, pool.env_actions), _probability(second, pool.observations, pool.env_actions), atol=0.05)
+    assert torch.allclose(pool.log_mass - np.log(2), mixture.log(), atol=1e-5)
+    demo_mixture = 0.5 * (_probability(first, demos.observations, demos.actions) + _probability(second, demos.observations, demos.actions))
+    assert torch.allclose(learner.demo_log_mass - np.log(2), demo_mixture.log(), atol=1e-5)
+
+
+def test_the_importance_objective_weights_every_point_by_exp_r_over_the_demo_policy_mixture() -> None:
+    """log Ẑ = log (1/2N) Σ_j exp r_j / μ_j with μ_j = ½ exp(r_j - log Z) + ½ q_j, against the
+    weights written out as probabilities; log Z then holds the estimate."""
+    learner, _, _ = _two_rollouts_under_two_policies()
+    rewards = torch.tensor([0.3, -1.2, 2.0, 0.1])
+    log_q = torch.tensor([-0.1, -2.0, -0.7, -3.0])
+    with torch.no_grad():
+        learner.log_partition.fill_(0.4)
+    mu = 0.5 * rewards.exp() / np.exp(0.4) + 0.5 * log_q.exp()
+    expected = float(np.log((rewards.exp() / mu).mean()))
+    estimate = learner._log_partition_estimate(rewards, log_q)
+    assert estimate.item() == pytest.approx(expected, rel=1e-6)
+    assert learner.log_partition.item() == pytest.approx(expected, rel=1e-6)
