@@ -1,4 +1,4 @@
-"""Both policy classes against closed forms; save/load round trip; env action mapping."""
+"""The policy heads against closed forms; save/load round trip; env action mapping."""
 
 from __future__ import annotations
 
@@ -42,6 +42,50 @@ def test_gaussian_log_prob_and_entropy_match_closed_form() -> None:
     log_prob, entropy = policy.log_prob_and_entropy(policy.distribution(features), actions)
     assert torch.allclose(log_prob, expected_log_prob, atol=1e-5)
     assert torch.allclose(entropy, expected_entropy.expand(6), atol=1e-6)
+
+
+def test_rollout_samples_carry_the_gaussian_log_density_of_the_unclipped_action() -> None:
+    """`sample` writes the log-density out by hand: -(a-μ)²/2σ² - log σ - ½ log 2π per dim, of
+    the unclipped sample, also where the env receives it clipped to the bounds."""
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, gym.spaces.Box(-0.5, 0.5, (2,), np.float32), hidden_sizes=[8])
+    with torch.no_grad():
+        policy.log_std.copy_(torch.tensor([0.7, -0.4]))
+    features = torch.randn(500, 4)
+    action, log_prob, mean = policy.sample(features)
+    sigma = torch.tensor([math.exp(0.7), math.exp(-0.4)])
+    expected = (-((action - mean) ** 2) / (2 * sigma**2) - sigma.log() - 0.5 * math.log(2 * math.pi)).sum(-1)
+    assert torch.allclose(log_prob, expected, atol=1e-5)
+    assert torch.allclose(log_prob, policy.log_prob(policy.distribution(features), action), atol=1e-5)
+    clipped = (action.abs() > 0.5).any(-1)
+    assert clipped.sum() > 100 and (np.abs(policy.to_env_action(action)) <= 0.5).all()
+    # The samples are N(μ, σ²): their spread is σ per dim.
+    assert torch.allclose((action - mean).std(0), sigma, rtol=0.1)
+
+
+def test_multi_discrete_head_is_independent_categoricals_over_class_indices() -> None:
+    torch.manual_seed(0)
+    space = gym.spaces.MultiDiscrete([3, 2], start=[1, -1])
+    policy = make_policy(BOX4, space, hidden_sizes=[8])
+    torch.nn.init.normal_(policy.action_head.weight)
+    features = torch.randn(400, 4)
+    logits = policy.action_head(policy.actor_trunk(features))
+    first, second = torch.log_softmax(logits[:, :3], -1), torch.log_softmax(logits[:, 3:], -1)
+    indices = torch.stack([torch.randint(0, 3, (400,)), torch.randint(0, 2, (400,))], -1)
+    expected = first.gather(-1, indices[:, :1]).squeeze(-1) + second.gather(-1, indices[:, 1:]).squeeze(-1)
+    distribution = policy.distribution(features)
+    log_prob, entropy = policy.log_prob_and_entropy(distribution, indices)
+    assert torch.allclose(log_prob, expected, atol=1e-6)
+    assert torch.allclose(entropy, -(first.exp() * first).sum(-1) - (second.exp() * second).sum(-1), atol=1e-6)
+    action, sampled_log_prob, parameters = policy.sample(features)
+    assert torch.allclose(sampled_log_prob, policy.log_prob(distribution, action), atol=1e-6)
+    assert torch.allclose(parameters, torch.cat([first, second], -1), atol=1e-6)
+    # Env actions are index + start, and back.
+    env_actions = policy.to_env_action(action)
+    assert env_actions.dtype == space.dtype and all(a in space for a in env_actions)
+    assert torch.equal(policy.from_env_action(torch.as_tensor(env_actions)), action)
+    assert torch.allclose(policy.env_action_log_prob(distribution, torch.as_tensor(env_actions)), sampled_log_prob, atol=1e-6)
+    assert (policy.predict(features[:5].numpy()) == (distribution.mode[:5] + torch.tensor([1, -1])).numpy()).all()
 
 
 def test_gaussian_env_actions_are_clipped_to_the_bounds() -> None:

@@ -33,7 +33,7 @@ from typing import Any, Callable
 import gymnasium as gym
 import numpy as np
 import torch
-from torch.distributions import kl_divergence
+from torch.distributions import Distribution, kl_divergence
 from tqdm import tqdm
 
 from imitation.checkpoints import (
@@ -137,7 +137,7 @@ def learned_reward_ppo_defaults(env_id: str, action_space: gym.Space | None = No
 
 
 # ------------------------------------------------------------------------------------------------
-# The three formulas, as pure functions (tested against values worked by hand).
+# The formulas, as pure functions (tested against values worked by hand).
 
 
 def compute_gae(
@@ -168,6 +168,17 @@ def compute_gae(
 def clipped_surrogate(ratio: torch.Tensor, advantages: torch.Tensor, clip_range: float) -> torch.Tensor:
     """min(r Â, clip(r, 1-ε, 1+ε) Â) per sample (to be maximised)."""
     return torch.min(ratio * advantages, torch.clamp(ratio, 1.0 - clip_range, 1.0 + clip_range) * advantages)
+
+
+def policy_kl(old: Distribution, new: Distribution) -> torch.Tensor:
+    """D_KL(π_k(·|s) || π_θ(·|s)) per state, old first as in the notes; summed over a Gaussian's action dims."""
+    kl = kl_divergence(old, new)
+    return kl.reshape(len(kl), -1).sum(-1)
+
+
+def kl_penalty_objective(ratio: torch.Tensor, advantages: torch.Tensor, old: Distribution, new: Distribution, beta: float) -> torch.Tensor:
+    """r Â - β D_KL(π_k || π_θ) per sample (to be maximised)."""
+    return ratio * advantages - beta * policy_kl(old, new)
 
 
 def update_kl_penalty(beta: float, kl: float, target: float) -> float:
@@ -466,9 +477,7 @@ def _train(
                     policy_loss = -clipped_surrogate(ratio, batch_advantages, config.clip_range).mean()
                 else:
                     old = policy.distribution_from(flat_parameters[index], old_log_std)
-                    kl = kl_divergence(old, distribution)
-                    kl = kl.sum(-1) if policy.is_continuous else kl
-                    policy_loss = -(ratio * batch_advantages).mean() + beta * kl.mean()
+                    policy_loss = -kl_penalty_objective(ratio, batch_advantages, old, distribution, beta).mean()
 
                 new_values = policy.value(flat_features[index])
                 if config.clip_value_loss:
@@ -503,10 +512,7 @@ def _train(
             entropy_mean = policy.entropy(policy.distribution(flat_features)).mean().item()
         if config.objective == "kl":
             with torch.no_grad():
-                old = policy.distribution_from(flat_parameters, old_log_std)
-                new = policy.distribution(flat_features)
-                kl_all = kl_divergence(old, new)
-                mean_kl = float((kl_all.sum(-1) if policy.is_continuous else kl_all).mean())
+                mean_kl = policy_kl(policy.distribution_from(flat_parameters, old_log_std), policy.distribution(flat_features)).mean().item()
             beta = update_kl_penalty(beta, mean_kl, config.kl_target)
 
         timers["update"] += time.perf_counter() - update_started

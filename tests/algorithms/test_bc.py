@@ -77,6 +77,21 @@ def test_short_bc_clones_the_bundled_expert(env_id: str, minimum: float) -> None
     assert evaluate_policy(SingleObservationPolicy(trained), env, episodes=5, seed=0)["mean_return"] >= minimum
 
 
+def test_short_bc_on_the_bundled_pendulum_demos_reaches_eight_tenths_of_the_expert() -> None:
+    """The default suite's continuous learning check: 60 epochs of the default BC (seed 0) in a
+    few seconds, normalised between uniform random actions (0) and the demos (1)."""
+    env = make_env("Pendulum-v1")
+    demos = DATASETS / "Pendulum-v1.mcap"
+    env.action_space.seed(0)
+    random_return = evaluate_policy(lambda o: env.action_space.sample(), env, episodes=10, seed=10_000)["mean_return"]
+    expert_return = float(np.mean([f.episode_return for f in DemoFile(demos).episodes]))
+    config = BCConfig(epochs=60, patience=60, seed=0)
+    policy = make_policy(env.observation_space, env.action_space, **policy_options(config))
+    trained = train_bc(policy, transitions_to_torch(load_transitions(demos, next_observations=False)), None, config, progress=False).policy
+    learned = evaluate_policy(SingleObservationPolicy(trained), env, episodes=10, seed=0)["mean_return"]
+    assert (learned - random_return) / (expert_return - random_return) >= 0.8
+
+
 @pytest.mark.slow
 def test_acceptance_pendulum_normalised_return() -> None:
     env = make_env("Pendulum-v1")

@@ -34,6 +34,34 @@ def test_every_visited_state_is_labelled_by_the_expert() -> None:
     assert len(collect_round(env, always_left, cartpole, beta=0.0, episodes=1, seed=4, rng=rng, metadata={})[0]) < 50
 
 
+class LastAction(gym.Env):
+    """Observes the action it was last given (2 before the first): shows who drove each step."""
+
+    observation_space = gym.spaces.Discrete(3)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return 2, {}
+
+    def step(self, action):
+        self.t += 1
+        return int(action), 0.0, False, self.t >= 100, {}
+
+
+def test_an_intermediate_beta_lets_the_expert_act_on_that_share_of_steps() -> None:
+    """π_i = β π* + (1 - β) π̂_i at each step: with β = 0.3 over 2,000 steps the expert's share
+    of the actions taken is 0.3 within four binomial standard deviations (0.041), and the
+    stored actions are the expert's labels throughout."""
+    expert, learner = (lambda observation: 1), (lambda observation: 0)
+    episodes = collect_round(LastAction(), learner, expert, beta=0.3, episodes=20, seed=0, rng=np.random.default_rng(0), metadata={})
+    taken = np.concatenate([episode.observations[1:] for episode in episodes])
+    assert len(taken) == 2000 and abs(taken.mean() - 0.3) < 4 * np.sqrt(0.3 * 0.7 / 2000)
+    assert sum(episode.metadata["expert_steps"] for episode in episodes) == taken.sum()
+    assert all((episode.actions == 1).all() for episode in episodes)
+
+
 def test_dagger_rounds_are_reloadable_demo_files(tmp_path) -> None:
     env = gym.make("CartPole-v1")
     config = DAggerConfig(rounds=3, episodes_per_round=2, seed=0, bc=BCConfig(epochs=15, patience=15, hidden_sizes=[64, 64]))

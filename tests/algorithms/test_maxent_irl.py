@@ -176,3 +176,34 @@ def test_demo_episodes_of_the_wrong_length_are_refused(tmp_path) -> None:
     episodes = _record("imitation/GridWorld8x8-v0", tmp_path / "demos.mcap", episodes=2).read_episodes()
     with pytest.raises(ImitationError, match="demo episode 0 has 30 steps, but the MDP's horizon is 20"):
         demo_visitation(episodes, n_states=64, horizon=20, discount=1.0)
+
+
+def _finite_difference_of_start_value(dynamics: Dynamics, initial: np.ndarray, reward: np.ndarray, states, *, horizon, discount, method) -> np.ndarray:
+    """∂(ρ₀·V_0)/∂r(s) by central differences, for each s in `states`."""
+    gradient = np.empty(len(states))
+    for i, s in enumerate(states):
+        step = np.zeros(len(reward))
+        step[s] = 1e-5
+        high = initial @ soft_value_iteration(dynamics, reward + step, horizon=horizon, discount=discount, method=method)[1]
+        low = initial @ soft_value_iteration(dynamics, reward - step, horizon=horizon, discount=discount, method=method)[1]
+        gradient[i] = (high - low) / 2e-5
+    return gradient
+
+
+@pytest.mark.parametrize("horizon", [12, None])
+@pytest.mark.parametrize(("method", "slip"), [("mce", 0.2), ("mce", 0.0), ("maxent", 0.0)])
+def test_discounted_visitation_is_the_gradient_of_the_soft_start_value(horizon: int | None, method: str, slip: float) -> None:
+    """At γ = 0.9, ∂(ρ₀·V_0)/∂r(s) = D(s) = Σ_t γ^t D_t(s) of the soft-optimal policy: the identity
+    behind ∇L = D̃ - D_θ, which holds only if the backward and forward passes discount alike."""
+    mdp = gridworld(slip=slip, horizon=12)
+    dynamics = Dynamics.of(mdp.transition)
+    reward = np.random.default_rng(0).normal(size=mdp.n_states)
+    policy, _ = soft_value_iteration(dynamics, reward, horizon=horizon, discount=0.9, method=method)
+    visitation = state_visitation(dynamics, mdp.initial, policy, horizon=horizon, discount=0.9)
+    states = np.argsort(-visitation)[:12]  # the most visited, where a wrong discount shows most
+    gradient = _finite_difference_of_start_value(dynamics, mdp.initial, reward, states, horizon=horizon, discount=0.9, method=method)
+    np.testing.assert_allclose(gradient, visitation[states], atol=1e-6)
+    # The undiscounted occupancy is another vector: the test tells γ from no γ.
+    if horizon is not None:
+        undiscounted = state_visitation(dynamics, mdp.initial, policy, horizon=horizon, discount=1.0)
+        assert np.abs(undiscounted - visitation).max() > 0.1

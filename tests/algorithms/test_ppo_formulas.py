@@ -1,11 +1,14 @@
-"""PPO's formulas against values worked by hand: GAE, the KL-penalty rule, the clipped objective."""
+"""PPO's formulas against values worked by hand: GAE, the KL-penalty rule and objective, the clipped objective."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
+from torch.distributions import Categorical, Normal
 
-from imitation.algorithms.ppo import clipped_surrogate, compute_gae, update_kl_penalty
+from imitation.algorithms.ppo import clipped_surrogate, compute_gae, kl_penalty_objective, policy_kl, update_kl_penalty
 
 GAMMA, LAMBDA = 0.9, 0.5
 
@@ -82,3 +85,25 @@ def test_clipped_objective_values() -> None:
     ratio = torch.tensor([0.5, 1.0, 1.5, 0.5, 1.5])
     advantage = torch.tensor([1.0, 2.0, 1.0, -1.0, -1.0])
     assert clipped_surrogate(ratio, advantage, 0.2).tolist() == pytest.approx([0.5, 2.0, 1.2, -0.8, -1.5])
+
+
+# Old N(0, 1) and new N(1, 2²) in one action dim (the other dim unchanged): the two directions differ,
+#   D_KL(π_k || π_θ) = log 2 + (1 + 1) / 8 - 1/2 = 0.4431,   D_KL(π_θ || π_k) = -log 2 + (4 + 1) / 2 - 1/2 = 1.3069.
+GAUSSIAN_KL = math.log(2) + 0.25 - 0.5
+
+
+def test_kl_is_of_the_new_policy_from_the_old_one_summed_over_action_dims() -> None:
+    old = Normal(torch.tensor([[0.0, 0.5]]), torch.tensor([[1.0, 0.3]]))
+    new = Normal(torch.tensor([[1.0, 0.5]]), torch.tensor([[2.0, 0.3]]))
+    assert policy_kl(old, new).tolist() == pytest.approx([GAUSSIAN_KL])
+    assert policy_kl(new, old).tolist() == pytest.approx([-math.log(2) + 2.5 - 0.5])
+    # Categorical: π_k = (½, ½), π_θ = (0.9, 0.1): ½ log(0.5/0.9) + ½ log(0.5/0.1) = 0.5108 (the other way 0.3681).
+    assert policy_kl(Categorical(probs=torch.tensor([[0.5, 0.5]])), Categorical(probs=torch.tensor([[0.9, 0.1]]))).tolist() == pytest.approx([0.5108], abs=1e-4)
+
+
+def test_kl_penalty_objective_by_hand() -> None:
+    """r Â - β D_KL(π_k || π_θ): r = 1.2, Â = 0.5, β = 2."""
+    old = Normal(torch.tensor([[0.0]]), torch.tensor([[1.0]]))
+    new = Normal(torch.tensor([[1.0]]), torch.tensor([[2.0]]))
+    value = kl_penalty_objective(torch.tensor([1.2]), torch.tensor([0.5]), old, new, beta=2.0)
+    assert value.tolist() == pytest.approx([0.6 - 2.0 * GAUSSIAN_KL])
