@@ -5,7 +5,7 @@ DEMO_OUT := demo-output
 # Bundled datasets: seeds start at 1000 so evaluations on seeds 0, 1, 2, ... see fresh starts.
 DATASET_SEED := 1000
 
-.PHONY: venv demo test test-all bench fuzz datasets clean
+.PHONY: venv demo test test-all bench fuzz mutate datasets clean
 
 venv:
 	@bash scripts/bootstrap.sh
@@ -34,6 +34,12 @@ bench: venv
 fuzz: venv
 	$(PY) tools/fuzz.py
 
+# Mutation testing of the numerical core ([tool.mutmut] in pyproject.toml); mutmut keeps its
+# results in mutants/ and re-tests only what changed. Figures: bench/RESULTS.md, issue 14.
+mutate: venv
+	.venv/bin/mutmut run --max-children $$(nproc)
+	$(PY) tools/mutation_report.py
+
 datasets: venv
 	$(IMITATION) record --env CartPole-v1 --expert scripted --episodes 25 --seed $(DATASET_SEED) --out datasets/CartPole-v1.mcap
 	$(IMITATION) record --env MountainCar-v0 --expert scripted --episodes 50 --seed $(DATASET_SEED) --out datasets/MountainCar-v0.mcap
@@ -43,4 +49,4 @@ datasets: venv
 	$(IMITATION) record --env imitation/GridWorld8x8Slippery-v0 --expert scripted --episodes 50 --seed $(DATASET_SEED) --out datasets/GridWorld8x8Slippery-v0.mcap
 
 clean:
-	rm -rf $(DEMO_OUT) .pytest_cache
+	rm -rf $(DEMO_OUT) .pytest_cache mutants

@@ -56,15 +56,15 @@ class RunningMeanStd(nn.Module):
         self.var.fill_(1.0)
         self.count.fill_(self.epsilon)
 
-    @torch.no_grad()
     def update(self, batch: torch.Tensor) -> None:
-        batch = batch.to(torch.float64).reshape(-1, *self.mean.shape)
-        batch_mean, batch_var, batch_count = batch.mean(0), batch.var(0, unbiased=False), batch.shape[0]
-        delta = batch_mean - self.mean
-        total = self.count + batch_count
-        self.mean += delta * batch_count / total
-        self.var.copy_((self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total)
-        self.count.copy_(total)
+        with torch.no_grad():
+            batch = batch.to(torch.float64).reshape(-1, *self.mean.shape)
+            batch_mean, batch_var, batch_count = batch.mean(0), batch.var(0, unbiased=False), batch.shape[0]
+            delta = batch_mean - self.mean
+            total = self.count + batch_count
+            self.mean += delta * batch_count / total
+            self.var.copy_((self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total)
+            self.count.copy_(total)
 
     def normalize(self, x: torch.Tensor, clip: float = 10.0) -> torch.Tensor:
         scaled = (x - self.mean.to(x.dtype)) / torch.sqrt(self.var.to(x.dtype) + 1e-8)
@@ -154,10 +154,6 @@ class MultiCategorical(Distribution):
         self.sizes = sizes
         self.parts = [Categorical(logits=part, validate_args=False) for part in torch.split(logits, sizes, dim=-1)]
         super().__init__(batch_shape=logits.shape[:-1], validate_args=False)
-
-    @property
-    def logits(self) -> torch.Tensor:
-        return torch.cat([part.logits for part in self.parts], -1)
 
     @property
     def mode(self) -> torch.Tensor:
@@ -288,27 +284,27 @@ class ActorCritic(nn.Module):
     def log_prob_and_entropy(self, distribution: Distribution, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.log_prob(distribution, actions), self.entropy(distribution)
 
-    @torch.no_grad()
     def sample(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Sample a ~ π(·|s) for a rollout: (action, log π(a|s), distribution parameters).
 
         Written out rather than through torch.distributions, whose per-call overhead is several
         times the network's cost on a rollout's small batches. The parameters are the Gaussian
         mean or the normalised logits (log-probabilities), enough to rebuild π_k(·|s)."""
-        out = self.action_head(self.actor_trunk(features))
-        if self.is_continuous:
-            noise = torch.randn_like(out)
-            action = out + self.log_std.exp() * noise
-            log_prob = (-0.5 * noise**2 - self.log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
-            return action, log_prob, out
-        if self.action_sizes is not None:
-            parts = [torch.log_softmax(part, -1) for part in torch.split(out, self.action_sizes, dim=-1)]
-            action = torch.cat([torch.multinomial(part.exp(), 1) for part in parts], -1)
-            log_prob = sum(part.gather(-1, action[:, i : i + 1]).squeeze(-1) for i, part in enumerate(parts))
-            return action, log_prob, torch.cat(parts, -1)
-        log_probs = torch.log_softmax(out, -1)
-        action = torch.multinomial(log_probs.exp(), 1).squeeze(-1)
-        return action, log_probs.gather(-1, action[:, None]).squeeze(-1), log_probs
+        with torch.no_grad():
+            out = self.action_head(self.actor_trunk(features))
+            if self.is_continuous:
+                noise = torch.randn_like(out)
+                action = out + self.log_std.exp() * noise
+                log_prob = (-0.5 * noise**2 - self.log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
+                return action, log_prob, out
+            if self.action_sizes is not None:
+                parts = [torch.log_softmax(part, -1) for part in torch.split(out, self.action_sizes, dim=-1)]
+                action = torch.cat([torch.multinomial(part.exp(), 1) for part in parts], -1)
+                log_prob = sum(part.gather(-1, action[:, i : i + 1]).squeeze(-1) for i, part in enumerate(parts))
+                return action, log_prob, torch.cat(parts, -1)
+            log_probs = torch.log_softmax(out, -1)
+            action = torch.multinomial(log_probs.exp(), 1).squeeze(-1)
+            return action, log_probs.gather(-1, action[:, None]).squeeze(-1), log_probs
 
     def value(self, features: torch.Tensor) -> torch.Tensor:
         return self.value_head(self.critic_trunk(features)).squeeze(-1)
@@ -340,12 +336,12 @@ class ActorCritic(nn.Module):
             return (actions.long() + self.action_start).cpu().numpy().astype(self.action_space.dtype)
         return actions.cpu().numpy().astype(np.int64) + int(self.action_space.start)
 
-    @torch.no_grad()
     def predict(self, observations: Any, *, deterministic: bool = True) -> np.ndarray:
         """Env actions for a batch of raw observations (numpy), e.g. for evaluation or as an expert."""
-        tensor = torch.as_tensor(np.asarray(observations), device=self.action_head.weight.device)
-        action, _, _ = self.act(self.encode(tensor), deterministic=deterministic)
-        return self.to_env_action(action)
+        with torch.no_grad():
+            tensor = torch.as_tensor(np.asarray(observations), device=self.action_head.weight.device)
+            action, _, _ = self.act(self.encode(tensor), deterministic=deterministic)
+            return self.to_env_action(action)
 
 
 def make_policy(observation_space: gym.Space, action_space: gym.Space, **options: Any) -> ActorCritic:

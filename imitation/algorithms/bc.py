@@ -83,12 +83,12 @@ def bc_loss(policy: ActorCritic, batch: TransitionTensors, config: BCConfig) -> 
     return loss, {"fit": fit.item()}
 
 
-@torch.no_grad()
 def _mean_loss(policy: ActorCritic, data: TransitionTensors, config: BCConfig) -> float:
-    policy.eval()
-    losses = [bc_loss(policy, batch, config)[1]["fit"] * len(batch) for batch in MinibatchLoader(data, batch_size=4096, shuffle=False)]
-    policy.train()
-    return float(np.sum(losses) / len(data))
+    with torch.no_grad():
+        policy.eval()
+        losses = [bc_loss(policy, batch, config)[1]["fit"] * len(batch) for batch in MinibatchLoader(data, batch_size=4096, shuffle=False)]
+        policy.train()
+        return float(np.sum(losses) / len(data))
 
 
 @dataclass

@@ -242,16 +242,16 @@ class GuidedCostLearning:
             self.log_partition.copy_(estimate)
         return estimate
 
-    @torch.no_grad()
     def _center_on_demos(self) -> None:
         """Shift r_θ so that its mean over the demos' steps is 0: the constant is arbitrary (log Z
         is absorbed into it), and PPO's critic learns far faster when the expert's behaviour is
         worth about 0 and everything else costs, than when every value sits at some large
         offset (measured on fixed-horizon CartPole: 477 vs 8 after retraining)."""
-        demos = self.demos
-        offset = self.reward(demos.observations, demos.actions, demos.next_observations).mean()
-        self.reward.net[-1].bias -= offset
-        self.log_partition -= offset
+        with torch.no_grad():
+            demos = self.demos
+            offset = self.reward(demos.observations, demos.actions, demos.next_observations).mean()
+            self.reward.net[-1].bias -= offset
+            self.log_partition -= offset
 
     def _sample_batch(self, size: int) -> _Samples:
         """`size` pooled steps drawn uniformly."""
@@ -264,14 +264,14 @@ class GuidedCostLearning:
 _CHUNK = 65_536
 
 
-@torch.no_grad()
 def _env_action_log_probs(policy: ActorCritic, observations: torch.Tensor, env_actions: torch.Tensor) -> torch.Tensor:
     """log π(a|s) of env actions (clipped ones as the mass at the bound, on the same footing for
     demos and samples: `ActorCritic.env_action_log_prob`), computed where the policy is, returned on the CPU."""
-    device = policy.action_head.weight.device
-    parts = []
-    for start in range(0, len(observations), _CHUNK):
-        chunk = slice(start, start + _CHUNK)
-        distribution = policy.distribution(policy.encode(observations[chunk].to(device)))
-        parts.append(policy.env_action_log_prob(distribution, env_actions[chunk].to(device)).cpu())
-    return torch.cat(parts) if parts else torch.zeros(0)
+    with torch.no_grad():
+        device = policy.action_head.weight.device
+        parts = []
+        for start in range(0, len(observations), _CHUNK):
+            chunk = slice(start, start + _CHUNK)
+            distribution = policy.distribution(policy.encode(observations[chunk].to(device)))
+            parts.append(policy.env_action_log_prob(distribution, env_actions[chunk].to(device)).cpu())
+        return torch.cat(parts) if parts else torch.zeros(0)

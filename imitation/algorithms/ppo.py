@@ -291,6 +291,97 @@ class PPOResult:
     seconds: float
 
 
+@dataclass
+class UpdateBatch:
+    """A rollout flattened for the update: the encoded states, π_k's actions and log π_k(a|s),
+    Â and R = Â + V, the critic's V at collection, and π_k's parameters (and σ) to rebuild π_k(·|s)."""
+
+    features: torch.Tensor
+    actions: torch.Tensor
+    log_probs: torch.Tensor
+    advantages: torch.Tensor
+    returns: torch.Tensor
+    values: torch.Tensor
+    parameters: torch.Tensor
+    old_log_std: torch.Tensor | None
+
+
+@dataclass
+class UpdateStatistics:
+    """Means over the update's minibatches (entropy: over the rollout after the update)."""
+
+    policy_loss: float
+    value_loss: float
+    approx_kl: float
+    clip_fraction: float
+    entropy: float
+    stopped_early: bool
+
+
+def ppo_update(
+    policy: ActorCritic, optimizer: torch.optim.Optimizer, batch: UpdateBatch, config: PPOConfig, beta: float, *, where: str
+) -> UpdateStatistics:
+    """n_epochs passes over the rollout in shuffled minibatches, each a gradient step on
+
+        -L(θ) + c_v · ½ (V_θ(s) - R)² - c_H · H[π_θ(·|s)]
+
+    with L = L^CLIP or L^KL (β fixed during the update), Â normalised per minibatch, the value
+    loss optionally clipped, max(½(V_θ - R)², ½(V_k + clip(V_θ - V_k, ±ε) - R)²), and the global
+    gradient norm clipped. With `target_kl`, the epochs stop once the last minibatch's KL
+    estimate, mean((r - 1) - log r), passes 1.5 · target_kl."""
+    size = len(batch.log_probs)
+    # Statistics stay tensors until the update ends: one device sync instead of one per batch.
+    statistics: list[torch.Tensor] = []
+    stopped_early = False
+    for epoch in range(config.n_epochs):
+        order = torch.randperm(size, device=batch.log_probs.device)
+        for start in range(0, size, config.batch_size):
+            index = order[start : start + config.batch_size]
+            distribution = policy.distribution(batch.features[index])
+            log_ratio = policy.log_prob(distribution, batch.actions[index]) - batch.log_probs[index]
+            ratio = log_ratio.exp()
+            advantages = batch.advantages[index]
+            if config.normalize_advantages and len(index) > 1:
+                advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+
+            if config.objective == "clip":
+                policy_loss = -clipped_surrogate(ratio, advantages, config.clip_range).mean()
+            else:
+                old = policy.distribution_from(batch.parameters[index], batch.old_log_std)
+                policy_loss = -kl_penalty_objective(ratio, advantages, old, distribution, beta).mean()
+
+            new_values, old_values, returns = policy.value(batch.features[index]), batch.values[index], batch.returns[index]
+            if config.clip_value_loss:
+                clipped_values = old_values + torch.clamp(new_values - old_values, -config.clip_range, config.clip_range)
+                value_loss = 0.5 * torch.max((new_values - returns) ** 2, (clipped_values - returns) ** 2).mean()
+            else:
+                value_loss = 0.5 * ((new_values - returns) ** 2).mean()
+            loss = policy_loss + config.value_coef * value_loss
+            if config.entropy_coef:
+                loss = loss - config.entropy_coef * policy.entropy(distribution).mean()
+            if not torch.isfinite(loss):
+                raise ImitationError(
+                    f"{where}, epoch {epoch + 1}: the loss is {loss.item()} (diverged; try a lower learning rate, or normalised observations/rewards)"
+                )
+
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(policy.parameters(), config.max_grad_norm, foreach=True)
+            optimizer.step()
+
+            with torch.no_grad():
+                approx_kl = ((ratio - 1.0) - log_ratio).mean()
+                clip_fraction = ((ratio - 1.0).abs() > config.clip_range).float().mean()
+                statistics.append(torch.stack([policy_loss.detach(), value_loss.detach(), approx_kl, clip_fraction]))
+        if config.target_kl is not None and statistics[-1][2].item() > 1.5 * config.target_kl:
+            stopped_early = True
+            break
+    policy_loss_mean, value_loss_mean, kl_mean, clip_fraction_mean = torch.stack(statistics).mean(0).tolist()
+    with torch.no_grad():
+        entropy = policy.entropy(policy.distribution(batch.features)).mean().item()
+    return UpdateStatistics(policy_loss_mean, value_loss_mean, kl_mean, clip_fraction_mean, entropy, stopped_early)
+
+
 def train_ppo(
     config: PPOConfig,
     *,
@@ -452,85 +543,34 @@ def _train(
         )
 
         # -- n_epochs of minibatch updates ---------------------------------------------------
-        flat_features = features.reshape(rollout_size, -1)
-        flat_actions = actions.reshape(rollout_size, *action_shape)
-        flat_log_probs, flat_advantages = log_probs.reshape(-1), advantages.reshape(-1)
-        flat_returns, flat_values = returns.reshape(-1), values.reshape(-1)
-        flat_parameters = distribution_parameters.reshape(rollout_size, -1)
-        old_log_std = policy.log_std.detach().clone() if policy.is_continuous else None
-        # Statistics stay tensors until the update ends: one device sync instead of one per batch.
-        statistics: list[torch.Tensor] = []
-        stopped_early = False
-        for epoch in range(config.n_epochs):
-            order = torch.randperm(rollout_size, device=device)
-            for start in range(0, rollout_size, config.batch_size):
-                index = order[start : start + config.batch_size]
-                distribution = policy.distribution(flat_features[index])
-                new_log_prob = policy.log_prob(distribution, flat_actions[index])
-                log_ratio = new_log_prob - flat_log_probs[index]
-                ratio = log_ratio.exp()
-                batch_advantages = flat_advantages[index]
-                if config.normalize_advantages and len(index) > 1:
-                    batch_advantages = (batch_advantages - batch_advantages.mean()) / (batch_advantages.std() + 1e-8)
-
-                if config.objective == "clip":
-                    policy_loss = -clipped_surrogate(ratio, batch_advantages, config.clip_range).mean()
-                else:
-                    old = policy.distribution_from(flat_parameters[index], old_log_std)
-                    policy_loss = -kl_penalty_objective(ratio, batch_advantages, old, distribution, beta).mean()
-
-                new_values = policy.value(flat_features[index])
-                if config.clip_value_loss:
-                    clipped_values = flat_values[index] + torch.clamp(new_values - flat_values[index], -config.clip_range, config.clip_range)
-                    value_loss = 0.5 * torch.max((new_values - flat_returns[index]) ** 2, (clipped_values - flat_returns[index]) ** 2).mean()
-                else:
-                    value_loss = 0.5 * ((new_values - flat_returns[index]) ** 2).mean()
-                loss = policy_loss + config.value_coef * value_loss
-                if config.entropy_coef:
-                    loss = loss - config.entropy_coef * policy.entropy(distribution).mean()
-                if not torch.isfinite(loss):
-                    raise ImitationError(
-                        f"PPO update {update + 1}/{n_updates}, epoch {epoch + 1}: the loss is {loss.item()} "
-                        "(diverged; try a lower learning rate, or normalised observations/rewards)"
-                    )
-
-                optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(policy.parameters(), config.max_grad_norm, foreach=True)
-                optimizer.step()
-
-                with torch.no_grad():
-                    approx_kl = ((ratio - 1.0) - log_ratio).mean()
-                    clip_fraction = ((ratio - 1.0).abs() > config.clip_range).float().mean()
-                    statistics.append(torch.stack([policy_loss.detach(), value_loss.detach(), approx_kl, clip_fraction]))
-            if config.target_kl is not None and statistics[-1][2].item() > 1.5 * config.target_kl:
-                stopped_early = True
-                break
-
-        policy_loss_mean, value_loss_mean, mean_kl, clip_fraction_mean = torch.stack(statistics).mean(0).tolist()
-        with torch.no_grad():
-            entropy_mean = policy.entropy(policy.distribution(flat_features)).mean().item()
+        batch = UpdateBatch(
+            features=features.reshape(rollout_size, -1), actions=actions.reshape(rollout_size, *action_shape), log_probs=log_probs.reshape(-1),
+            advantages=advantages.reshape(-1), returns=returns.reshape(-1), values=values.reshape(-1),
+            parameters=distribution_parameters.reshape(rollout_size, -1), old_log_std=policy.log_std.detach().clone() if policy.is_continuous else None,
+        )
+        measured = ppo_update(policy, optimizer, batch, config, beta, where=f"PPO update {update + 1}/{n_updates}")
+        mean_kl = measured.approx_kl
         if config.objective == "kl":
             with torch.no_grad():
-                mean_kl = policy_kl(policy.distribution_from(flat_parameters, old_log_std), policy.distribution(flat_features)).mean().item()
+                mean_kl = policy_kl(policy.distribution_from(batch.parameters, batch.old_log_std), policy.distribution(batch.features)).mean().item()
             beta = update_kl_penalty(beta, mean_kl, config.kl_target)
 
         timers["update"] += time.perf_counter() - update_started
-        explained_variance = 1.0 - float(torch.var(flat_returns - flat_values) / (torch.var(flat_returns) + 1e-8))
+        explained_variance = 1.0 - float(torch.var(batch.returns - batch.values) / (torch.var(batch.returns) + 1e-8))
         elapsed = time.perf_counter() - started
         row = {
             "step": float(global_step),
             "return": float(np.mean(recent_returns)) if recent_returns else float("nan"),
             "optimised_return": float(np.mean(recent_optimised_returns)) if recent_optimised_returns else float("nan"),
-            "policy_loss": policy_loss_mean,
-            "value_loss": value_loss_mean,
-            "entropy": entropy_mean,
+            "policy_loss": measured.policy_loss,
+            "value_loss": measured.value_loss,
+            "entropy": measured.entropy,
             "kl": mean_kl,
             "kl_beta": beta if config.objective == "kl" else float("nan"),
-            "clip_fraction": clip_fraction_mean,
+            "clip_fraction": measured.clip_fraction,
             "explained_variance": explained_variance,
             "learning_rate": optimizer.param_groups[0]["lr"],
-            "early_stop": float(stopped_early),
+            "early_stop": float(measured.stopped_early),
             "steps_per_second": global_step / elapsed,
             "seconds_env": timers["env"],
             "seconds_inference": timers["inference"],

@@ -29,6 +29,12 @@ def test_gae_without_episode_ends() -> None:
     assert returns == pytest.approx([1.9297, 1.666, 1.18])
 
 
+def test_gae_of_a_one_step_rollout() -> None:
+    # δ0 = 1 + 0.9·2 − 0.5 = 2.3 = Â0 (n_steps = 1 is a valid rollout length).
+    advantages, returns = gae([1], [0.5], [2.0], [0], [0])
+    assert advantages == pytest.approx([2.3]) and returns == pytest.approx([2.8])
+
+
 def test_gae_termination_does_not_bootstrap() -> None:
     # Step 1 terminates: δ1 = 1 − 0.4 (no γV), and Â1 does not look into the next episode.
     advantages, _ = gae([1, 1, 1], [0.5, 0.4, 0.3], [0.4, 123.0, 0.2], [0, 1, 0], [0, 0, 0])
