@@ -37,8 +37,7 @@ fuzz: venv
 # Mutation testing of the numerical core ([tool.mutmut] in pyproject.toml); mutmut keeps its
 # results in mutants/ and re-tests only what changed. Figures: bench/RESULTS.md, issue 14.
 mutate: venv
-	.venv/bin/mutmut run --max-children $$(nproc)
-	$(PY) tools/mutation_report.py
+	OMP_NUM_THREADS=1 $(PY) tools/mutation_report.py --run
 
 datasets: venv
 	$(IMITATION) record --env CartPole-v1 --expert scripted --episodes 25 --seed $(DATASET_SEED) --out datasets/CartPole-v1.mcap

@@ -151,7 +151,6 @@ class MultiCategorical(Distribution):
     arg_constraints: dict = {}
 
     def __init__(self, logits: torch.Tensor, sizes: list[int]) -> None:
-        self.sizes = sizes
         self.parts = [Categorical(logits=part, validate_args=False) for part in torch.split(logits, sizes, dim=-1)]
         super().__init__(batch_shape=logits.shape[:-1], validate_args=False)
 

@@ -130,6 +130,39 @@ def test_observation_normaliser_tracks_mean_and_variance() -> None:
     assert torch.allclose(policy.obs_rms.var.float(), data.var(0, unbiased=False), rtol=1e-3)
 
 
+def test_normalised_observations_are_standardised_then_clipped_at_ten() -> None:
+    """(x - μ) / √(σ² + 1e-8), clipped to ±10; a constant dimension (σ² = 0) stays finite."""
+    policy = make_policy(BOX4, gym.spaces.Discrete(2), normalize_observations=True)
+    with torch.no_grad():
+        policy.obs_rms.mean.copy_(torch.tensor([1.0, -2.0, 0.0, 3.0], dtype=torch.float64))
+        policy.obs_rms.var.copy_(torch.tensor([4.0, 0.25, 0.0, 1e-6], dtype=torch.float64))
+    x = torch.tensor([[3.0, -2.5, 0.0, 3.001], [-100.0, 100.0, 1.0, 2.0]])
+    expected = ((x.double() - policy.obs_rms.mean) / torch.sqrt(policy.obs_rms.var + 1e-8)).clamp(-10, 10).float()
+    features = policy.encode(x)
+    assert torch.allclose(features, expected, atol=1e-6)
+    assert features[0].tolist() == pytest.approx([1.0, -1.0, 0.0, 1.0 / np.sqrt(1.01e-6) * 1e-3], rel=1e-4)
+    assert features[1, :2].tolist() == [-10.0, 10.0] and features[1, 2].item() == 10.0
+
+
+def test_multi_discrete_samples_follow_each_components_probabilities() -> None:
+    """Stochastic acting on MultiDiscrete: each component drawn from its own softmax, independently."""
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, gym.spaces.MultiDiscrete([3, 2]), hidden_sizes=[8])
+    with torch.no_grad():
+        policy.action_head.weight.zero_()
+        policy.action_head.bias.copy_(torch.log(torch.tensor([0.6, 0.3, 0.1, 0.2, 0.8])))
+    features = torch.zeros(20_000, 4)
+    action, _, _ = policy.act(features)
+    assert action.shape == (20_000, 2)
+    first = torch.bincount(action[:, 0], minlength=3) / 20_000
+    second = torch.bincount(action[:, 1], minlength=2) / 20_000
+    assert torch.allclose(first, torch.tensor([0.6, 0.3, 0.1]), atol=0.015) and torch.allclose(second, torch.tensor([0.2, 0.8]), atol=0.015)
+    sampled = policy.distribution(features[:5]).sample(torch.Size([7]))
+    assert sampled.shape == (7, 5, 2)
+    deterministic, _, _ = policy.act(features[:3], deterministic=True)
+    assert deterministic.tolist() == [[0, 1]] * 3
+
+
 def test_saved_policy_acts_identically(tmp_path) -> None:
     policy = make_policy(BOX4, gym.spaces.Box(-1, 1, (2,), np.float32), normalize_observations=True, hidden_sizes=[16, 16])
     policy.update_normalizer(torch.randn(50, 4) * 3)

@@ -1,12 +1,15 @@
-"""The mutation score of the numerical core, per module, from the last `mutmut run` (`make mutate`).
+"""Mutation testing of the numerical core with mutmut, and its score per module (`make mutate`).
 
-Every mutant mutmut generated in the modules [tool.mutmut] names is counted: killed (a test
-failed, or the mutant ran past mutmut's time limit), equivalent (it survived, and
-bench/mutation_equivalents.toml says why no test can tell it from the original), or surviving.
-The score is killed / (generated - equivalent). Surviving mutants are listed by name: `mutmut
-show NAME` prints the change.
+The core is the functions SCOPE names (mutmut's own names, matched as prefixes): PPO's formulas
+and update, GAE, the policies' log-probabilities, entropies and sampling, BC's loss, DAgger's
+mixture, soft value iteration and visitation, EPIC, GCL's loss and weights, the reward models and
+the loader's column placement. Each of their mutants is counted as killed (a test failed, or it
+ran past mutmut's time limit), equivalent (it survived, and bench/mutation_equivalents.toml says
+why no test can tell it from the original) or surviving; the score is killed / (generated -
+equivalent). Survivors are listed by name: `mutmut show NAME` prints the change.
 
-    python tools/mutation_report.py            # the table, then the survivors
+    python tools/mutation_report.py --run      # mutmut run over SCOPE (results kept in mutants/), then the table
+    python tools/mutation_report.py            # the table of the last run, then the survivors
     python tools/mutation_report.py --json     # one JSON object
 """
 
@@ -14,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import subprocess
 import sys
@@ -24,18 +28,76 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 EQUIVALENTS = REPO / "bench" / "mutation_equivalents.toml"
 DETECTED = ("killed", "timeout", "caught by type check", "segfault")
+SCOPE = (
+    "imitation.algorithms.ppo.x_compute_gae",
+    "imitation.algorithms.ppo.x_clipped_surrogate",
+    "imitation.algorithms.ppo.x_policy_kl",
+    "imitation.algorithms.ppo.x_kl_penalty_objective",
+    "imitation.algorithms.ppo.x_update_kl_penalty",
+    "imitation.algorithms.ppo.x_ppo_update",
+    "imitation.algorithms.ppo.xǁRewardScalerǁ__call__",
+    "imitation.policies.xǁRunningMeanStdǁupdate",
+    "imitation.policies.xǁRunningMeanStdǁnormalize",
+    "imitation.policies.xǁMultiCategoricalǁ",
+    "imitation.policies.xǁActorCriticǁencode",
+    "imitation.policies.xǁActorCriticǁdistribution",
+    "imitation.policies.xǁActorCriticǁlog_prob",
+    "imitation.policies.xǁActorCriticǁenv_action_log_prob",
+    "imitation.policies.xǁActorCriticǁentropy",
+    "imitation.policies.xǁActorCriticǁsample",
+    "imitation.policies.xǁActorCriticǁact",
+    "imitation.policies.xǁActorCriticǁvalue",
+    "imitation.policies.xǁActorCriticǁfrom_env_action",
+    "imitation.policies.xǁActorCriticǁto_env_action",
+    "imitation.policies.xǁActorCriticǁpredict",
+    "imitation.algorithms.bc.x_bc_loss",
+    "imitation.algorithms.dagger.x_beta_for_round",
+    "imitation.algorithms.dagger.x_collect_round",
+    "imitation.algorithms.maxent_irl.x_soft_value_iteration",
+    "imitation.algorithms.maxent_irl.x_visits_by_time",
+    "imitation.algorithms.maxent_irl.x_state_visitation",
+    "imitation.algorithms.maxent_irl.x_expected_return",
+    "imitation.algorithms.maxent_irl.x_demo_visitation",
+    "imitation.algorithms.maxent_irl.x__transitions_visitation",
+    "imitation.algorithms.maxent_irl.x__logsumexp",
+    "imitation.algorithms.maxent_irl.xǁDenseDynamicsǁ",
+    "imitation.algorithms.maxent_irl.xǁSparseDynamicsǁ",
+    "imitation.evaluation.epic.",
+    "imitation.algorithms.gcl.xǁGuidedCostLearningǁ__call__",
+    "imitation.algorithms.gcl.xǁGuidedCostLearningǁ_step",
+    "imitation.algorithms.gcl.xǁGuidedCostLearningǁ_log_partition_estimate",
+    "imitation.algorithms.gcl.xǁGuidedCostLearningǁ_center_on_demos",
+    "imitation.algorithms.gcl.xǁGuidedCostLearningǁ_sample_batch",
+    "imitation.algorithms.gcl.x__env_action_log_probs",
+    "imitation.rewards.xǁRewardNetǁforward",
+    "imitation.rewards.xǁRewardNetǁinputs",
+    "imitation.rewards.xǁRewardNetǁ_encode_observations",
+    "imitation.rewards.xǁRewardNetǁset_observation_statistics",
+    "imitation.rewards.x_relabel_rollout",
+    "imitation.rewards.x_flat_batch",
+    "imitation.rewards.x__one_hot_or_flat",
+    "imitation.rewards.xǁLearnedRewardǁstep",
+    "imitation.data.columns.",
+)
 # imitation.algorithms.ppo.x_compute_gae__mutmut_17, imitation.policies.xǁActorCriticǁsample__mutmut_3
 _NAME = re.compile(r"^(?P<module>[\w.]+)\.x(?:_|ǁ)")
 
 
+MUTMUT = Path(sys.executable).with_name("mutmut")
+
+
+def run_mutmut(workers: int) -> None:
+    """`mutmut run` over the core's mutants only."""
+    subprocess.run([str(MUTMUT), "run", "--max-children", str(workers), *(f"{prefix}*" for prefix in SCOPE)], cwd=REPO, check=True)
+
+
 def mutant_statuses() -> dict[str, str]:
-    """Every mutant's status, as `mutmut results --all true` prints them."""
-    mutmut = Path(sys.executable).with_name("mutmut")
-    listing = subprocess.run([str(mutmut), "results", "--all", "true"], cwd=REPO, capture_output=True, text=True, check=True).stdout
+    """The status of every mutant of the core, as `mutmut results --all true` prints them."""
+    listing = subprocess.run([str(MUTMUT), "results", "--all", "true"], cwd=REPO, capture_output=True, text=True, check=True).stdout
     statuses = {}
     for line in listing.splitlines():
         name, _, status = line.strip().rpartition(": ")
-        if name:
+        if name.startswith(SCOPE):
             statuses[name] = status
     return statuses
 
@@ -64,8 +126,12 @@ def report(statuses: dict[str, str], equivalents: dict[str, str]) -> dict[str, d
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--run", action="store_true", help="run mutmut over the core first")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="mutants tested at once (default: the CPU count)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
+    if args.run:
+        run_mutmut(args.workers)
     equivalents = tomllib.loads(EQUIVALENTS.read_text()) if EQUIVALENTS.exists() else {}
     statuses = mutant_statuses()
     stale = sorted(set(equivalents) - set(statuses))

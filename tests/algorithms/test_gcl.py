@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -99,13 +101,13 @@ def test_centring_the_reward_on_the_demos_leaves_the_discriminator_unchanged() -
     assert torch.allclose(before, after, atol=1e-5)
 
 
-def _two_rollouts_under_two_policies():
+def _two_rollouts_under_two_policies(**options):
     """A learner that has pooled one rollout of each of two different policies."""
     env = gym.make(ENV_ID)
     demos = transitions_to_torch(load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True))
     torch.manual_seed(0)
-    reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8], normalize_observations=True)
-    learner = GuidedCostLearning(reward, demos, GCLConfig(warmup_steps=1, reward_steps=1, batch_size=8), updates=2)
+    reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8], normalize_observations=True, inputs=options.pop("inputs", "s"))
+    learner = GuidedCostLearning(reward, demos, GCLConfig(warmup_steps=1, reward_steps=1, batch_size=8, **options), updates=2)
     policies = [make_policy(env.observation_space, env.action_space, hidden_sizes=[8]) for _ in range(2)]
     with torch.no_grad():
         policies[1].action_head.bias.copy_(torch.tensor([2.0, -2.0]))  # far from uniform: the two densities differ
@@ -151,3 +153,107 @@ def test_the_importance_objective_weights_every_point_by_exp_r_over_the_demo_pol
     estimate = learner._log_partition_estimate(rewards, log_q)
     assert estimate.item() == pytest.approx(expected, rel=1e-6)
     assert learner.log_partition.item() == pytest.approx(expected, rel=1e-6)
+
+
+@pytest.mark.parametrize("objective", ["discriminator", "importance"])
+def test_one_reward_step_is_the_objective_with_the_gradient_penalty_written_out(objective: str) -> None:
+    """A step of `_step` against the module docstring's loss computed here, on r(s, a, s') (so
+    every input counts), both with plain SGD (whose step shows every term's size)."""
+    learner, _, demos = _two_rollouts_under_two_policies(inputs="sas", objective=objective, gradient_penalty=0.5)
+    learner.optimizer = torch.optim.SGD([*learner.reward.parameters(), learner.log_partition], lr=0.1)
+    oracle, log_partition = copy.deepcopy(learner.reward), learner.log_partition.detach().clone().requires_grad_(True)
+    draws = torch.Generator()
+    draws.set_state(learner.generator.get_state())
+    loss, demo_accuracy, sample_accuracy = learner._step(1, 1)
+
+    demo_index, pool_index = torch.randint(len(demos), (8,), generator=draws), torch.randint(12, (8,), generator=draws)
+    pool = learner.pool
+    inputs = oracle.inputs(
+        torch.cat([demos.observations[demo_index], pool.observations[pool_index]]), torch.cat([demos.actions[demo_index], pool.env_actions[pool_index]]),
+        torch.cat([demos.next_observations[demo_index], pool.next_observations[pool_index]]),
+    ).requires_grad_(True)
+    r = oracle.net(inputs)[:, 0]
+    log_q = torch.cat([learner.demo_log_mass[demo_index], pool.log_mass[pool_index]]) - np.log(2)  # K = 2 samplers
+    logits = r - log_partition - log_q
+    if objective == "importance":
+        log_mu = torch.logaddexp(r.detach() - log_partition.detach(), log_q) - np.log(2)
+        expected_estimate = torch.logsumexp(r - log_mu, 0) - np.log(16)
+        expected = -r[:8].mean() + expected_estimate
+    else:
+        expected = torch.nn.functional.binary_cross_entropy_with_logits(logits, torch.tensor([1.0] * 8 + [0.0] * 8))
+    (gradient,) = torch.autograd.grad(r.sum(), inputs, create_graph=True)
+    expected = expected + 0.5 * (gradient**2).sum(1).mean()
+    assert loss == pytest.approx(expected.item(), rel=1e-5)
+    assert (demo_accuracy, sample_accuracy) == (pytest.approx((logits[:8] > 0).float().mean().item()), pytest.approx((logits[8:] < 0).float().mean().item()))
+    expected.backward()
+    with torch.no_grad():
+        for parameter in oracle.parameters():
+            parameter -= 0.1 * parameter.grad
+    for (name, mine), theirs in zip(learner.reward.named_parameters(), oracle.parameters()):
+        assert torch.allclose(mine, theirs, atol=1e-6), name
+    if objective == "importance":
+        assert learner.log_partition.item() == pytest.approx(expected_estimate.item(), rel=1e-5)
+    else:
+        assert learner.log_partition.item() == pytest.approx((log_partition - 0.1 * log_partition.grad).item(), rel=1e-5)
+
+
+def test_each_rollout_takes_its_reward_steps_with_the_learning_rate_annealed_and_logs_their_means() -> None:
+    """Rollout k (from 0) takes reward_steps (+ warmup_steps when k = 0) steps at lr·max(0, 1 - k/updates);
+    its row holds the means of the steps' loss and accuracies."""
+    env = gym.make(ENV_ID)
+    demos = transitions_to_torch(load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True))
+    torch.manual_seed(0)
+    reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8], normalize_observations=True)
+    learner = GuidedCostLearning(reward, demos, GCLConfig(warmup_steps=3, reward_steps=2, batch_size=8, learning_rate=0.01), updates=2)
+    steps, take_step = [], learner._step
+    learner._step = lambda step, total: steps.append((step, total, take_step(step, total))) or steps[-1][2]
+    policy = make_policy(env.observation_space, env.action_space)
+    first = demos.observations[:6].reshape(3, 2, 5) * 3.0
+    rates = []
+    for k in range(3):
+        observations = first if k == 0 else demos.observations[6:12].reshape(3, 2, 5)
+        learner(Rollout(
+            observations=observations, actions=torch.zeros(3, 2), env_actions=torch.zeros(3, 2), next_observations=observations,
+            log_probs=torch.zeros(3, 2), env_rewards=torch.zeros(3, 2), terminated=torch.zeros(3, 2, dtype=torch.bool),
+            truncated=torch.zeros(3, 2, dtype=torch.bool),
+        ), policy)
+        rates.append(learner.optimizer.param_groups[0]["lr"])
+    assert [(step, total) for step, total, _ in steps] == [(1, 5), (2, 5), (3, 5), (4, 5), (5, 5), (1, 2), (2, 2), (1, 2), (2, 2)]
+    assert rates == pytest.approx([0.01, 0.005, 0.0])
+    first_row = np.mean([result for _, _, result in steps[:5]], axis=0)
+    assert learner.history[0] == pytest.approx(dict(zip(("reward_loss", "demo_accuracy", "sample_accuracy"), first_row)))
+    # The observation statistics come from the demos and the first rollout only.
+    expected = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8], normalize_observations=True)
+    expected.set_observation_statistics(demos.observations, first.reshape(6, 5))
+    assert torch.allclose(reward.observation_std, expected.observation_std) and torch.allclose(reward.observation_mean, expected.observation_mean)
+
+
+def test_the_samplers_are_copies_of_the_policy_as_it_was() -> None:
+    learner, (first, second), _ = _two_rollouts_under_two_policies()
+    before = [parameter.clone() for parameter in learner.samplers[1].parameters()]
+    with torch.no_grad():
+        second.action_head.bias.add_(5.0)  # PPO's update changes the policy in place
+    assert all(torch.equal(a, b) for a, b in zip(before, learner.samplers[1].parameters()))
+
+
+def test_continuous_actions_keep_their_dimensions_in_the_pool_and_the_entropy_term() -> None:
+    """Pendulum's (T, n, 1) actions: the pool holds one action per step, and PPO's reward is
+    r_θ(s) - α log π_k(a|s) per step (α = 0.5 here)."""
+    env = gym.make("Pendulum-v1")
+    demos = transitions_to_torch(load_transitions(DemoDataset([DATASETS / "Pendulum-v1.mcap"]), next_observations=True))
+    torch.manual_seed(0)
+    reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8], normalize_observations=True)
+    learner = GuidedCostLearning(reward, demos, GCLConfig(warmup_steps=1, reward_steps=1, batch_size=8, policy_entropy=0.5), updates=1)
+    policy = make_policy(env.observation_space, env.action_space, hidden_sizes=[8], log_std_init=-0.5)
+    shaped = lambda tensor: tensor[:8].reshape(4, 2, *tensor.shape[1:])  # noqa: E731
+    rollout = Rollout(
+        observations=shaped(demos.observations), actions=shaped(demos.actions), env_actions=shaped(demos.actions),
+        next_observations=shaped(demos.next_observations), log_probs=torch.zeros(4, 2), env_rewards=torch.zeros(4, 2),
+        terminated=torch.zeros(4, 2, dtype=torch.bool), truncated=torch.zeros(4, 2, dtype=torch.bool),
+    )
+    rewards = learner(rollout, policy)
+    assert learner.pool.env_actions.shape == (8, 1)
+    with torch.no_grad():
+        log_probs = policy.env_action_log_prob(policy.distribution(policy.encode(demos.observations[:8])), demos.actions[:8])
+        expected = reward(demos.observations[:8], demos.actions[:8], demos.next_observations[:8]) - 0.5 * log_probs
+    assert torch.allclose(rewards.reshape(-1), expected, atol=1e-5)

@@ -9,8 +9,8 @@ import torch
 
 import imitation.envs  # noqa: F401  (registers the ids)
 from imitation.algorithms.maxent_irl import (
-    DenseDynamics, Dynamics, MaxEntIRLConfig, SparseDynamics, all_state_rewards, demo_visitation, expected_return,
-    soft_value_iteration, state_visitation, train_maxent_irl,
+    DenseDynamics, Dynamics, MaxEntIRLConfig, SparseDynamics, _logsumexp, _logsumexp_rows, all_state_rewards, demo_visitation,
+    expected_return, soft_value_iteration, state_visitation, train_maxent_irl,
 )
 from imitation.data.recorder import RecordEpisodes, run_episodes
 from imitation.data.store import DemoDataset, DemoWriter
@@ -71,6 +71,31 @@ def test_dense_and_sparse_dynamics_agree() -> None:
     mass = np.random.default_rng(1).random((mdp.n_states, mdp.n_actions))
     assert np.allclose(dense.propagate(mass), sparse.propagate(mass))
     assert isinstance(Dynamics.of(mdp.transition), SparseDynamics) and isinstance(Dynamics.of(gridworld().transition), DenseDynamics)
+
+
+def test_log_sum_exp_rows_hold_far_apart_scales() -> None:
+    """log Σ_a exp q(s, a) per row, each shifted by its own maximum: rows around -1000 and +1000
+    would under- or overflow with one shift for the whole array."""
+    values = np.array([[-1000.0, -1001.0, -1002.0], [1000.0, 999.0, 1001.0]] * 3000)
+    expected = values.max(1) + np.log(np.exp(values - values.max(1, keepdims=True)).sum(1))
+    np.testing.assert_allclose(_logsumexp_rows(values), expected, rtol=1e-12)  # the large-array path
+    np.testing.assert_allclose(_logsumexp_rows(values[:2]), expected[:2], rtol=1e-12)
+    np.testing.assert_allclose(_logsumexp(values.T, axis=0), expected, rtol=1e-12)
+    np.testing.assert_allclose(_logsumexp(values[:2], axis=1), expected[:2], rtol=1e-12)
+
+
+def test_sparse_dynamics_are_marked_deterministic_only_when_every_move_is() -> None:
+    assert SparseDynamics(gridworld().transition, width=3).is_deterministic
+    assert not SparseDynamics(gridworld(slip=0.2).transition, width=3).is_deterministic
+    assert DenseDynamics(gridworld().transition).is_deterministic and not DenseDynamics(gridworld(slip=0.2).transition).is_deterministic
+
+
+def test_expected_return_pays_for_the_h_states_acted_in() -> None:
+    """Σ_{t<H} E[r(s_t)]: two states, stay or swap, H = 2, start in s0 and always swap: r(s0) + r(s1)."""
+    transition = np.array([[[1.0, 0.0], [0.0, 1.0]], [[0.0, 1.0], [1.0, 0.0]]])
+    swap = np.tile([0.0, 1.0], (2, 2, 1))
+    mdp = TabularMDP(transition=transition, initial=np.array([1.0, 0.0]), features=np.eye(2), reward=np.array([1.0, 10.0]), horizon=2)
+    assert expected_return(Dynamics.of(transition), mdp, swap) == pytest.approx(11.0)
 
 
 def test_backward_pass_by_hand() -> None:

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 from torch.distributions import Categorical, Normal
 
-from imitation.algorithms.ppo import clipped_surrogate, compute_gae, kl_penalty_objective, policy_kl, update_kl_penalty
+from imitation.algorithms.ppo import RewardScaler, clipped_surrogate, compute_gae, kl_penalty_objective, policy_kl, update_kl_penalty
 
 GAMMA, LAMBDA = 0.9, 0.5
 
@@ -113,3 +114,23 @@ def test_kl_penalty_objective_by_hand() -> None:
     new = Normal(torch.tensor([[1.0]]), torch.tensor([[2.0]]))
     value = kl_penalty_objective(torch.tensor([1.2]), torch.tensor([0.5]), old, new, beta=2.0)
     assert value.tolist() == pytest.approx([0.6 - 2.0 * GAUSSIAN_KL])
+
+
+def test_reward_scaling_divides_by_the_running_std_of_the_discounted_return() -> None:
+    """R_t = γ R_{t-1} + r_t per env (restarting after an episode ends); each reward is divided by
+    the std of every R so far and clipped to ±10."""
+    scaler = RewardScaler(n_envs=2, gamma=GAMMA)
+    rng = np.random.default_rng(0)
+    returns, seen = np.zeros(2), []
+    for t in range(100):
+        rewards = rng.normal(1.0, 2.0, size=2)
+        if t == 90:
+            rewards[1] = 1e4  # far beyond ten standard deviations
+        dones = np.array([t % 7 == 6, t % 11 == 10])
+        returns = GAMMA * returns + rewards
+        seen += list(returns)
+        expected = np.clip(rewards / np.sqrt(np.var(seen) + 1e-8), -10.0, 10.0)
+        scaled = scaler(rewards, dones)
+        np.testing.assert_allclose(scaled, expected, rtol=2e-3)
+        assert t != 90 or scaled[1] == 10.0
+        returns[dones] = 0.0

@@ -357,3 +357,49 @@ def test_coverage_errors() -> None:
         uniform_space_samples(gym.spaces.MultiBinary(3), 5, rng=np.random.default_rng(0), reference=np.zeros((0, 3)))
     with pytest.raises(ImitationError, match="unbounded Box dimension needs reference"):
         uniform_space_samples(env.observation_space, 5, rng=np.random.default_rng(0), reference=np.zeros((0, 4)))
+
+
+def test_uniform_samples_of_a_shifted_discrete_and_a_half_bounded_box() -> None:
+    rng = np.random.default_rng(0)
+    values = uniform_space_samples(gym.spaces.Discrete(3, start=2), 3000, rng=rng, reference=np.zeros((0,)))
+    assert set(np.unique(values)) == {2, 3, 4} and values.dtype == np.int64
+    # Dimension 0 is bounded below only: its range comes from the reference, as dimension 1's does.
+    box = gym.spaces.Box(np.array([0.0, -np.inf, -1.0]), np.array([np.inf, np.inf, 1.0]), dtype=np.float32)
+    reference = np.array([[2.0, -3.0, 0.0], [5.0, 4.0, 0.0]])
+    samples = uniform_space_samples(box, 5000, rng=rng, reference=reference)
+    assert samples.dtype == np.float32 and samples.shape == (5000, 3)
+    for dimension, (low, high) in enumerate([(2.0, 5.0), (-3.0, 4.0), (-1.0, 1.0)]):
+        assert low <= samples[:, dimension].min() < low + 0.01 and high - 0.01 < samples[:, dimension].max() <= high
+
+
+def test_coverage_without_rollouts_or_uniform_samples_and_its_default_seed() -> None:
+    """Unbounded dimensions take the range of the demos' states (not the rollouts'), and the
+    default seed is 0."""
+    env = gym.make("CartPole-v1")
+    rng = np.random.default_rng(3)
+    demo_states = rng.uniform(-0.5, 0.5, size=(11, 4)).astype(np.float32)
+    demos = _transitions(demo_states[:-1], rng.integers(0, 2, size=10), demo_states[1:])
+    only_demos = coverage_samples(env, demos, n_uniform=0)
+    assert all(np.array_equal(part, expected) for part, expected in zip(only_demos, (demos.observations, demos.actions, demos.next_observations)))
+    wide = TransitionBatch(*rng.uniform(-3.0, 3.0, size=(3, 20, 4)).astype(np.float32))._replace(actions=np.ones(20, dtype=np.int64))
+    batch = coverage_samples(env, demos, wide, n_uniform=500)
+    uniform = np.concatenate([batch.observations[30:], batch.next_observations[30:]])
+    for unbounded in (1, 3):
+        assert demo_states[:, unbounded].min() <= uniform[:, unbounded].min() and uniform[:, unbounded].max() <= demo_states[:, unbounded].max()
+    assert all(np.array_equal(x, y) for x, y in zip(batch, coverage_samples(env, demos, wide, n_uniform=500, seed=0)))
+    assert not np.array_equal(batch.observations, coverage_samples(env, demos, wide, n_uniform=500, seed=1).observations)
+    with pytest.raises(ImitationError, match="n_uniform must be non-negative"):
+        coverage_samples(env, demos, n_uniform=-1)
+
+
+def test_unbounded_actions_take_the_range_of_the_demos_actions() -> None:
+    class Unbounded(gym.Env):
+        observation_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+        action_space = gym.spaces.Box(-np.inf, np.inf, (1,), np.float32)
+
+    rng = np.random.default_rng(5)
+    states = rng.uniform(-1, 1, size=(11, 2)).astype(np.float32)
+    demos = _transitions(states[:-1], rng.uniform(-0.2, 0.7, size=(10, 1)).astype(np.float32), states[1:])
+    rollouts = TransitionBatch(states[:5], np.full((5, 1), 9.0, np.float32), states[1:6])
+    actions = coverage_samples(Unbounded(), demos, rollouts, n_uniform=400).actions[15:]
+    assert demos.actions.min() <= actions.min() and actions.max() <= demos.actions.max()
