@@ -9,6 +9,7 @@ why no test can tell it from the original) or surviving; the score is killed / (
 equivalent). Survivors are listed by name: `mutmut show NAME` prints the change.
 
     python tools/mutation_report.py --run      # mutmut run over SCOPE (results kept in mutants/), then the table
+    python tools/mutation_report.py --survivors  # run the last run's survivors again, then the table
     python tools/mutation_report.py            # the table of the last run, then the survivors
     python tools/mutation_report.py --json     # one JSON object
 """
@@ -86,9 +87,9 @@ _NAME = re.compile(r"^(?P<module>[\w.]+)\.x(?:_|ǁ)")
 MUTMUT = Path(sys.executable).with_name("mutmut")
 
 
-def run_mutmut(workers: int) -> None:
-    """`mutmut run` over the core's mutants only."""
-    subprocess.run([str(MUTMUT), "run", "--max-children", str(workers), *(f"{prefix}*" for prefix in SCOPE)], cwd=REPO, check=True)
+def run_mutmut(workers: int, names: list[str]) -> None:
+    """`mutmut run` over the given mutants (names or globs), each run again even if checked before."""
+    subprocess.run([str(MUTMUT), "run", "--max-children", str(workers), *names], cwd=REPO, check=True)
 
 
 def mutant_statuses() -> dict[str, str]:
@@ -127,11 +128,14 @@ def report(statuses: dict[str, str], equivalents: dict[str, str]) -> dict[str, d
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", action="store_true", help="run mutmut over the core first")
+    parser.add_argument("--survivors", action="store_true", help="run mutmut again over the last run's survivors only (after adding tests)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="mutants tested at once (default: the CPU count)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args(argv)
     if args.run:
-        run_mutmut(args.workers)
+        run_mutmut(args.workers, [f"{prefix}*" for prefix in SCOPE])
+    elif args.survivors:
+        run_mutmut(args.workers, [name for name, status in mutant_statuses().items() if status not in DETECTED])
     equivalents = tomllib.loads(EQUIVALENTS.read_text()) if EQUIVALENTS.exists() else {}
     statuses = mutant_statuses()
     stale = sorted(set(equivalents) - set(statuses))

@@ -31,6 +31,7 @@ def batch_of(observations: torch.Tensor, actions: torch.Tensor) -> TransitionTen
 def test_discrete_loss_is_cross_entropy_and_regularisers_add_up() -> None:
     torch.manual_seed(0)
     policy = make_policy(BOX4, gym.spaces.Discrete(3), hidden_sizes=[8])
+    torch.nn.init.normal_(policy.action_head.weight)  # so that the head's share of the L2 term shows
     batch = batch_of(torch.randn(10, 4), torch.randint(0, 3, (10,)))
     logits = policy.action_head(policy.actor_trunk(policy.encode(batch.observations)))
     cross_entropy = torch.nn.functional.cross_entropy(logits, batch.actions)

@@ -62,6 +62,16 @@ def test_an_intermediate_beta_lets_the_expert_act_on_that_share_of_steps() -> No
     assert all((episode.actions == 1).all() for episode in episodes)
 
 
+def test_collected_episodes_say_how_they_ended_and_which_seed_reset_them() -> None:
+    """CartPole under the learner alone falls (terminated); LastAction runs into its time limit (truncated)."""
+    rng = np.random.default_rng(0)
+    fallen = collect_round(gym.make("CartPole-v1"), lambda observation: 0, cartpole, beta=0.0, episodes=2, seed=7, rng=rng, metadata={"round": 3})
+    assert [(e.terminated, e.truncated) for e in fallen] == [(True, False)] * 2
+    assert [e.metadata for e in fallen] == [{"round": 3, "seed": 7, "expert_steps": 0}, {"round": 3, "seed": 8, "expert_steps": 0}]
+    (timed_out,) = collect_round(LastAction(), lambda observation: 0, lambda observation: 1, beta=1.0, episodes=1, seed=0, rng=rng, metadata={})
+    assert (timed_out.terminated, timed_out.truncated) == (False, True) and timed_out.metadata["expert_steps"] == 100
+
+
 def test_dagger_rounds_are_reloadable_demo_files(tmp_path) -> None:
     env = gym.make("CartPole-v1")
     config = DAggerConfig(rounds=3, episodes_per_round=2, seed=0, bc=BCConfig(epochs=15, patience=15, hidden_sizes=[64, 64]))

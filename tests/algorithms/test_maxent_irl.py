@@ -197,6 +197,17 @@ def test_episodes_transitions_and_a_loader_give_the_same_demo_visitation(tmp_pat
         demo_visitation(episodes_to_transitions(episodes), n_states=mdp.n_states, horizon=mdp.horizon, discount=0.9)
 
 
+def test_one_demo_episode_is_enough_and_none_is_refused(tmp_path) -> None:
+    mdp = gridworld()
+    (episode,) = _record("imitation/GridWorld8x8-v0", tmp_path / "one.mcap", episodes=1).read_episodes()
+    visitation = demo_visitation([episode], n_states=mdp.n_states, horizon=mdp.horizon, discount=0.9)
+    expected = np.zeros(mdp.n_states)
+    np.add.at(expected, np.asarray(episode.observations).astype(int), 0.9 ** np.arange(mdp.horizon + 1))
+    np.testing.assert_allclose(visitation, expected)
+    with pytest.raises(ImitationError, match="no demo episodes"):
+        demo_visitation([], n_states=mdp.n_states, horizon=mdp.horizon, discount=1.0)
+
+
 def test_demo_episodes_of_the_wrong_length_are_refused(tmp_path) -> None:
     episodes = _record("imitation/GridWorld8x8-v0", tmp_path / "demos.mcap", episodes=2).read_episodes()
     with pytest.raises(ImitationError, match="demo episode 0 has 30 steps, but the MDP's horizon is 20"):

@@ -403,3 +403,72 @@ def test_unbounded_actions_take_the_range_of_the_demos_actions() -> None:
     rollouts = TransitionBatch(states[:5], np.full((5, 1), 9.0, np.float32), states[1:6])
     actions = coverage_samples(Unbounded(), demos, rollouts, n_uniform=400).actions[15:]
     assert demos.actions.min() <= actions.min() and actions.max() <= demos.actions.max()
+
+
+def test_reward_inputs_one_hot_shifted_discrete_values_and_standardise_boxes() -> None:
+    """Discrete(4, start=-1) values v are one-hot at v + 1; Box observations become (s - μ) / σ
+    with μ the demos' mean per dimension and σ the half range where finite, else the widest std
+    (at least 1e-3)."""
+    discrete = make_reward_model(gym.spaces.Discrete(4, start=-1), gym.spaces.Discrete(2, start=3), inputs="sa", hidden_sizes=[])
+    inputs = discrete.inputs(torch.tensor([-1, 2]), torch.tensor([3, 4]), torch.tensor([0, 0]))
+    assert inputs.tolist() == [[1, 0, 0, 0, 1, 0], [0, 0, 0, 1, 0, 1]]
+    box = gym.spaces.Box(np.array([-1.0, -np.inf, -np.inf]), np.array([1.0, np.inf, np.inf]), dtype=np.float32)
+    model = make_reward_model(box, gym.spaces.Discrete(2), normalize_observations=True, hidden_sizes=[])
+    demos = torch.tensor([[0.0, 10.0, 5.0], [0.5, 14.0, 5.0], [1.0, 12.0, 5.0]])
+    model.set_observation_statistics(demos, torch.tensor([[0.0, 0.0, 5.0], [0.0, 3.0, 5.0]]))
+    assert model.observation_mean.tolist() == pytest.approx([0.5, 12.0, 5.0])
+    assert model.observation_std.tolist() == pytest.approx([1.0, 2.1213203, 1e-3])  # half range; max(2, 3/√2); floor
+    expected = (demos - torch.tensor([0.5, 12.0, 5.0])) / torch.tensor([1.0, 2.1213203, 1e-3])
+    assert torch.allclose(model.inputs(demos, torch.zeros(3), demos), expected, atol=1e-5)
+
+
+def test_a_reward_within_round_off_of_a_constant_states_no_preference() -> None:
+    """Spread ≤ 1e-6 of the reward's magnitude √E[R²] is no preference: here R ≈ -5 with a
+    spread of 2e-6 (within 5e-6), against a reward that does prefer."""
+    weights = np.full(8, 1 / 8)
+    flat = -5.0 + 2e-6 * np.array([1, -1] * 4)
+    varied = np.arange(8.0)
+    result = epic_module._distances(flat, varied, flat, varied, weights)
+    assert result.pearson == 0.0 and result.epic == pytest.approx(np.sqrt(0.5))
+    spread = -5.0 + 1e-4 * np.array([1, -1] * 4)  # 20 times the tolerance: a preference, tiny as it is
+    assert epic_module._distances(spread, spread, spread, spread, weights).pearson == pytest.approx(1.0)
+
+
+def test_distributions_with_negative_or_no_mass_are_refused_by_name() -> None:
+    reward = _random_reward()
+    with pytest.raises(ImitationError, match="action_dist must be non-negative"):
+        epic_distance_tabular(reward, reward, S, A, 0.9, action_dist=np.array([-0.5, 1.0, 1.0]))
+    with pytest.raises(ImitationError, match="state_dist"):
+        epic_distance_tabular(reward, reward, S, A, 0.9, state_dist=np.zeros(S))
+
+
+def test_sampled_estimates_take_one_pair_and_draw_without_replacement_from_a_pool_of_their_size() -> None:
+    batch = _uniform_batch(8, seed=0)
+    reward = lambda s, a, t: s[:, 0] * a[:, 0] + t[:, 0] ** 2  # noqa: E731
+    states, actions = _continuous_pools(0)
+    one = canonicalize_sampled(reward, batch, states[:1], actions[:1], 0.9)
+    s, a, t = (x[:, 0] for x in batch)
+    m = lambda x: x * actions[0, 0] + states[0, 0] ** 2  # noqa: E731
+    np.testing.assert_allclose(one, reward(*batch) + 0.9 * m(t) - m(s) - 0.9 * m(states[0, 0]), rtol=1e-10)
+    with pytest.raises(ImitationError, match="must pair up"):
+        canonicalize_sampled(reward, batch, states[:0], actions[:0], 0.9)
+    # n_mean_samples = the pools' size: each sample once, so the draw is the pools in some order
+    # and the estimate that of the whole pools, whatever the seed.
+    whole = epic_distance_sampled(reward, lambda s, a, t: s[:, 0], batch, states[:64], actions[:64], 0.9, seed=3, n_mean_samples=64)
+    other = epic_distance_sampled(reward, lambda s, a, t: s[:, 0], batch, states[:64], actions[:64], 0.9, seed=4, n_mean_samples=64)
+    assert whole.epic != pytest.approx(epic_distance_sampled(reward, lambda s, a, t: s[:, 0], batch, states[:64], actions[:64], 0.9, seed=3, n_mean_samples=32).epic, abs=1e-9)
+    assert whole.epic == pytest.approx(other.epic, abs=1e-12)
+    assert epic_distance_sampled(reward, reward, batch, states, actions, 0.9, n_mean_samples=1).epic == pytest.approx(0.0, abs=1e-6)
+    with pytest.raises(ImitationError, match="n_mean_samples must be at least 1"):
+        epic_distance_sampled(reward, reward, batch, states, actions, 0.9, n_mean_samples=0)
+    with pytest.raises(ImitationError, match="state_samples is empty"):
+        epic_distance_sampled(reward, reward, batch, states[:0], actions, 0.9)
+
+
+def test_the_sampled_estimate_is_seeded_and_seeds_at_zero() -> None:
+    batch = _uniform_batch(16, seed=1)
+    reward, other = (lambda s, a, t: s[:, 0] * a[:, 0] + t[:, 0] ** 2), (lambda s, a, t: s[:, 0] + a[:, 0])  # noqa: E731
+    states, actions = _continuous_pools(1)
+    default = epic_distance_sampled(reward, other, batch, states, actions, 0.9, n_mean_samples=16)
+    assert default == epic_distance_sampled(reward, other, batch, states, actions, 0.9, seed=0, n_mean_samples=16)
+    assert default != epic_distance_sampled(reward, other, batch, states, actions, 0.9, seed=1, n_mean_samples=16)
