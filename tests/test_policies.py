@@ -180,3 +180,10 @@ def test_loading_something_that_is_not_a_policy(tmp_path) -> None:
     (tmp_path / "empty").mkdir()
     with pytest.raises(ImitationError, match="not a finished run directory"):
         load_policy(tmp_path / "empty")
+
+
+def test_action_spaces_without_a_head_are_refused() -> None:
+    with pytest.raises(ImitationError, match="policies take Discrete, MultiDiscrete or Box actions, not MultiBinary"):
+        make_policy(BOX4, gym.spaces.MultiBinary(3))
+    with pytest.raises(ImitationError, match=r"MultiDiscrete actions of one dimension, not of shape \(2, 2\)"):
+        make_policy(BOX4, gym.spaces.MultiDiscrete([[2, 3], [4, 5]]))

@@ -319,7 +319,7 @@ class UpdateStatistics:
 
 
 def ppo_update(
-    policy: ActorCritic, optimizer: torch.optim.Optimizer, batch: UpdateBatch, config: PPOConfig, beta: float, *, where: str
+    policy: ActorCritic, optimizer: torch.optim.Optimizer, batch: UpdateBatch, config: PPOConfig, beta: float, *, update: int = 1, n_updates: int = 1
 ) -> UpdateStatistics:
     """n_epochs passes over the rollout in shuffled minibatches, each a gradient step on
 
@@ -328,7 +328,8 @@ def ppo_update(
     with L = L^CLIP or L^KL (β fixed during the update), Â normalised per minibatch, the value
     loss optionally clipped, max(½(V_θ - R)², ½(V_k + clip(V_θ - V_k, ±ε) - R)²), and the global
     gradient norm clipped. With `target_kl`, the epochs stop once the last minibatch's KL
-    estimate, mean((r - 1) - log r), passes 1.5 · target_kl."""
+    estimate, mean((r - 1) - log r), passes 1.5 · target_kl. `update` of `n_updates` names the
+    update in the error a diverging loss raises."""
     size = len(batch.log_probs)
     # Statistics stay tensors until the update ends: one device sync instead of one per batch.
     statistics: list[torch.Tensor] = []
@@ -361,7 +362,8 @@ def ppo_update(
                 loss = loss - config.entropy_coef * policy.entropy(distribution).mean()
             if not torch.isfinite(loss):
                 raise ImitationError(
-                    f"{where}, epoch {epoch + 1}: the loss is {loss.item()} (diverged; try a lower learning rate, or normalised observations/rewards)"
+                    f"PPO update {update}/{n_updates}, epoch {epoch + 1}: the loss is {loss.item()} "
+                    "(diverged; try a lower learning rate, or normalised observations/rewards)"
                 )
 
             optimizer.zero_grad(set_to_none=True)
@@ -548,7 +550,7 @@ def _train(
             advantages=advantages.reshape(-1), returns=returns.reshape(-1), values=values.reshape(-1),
             parameters=distribution_parameters.reshape(rollout_size, -1), old_log_std=policy.log_std.detach().clone() if policy.is_continuous else None,
         )
-        measured = ppo_update(policy, optimizer, batch, config, beta, where=f"PPO update {update + 1}/{n_updates}")
+        measured = ppo_update(policy, optimizer, batch, config, beta, update=update + 1, n_updates=n_updates)
         mean_kl = measured.approx_kl
         if config.objective == "kl":
             with torch.no_grad():

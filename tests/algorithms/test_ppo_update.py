@@ -104,7 +104,7 @@ def test_the_update_is_the_notes_loss_minimised_by_minibatch_steps(setting: str,
     oracle = copy.deepcopy(policy)
     beta = 0.8
     torch.manual_seed(1)
-    measured = ppo_update(policy, torch.optim.SGD(policy.parameters(), lr=0.05), batch, config, beta, where="test")
+    measured = ppo_update(policy, torch.optim.SGD(policy.parameters(), lr=0.05), batch, config, beta)
     torch.manual_seed(1)
     rows = _oracle(oracle, batch, config, beta, learning_rate=0.05)
     for (name, mine), theirs in zip(policy.named_parameters(), oracle.parameters()):
@@ -125,12 +125,12 @@ def test_the_kl_early_stop_ends_the_epochs_after_the_minibatch_that_passes_it() 
     torch.manual_seed(1)
     rows = _oracle(first_epoch, batch, dataclasses.replace(config, n_epochs=1), 1.0, learning_rate=0.05)
     torch.manual_seed(1)
-    stopped = ppo_update(policy, torch.optim.SGD(policy.parameters(), lr=0.05), batch, dataclasses.replace(config, target_kl=rows[-1][2] / 1.5 * 0.99), 1.0, where="test")
+    stopped = ppo_update(policy, torch.optim.SGD(policy.parameters(), lr=0.05), batch, dataclasses.replace(config, target_kl=rows[-1][2] / 1.5 * 0.99), 1.0)
     assert stopped.stopped_early
     for mine, theirs in zip(policy.parameters(), first_epoch.parameters()):
         assert torch.allclose(mine, theirs, atol=1e-6)
     # With the threshold just above the first epoch's estimate, a second epoch runs.
     policy, batch = _setting(continuous=False)
     torch.manual_seed(1)
-    ppo_update(policy, torch.optim.SGD(policy.parameters(), lr=0.05), batch, dataclasses.replace(config, target_kl=rows[-1][2] / 1.5 * 1.01), 1.0, where="test")
+    ppo_update(policy, torch.optim.SGD(policy.parameters(), lr=0.05), batch, dataclasses.replace(config, target_kl=rows[-1][2] / 1.5 * 1.01), 1.0)
     assert not all(torch.allclose(mine, theirs, atol=1e-6) for mine, theirs in zip(policy.parameters(), first_epoch.parameters()))
