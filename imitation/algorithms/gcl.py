@@ -274,4 +274,4 @@ def _env_action_log_probs(policy: ActorCritic, observations: torch.Tensor, env_a
             chunk = slice(start, start + _CHUNK)
             distribution = policy.distribution(policy.encode(observations[chunk].to(device)))
             parts.append(policy.env_action_log_prob(distribution, env_actions[chunk].to(device)).cpu())
-        return torch.cat(parts) if parts else torch.zeros(0)
+        return torch.cat(parts)

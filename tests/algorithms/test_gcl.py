@@ -11,7 +11,7 @@ import torch
 from support import DATASETS
 
 import imitation.envs  # noqa: F401  (registers the ids)
-from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning
+from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning, _env_action_log_probs
 from imitation.algorithms.ppo import PPOConfig, Rollout, ppo_defaults, train_ppo
 from imitation.data.loader import load_transitions, transitions_to_torch
 from imitation.data.store import DemoDataset
@@ -257,3 +257,14 @@ def test_continuous_actions_keep_their_dimensions_in_the_pool_and_the_entropy_te
         log_probs = policy.env_action_log_prob(policy.distribution(policy.encode(demos.observations[:8])), demos.actions[:8])
         expected = reward(demos.observations[:8], demos.actions[:8], demos.next_observations[:8]) - 0.5 * log_probs
     assert torch.allclose(rewards.reshape(-1), expected, atol=1e-5)
+
+
+def test_log_probabilities_of_a_pool_longer_than_one_chunk_are_those_of_one_pass() -> None:
+    """The pool is scored in chunks of 65,536 steps: 70,000 steps give the same values as one pass."""
+    env = gym.make("Pendulum-v1")
+    torch.manual_seed(0)
+    policy = make_policy(env.observation_space, env.action_space, hidden_sizes=[4])
+    observations, actions = torch.randn(70_000, 3), torch.rand(70_000, 1) * 4 - 2
+    with torch.no_grad():
+        expected = policy.env_action_log_prob(policy.distribution(policy.encode(observations)), actions)
+    assert torch.allclose(_env_action_log_probs(policy, observations, actions), expected, atol=1e-6)

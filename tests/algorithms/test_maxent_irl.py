@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -14,7 +16,7 @@ from imitation.algorithms.maxent_irl import (
 )
 from imitation.data.recorder import RecordEpisodes, run_episodes
 from imitation.data.store import DemoDataset, DemoWriter
-from imitation.data.types import episodes_to_transitions
+from imitation.data.types import Episode, episodes_to_transitions
 from imitation.envs.tabular import TabularMDP, gridworld, random_mdp
 from imitation.errors import ImitationError
 from imitation.experts.load import load_expert
@@ -206,6 +208,26 @@ def test_one_demo_episode_is_enough_and_none_is_refused(tmp_path) -> None:
     np.testing.assert_allclose(visitation, expected)
     with pytest.raises(ImitationError, match="no demo episodes"):
         demo_visitation([], n_states=mdp.n_states, horizon=mdp.horizon, discount=1.0)
+
+
+def test_unvisited_high_states_keep_their_zero_and_bad_states_are_named() -> None:
+    """Visitation has one entry per state, also past the highest state visited (transitions and
+    the sparse forward pass alike); a state outside the MDP is named with where it came from."""
+    episode = Episode(observations=np.array([0, 1, 1]), actions=np.array([0, 0]), rewards=np.zeros(2), terminated=False, truncated=True)
+    transitions = episodes_to_transitions([episode])
+    np.testing.assert_allclose(demo_visitation(transitions, n_states=5, horizon=2, discount=1.0), [1, 2, 0, 0, 0])
+    mdp = random_mdp(seed=3, n_states=300)
+    unreachable = mdp.transition.copy()
+    unreachable[..., -1] = 0.0
+    unreachable /= unreachable.sum(-1, keepdims=True)
+    sparse = Dynamics.of(unreachable)
+    assert isinstance(sparse, SparseDynamics)
+    mass = sparse.propagate(np.full((300, mdp.n_actions), 1.0 / (300 * mdp.n_actions)))
+    assert mass.shape == (300,) and mass[-1] == 0.0
+    with pytest.raises(ImitationError, match="transitions: observation 7 is not a state"):
+        demo_visitation(episodes_to_transitions([dataclasses.replace(episode, observations=np.array([0, 7, 1]))]), n_states=5, horizon=2, discount=1.0)
+    with pytest.raises(ImitationError, match="demo episode 1: observation 9 is not a state"):
+        demo_visitation([episode, dataclasses.replace(episode, observations=np.array([9, 1, 1]))], n_states=5, horizon=2, discount=1.0)
 
 
 def test_demo_episodes_of_the_wrong_length_are_refused(tmp_path) -> None:

@@ -472,3 +472,27 @@ def test_the_sampled_estimate_is_seeded_and_seeds_at_zero() -> None:
     default = epic_distance_sampled(reward, other, batch, states, actions, 0.9, n_mean_samples=16)
     assert default == epic_distance_sampled(reward, other, batch, states, actions, 0.9, seed=0, n_mean_samples=16)
     assert default != epic_distance_sampled(reward, other, batch, states, actions, 0.9, seed=1, n_mean_samples=16)
+
+
+def test_float32_rewards_are_compared_in_float64() -> None:
+    """A float32 table (a network's output) gives the float64 result, not float32 round-off."""
+    reward, other = _random_reward(0).astype(np.float32), _random_reward(1)
+    exact = epic_distance_tabular(reward.astype(np.float64), other, S, A, 0.9)
+    assert epic_distance_tabular(reward, other, S, A, 0.9) == exact
+    batch = _uniform_batch(8, seed=0)
+    states, actions = _continuous_pools(0)
+    single = lambda s, a, t: (s[:, 0] * a[:, 0] + 1e-3 * t[:, 0]).astype(np.float32)  # noqa: E731
+    double = lambda s, a, t: single(s, a, t).astype(np.float64)  # noqa: E731
+    reference = lambda s, a, t: s[:, 0] - t[:, 0]  # noqa: E731
+    assert epic_distance_sampled(single, reference, batch, states, actions, 0.9) == epic_distance_sampled(double, reference, batch, states, actions, 0.9)
+
+
+def test_one_transition_is_a_batch_and_rollouts_without_next_states_are_named() -> None:
+    batch = _uniform_batch(1, seed=0)
+    reward = lambda s, a, t: s[:, 0]  # noqa: E731
+    assert epic_distance_sampled(reward, reward, batch, *_continuous_pools(0), 0.9).epic == 0.0
+    env = gym.make("CartPole-v1")
+    states = np.zeros((4, 4), np.float32)
+    demos = _transitions(states, np.zeros(4, np.int64), states)
+    with pytest.raises(ImitationError, match="the rollouts need next observations"):
+        coverage_samples(env, demos, _transitions(states, np.zeros(4, np.int64), None), n_uniform=1)
