@@ -116,6 +116,12 @@ def test_env_action_log_prob_is_the_censored_gaussian_at_the_bounds_and_the_dens
     assert torch.allclose(discrete.env_action_log_prob(categorical, torch.tensor([1, 3, 2])), discrete.log_prob(categorical, torch.tensor([0, 2, 1])))
 
 
+def test_discrete_observations_are_one_hot_over_the_whole_space() -> None:
+    """Discrete(5, start=2): value v is one-hot at v - 2 in 5 columns, whichever values a batch holds."""
+    policy = make_policy(gym.spaces.Discrete(5, start=2), gym.spaces.Discrete(2), hidden_sizes=[4])
+    assert policy.encode(torch.tensor([2, 3])).tolist() == [[1, 0, 0, 0, 0], [0, 1, 0, 0, 0]]
+
+
 def test_discrete_observations_are_one_hot() -> None:
     policy = make_policy(gym.spaces.Discrete(5, start=1), gym.spaces.Discrete(2))
     assert policy.encode(torch.tensor([1, 5])).tolist() == [[1, 0, 0, 0, 0], [0, 0, 0, 0, 1]]

@@ -62,7 +62,8 @@ def _oracle(policy: ActorCritic, batch: UpdateBatch, config: PPOConfig, beta: fl
                 log_prob, entropy, kl = new.log_prob(batch.actions[i]), new.entropy(), kl_divergence(old, new)
             ratio = torch.exp(log_prob - batch.log_probs[i])
             a = batch.advantages[i]
-            a = (a - a.mean()) / (a.std() + 1e-8)
+            if config.normalize_advantages and len(i) > 1:
+                a = (a - a.mean()) / (a.std() + 1e-8)
             eps = config.clip_range
             if config.objective == "clip":
                 surrogate = torch.min(ratio * a, torch.clamp(ratio, 1 - eps, 1 + eps) * a)
@@ -92,6 +93,10 @@ SETTINGS = {
     "clip": dict(objective="clip"),
     "clip, clipped values, entropy, clipped gradients": dict(objective="clip", clip_value_loss=True, entropy_coef=0.05, max_grad_norm=0.3),
     "kl": dict(objective="kl", value_coef=0.7, clip_range=0.1),
+    "clip, raw advantages": dict(objective="clip", normalize_advantages=False),
+    # Minibatches of two; of three, and one of one at the end (whose advantage is left as it is).
+    "clip, minibatches of two": dict(objective="clip", batch_size=2, n_epochs=1),
+    "clip, minibatches of three and one": dict(objective="clip", batch_size=3, n_epochs=1),
 }
 
 
@@ -120,7 +125,7 @@ def test_the_update_is_the_notes_loss_minimised_by_minibatch_steps(setting: str,
 def test_the_kl_early_stop_ends_the_epochs_after_the_minibatch_that_passes_it() -> None:
     """target_kl: once the last minibatch's KL estimate exceeds 1.5 · target_kl, no more epochs."""
     policy, batch = _setting(continuous=False)
-    config = PPOConfig(env_id="unused", n_epochs=5, batch_size=SIZE // 2, max_grad_norm=1e6)
+    config = PPOConfig(env_id="unused", n_epochs=5, batch_size=SIZE // 4, max_grad_norm=1e6)
     first_epoch = copy.deepcopy(policy)
     torch.manual_seed(1)
     rows = _oracle(first_epoch, batch, dataclasses.replace(config, n_epochs=1), 1.0, learning_rate=0.05)

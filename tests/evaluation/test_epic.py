@@ -479,6 +479,8 @@ def test_float32_rewards_are_compared_in_float64() -> None:
     reward, other = _random_reward(0).astype(np.float32), _random_reward(1)
     exact = epic_distance_tabular(reward.astype(np.float64), other, S, A, 0.9)
     assert epic_distance_tabular(reward, other, S, A, 0.9) == exact
+    weights = np.random.default_rng(2).random(S).astype(np.float32)
+    assert epic_distance_tabular(reward, other, S, A, 0.9, state_dist=weights) == epic_distance_tabular(reward, other, S, A, 0.9, state_dist=weights.astype(np.float64))
     batch = _uniform_batch(8, seed=0)
     states, actions = _continuous_pools(0)
     single = lambda s, a, t: (s[:, 0] * a[:, 0] + 1e-3 * t[:, 0]).astype(np.float32)  # noqa: E731
