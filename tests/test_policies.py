@@ -88,6 +88,12 @@ def test_multi_discrete_head_is_independent_categoricals_over_class_indices() ->
     assert (policy.predict(features[:5].numpy()) == (distribution.mode[:5] + torch.tensor([1, -1])).numpy()).all()
 
 
+def test_shifted_discrete_actions_reach_the_env_as_index_plus_start() -> None:
+    policy = make_policy(BOX4, gym.spaces.Discrete(3, start=1), hidden_sizes=[4])
+    assert policy.to_env_action(torch.tensor([0, 1, 2])).tolist() == [1, 2, 3]
+    assert policy.from_env_action(torch.tensor([1, 2, 3])).tolist() == [0, 1, 2]
+
+
 def test_gaussian_env_actions_are_clipped_to_the_bounds() -> None:
     policy = make_policy(BOX4, gym.spaces.Box(np.array([-2.0], np.float32), np.array([1.0], np.float32)))
     env_actions = policy.to_env_action(torch.tensor([[-5.0], [0.5], [7.0]]))

@@ -64,6 +64,13 @@ def test_infinite_horizon_without_discount_is_refused() -> None:
         )
 
 
+def test_dense_dynamics_compute_in_float64_whatever_they_are_given() -> None:
+    mdp = random_mdp(seed=4)
+    values = np.random.default_rng(0).normal(size=mdp.n_states)
+    single, double = DenseDynamics(mdp.transition.astype(np.float32)), DenseDynamics(mdp.transition.astype(np.float32).astype(np.float64))
+    assert np.array_equal(single.expectation(values), double.expectation(values))
+
+
 def test_dense_and_sparse_dynamics_agree() -> None:
     mdp = random_mdp(seed=3, n_states=300)
     dense, sparse = DenseDynamics(mdp.transition), SparseDynamics(mdp.transition, width=4)

@@ -370,6 +370,9 @@ def test_uniform_samples_of_a_shifted_discrete_and_a_half_bounded_box() -> None:
     assert samples.dtype == np.float32 and samples.shape == (5000, 3)
     for dimension, (low, high) in enumerate([(2.0, 5.0), (-3.0, 4.0), (-1.0, 1.0)]):
         assert low <= samples[:, dimension].min() < low + 0.01 and high - 0.01 < samples[:, dimension].max() <= high
+    # A flat reference is read as rows of the space's shape.
+    flat = uniform_space_samples(box, 5000, rng=np.random.default_rng(0), reference=reference.reshape(-1))
+    assert np.array_equal(flat, uniform_space_samples(box, 5000, rng=np.random.default_rng(0), reference=reference))
 
 
 def test_coverage_without_rollouts_or_uniform_samples_and_its_default_seed() -> None:
@@ -403,6 +406,12 @@ def test_unbounded_actions_take_the_range_of_the_demos_actions() -> None:
     rollouts = TransitionBatch(states[:5], np.full((5, 1), 9.0, np.float32), states[1:6])
     actions = coverage_samples(Unbounded(), demos, rollouts, n_uniform=400).actions[15:]
     assert demos.actions.min() <= actions.min() and actions.max() <= demos.actions.max()
+
+
+def test_a_feature_table_is_indexed_by_state_minus_start() -> None:
+    table = np.array([[1.0, 0.0], [0.0, 1.0], [2.0, 2.0]])
+    model = make_reward_model(gym.spaces.Discrete(3, start=5), gym.spaces.Discrete(2), feature_table=table, hidden_sizes=[])
+    assert model.inputs(torch.tensor([5, 7]), torch.zeros(2), torch.zeros(2)).tolist() == [[1.0, 0.0], [2.0, 2.0]]
 
 
 def test_reward_inputs_one_hot_shifted_discrete_values_and_standardise_boxes() -> None:
