@@ -69,6 +69,7 @@ def test_dense_dynamics_compute_in_float64_whatever_they_are_given() -> None:
     values = np.random.default_rng(0).normal(size=mdp.n_states)
     single, double = DenseDynamics(mdp.transition.astype(np.float32)), DenseDynamics(mdp.transition.astype(np.float32).astype(np.float64))
     assert np.array_equal(single.expectation(values), double.expectation(values))
+    assert np.array_equal(single.log_expectation_of_exp(values), double.log_expectation_of_exp(values))
 
 
 def test_dense_and_sparse_dynamics_agree() -> None:
