@@ -218,7 +218,7 @@ def test_ctrl_c_during_train_irl_gcl_keeps_a_checkpoint_with_the_reward_learner_
     trainer = state["trainer"]
     assert trainer["update"] == stopped_at and len(trainer["learner"]["history"]) == stopped_at
     learner = unprefixed("learner", tensors)
-    assert learner["pool.log_probs"].shape == (256 * stopped_at,) and "generator" in learner
+    assert learner["pool.log_mass"].shape == (256 * stopped_at,) and "sampler.0.action_head.weight" in learner and "generator" in learner
     assert any(name.startswith("optimizer.") for name in learner)
     reward = RewardNet(RewardConfig.from_json(json.loads((partial / "config.json").read_text())["reward"]))
     reward.load_state_dict(unprefixed("reward", learner))

@@ -162,7 +162,8 @@ def test_bulk_loading_equals_assembling_episodes(tmp_path, compression, timestam
             for i, episode in enumerate(episodes)
         ]
     options = dict(finite_only=False, env_id="T", observation_space=DICT_SPACE, action_space=BOX, block_steps=4, chunk_size=300, compression=compression)
-    paths = [write_episodes(tmp_path / "a.mcap", episodes[:4], **options), write_episodes(tmp_path / "b.mcap", episodes[4:], **options)]
+    # Three files, so that each file's episodes are numbered after all the files before it.
+    paths = [write_episodes(tmp_path / name, part, **options) for name, part in (("a.mcap", episodes[:3]), ("b.mcap", episodes[3:5]), ("c.mcap", episodes[5:]))]
     dataset = DemoDataset(paths)
     for subset in (None, [2, 4, 5], [6]):
         indices = list(range(len(dataset))) if subset is None else subset
