@@ -43,9 +43,9 @@ log Σ_k π_k(a|s) is brought up to date for every pooled and demo step, one pas
 the old steps and of π_1 … π_K over the new ones; (2) `reward_steps` minibatch steps of the
 loss are taken (`warmup_steps` more on the first rollout, the learning rate annealed to 0 so
 that PPO ends on a settled reward); and (3) r_θ is shifted to mean 0 over the demos (log Z with
-it) and relabels the rollout, on which PPO then updates. A gradient penalty on r_θ's inputs keeps it smooth. The recovered r_θ
-is what `train ppo --reward` later optimises from scratch; the policy trained alongside is the
-soft-optimal one, deliberately random, and is not meant for use.
+it) and relabels the rollout, on which PPO then updates. A gradient penalty on r_θ's inputs keeps
+it smooth. The recovered r_θ is what `train ppo --reward` later optimises from scratch; the
+policy trained alongside is the soft-optimal one, deliberately random, and is not meant for use.
 
 The learner is `Checkpointable`: PPO's checkpoints hold r_θ, log Z, their Adam state, the pool,
 the samplers π_1 … π_K, the minibatch generator's position and the logged rows, so an
@@ -148,9 +148,10 @@ class GuidedCostLearning:
         observations, env_actions = flat_batch(rollout.observations, 2), flat_batch(rollout.env_actions, 2)
         sampler = copy.deepcopy(policy).to("cpu").eval()
         own_log_probs = _env_action_log_probs(sampler, observations, env_actions)
+        earlier = [_env_action_log_probs(old, observations, env_actions) for old in self.samplers]
         new = _Samples(
             observations=observations, env_actions=env_actions, next_observations=flat_batch(rollout.next_observations, 2),
-            log_mass=torch.logsumexp(torch.stack([own_log_probs, *(_env_action_log_probs(old, observations, env_actions) for old in self.samplers)]), 0),
+            log_mass=torch.logsumexp(torch.stack([own_log_probs, *earlier]), 0),
         )
         self.demo_log_mass = torch.logaddexp(self.demo_log_mass, _env_action_log_probs(sampler, self.demos.observations, self.demos.actions))
         if self.pool is None:
