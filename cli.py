@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import signal
 import sys
+import threading
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -18,6 +21,7 @@ from imitation.errors import ImitationError
 
 EXIT_ERROR = 1
 EXIT_INTERRUPTED = 130
+MAX_ERROR_CHARS = 2000
 
 
 def _print_json(data: dict[str, Any]) -> None:
@@ -87,6 +91,20 @@ def cmd_info(args: argparse.Namespace) -> int:
     if summary["damage"]:
         print(f"error: {summary['file']}: damaged ({summary['damage']}); {summary['salvaged']} complete episodes are readable", file=sys.stderr)
         return EXIT_ERROR
+    return 0
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    from imitation.data.recover import recover_partial
+
+    result = recover_partial(args.partial, args.out, compression=args.compression)
+    if args.json:
+        _print_json(result)
+        return 0
+    print(f"recovered {result['episodes']} complete episodes ({result['transitions']} transitions) from {result['partial']} to {result['out']}")
+    if result["lost"]:
+        print(f"not recovered: {result['lost']}")
+    print(f"removed {result['partial']}" if result["partial_removed"] else f"kept {result['partial']}: the damage is not only an unfinished tail")
     return 0
 
 
@@ -388,6 +406,19 @@ def build_parser() -> argparse.ArgumentParser:
     info.add_argument("--json", action="store_true", help="print one JSON object")
     info.set_defaults(handler=cmd_info)
 
+    recover = commands.add_parser(
+        "recover",
+        help="turn the F.mcap.partial of an interrupted or failed write into a demo file",
+        description="A writer that was killed, ran out of disk space or stopped on an error leaves F.mcap.partial with every "
+        "episode it had finished. recover writes those episodes, bit-exact, to a new demo file (default: F.mcap), then removes "
+        "the partial file unless more than its unfinished tail was damaged.",
+    )
+    recover.add_argument("partial", metavar="F.mcap.partial", help="the partial demo file")
+    recover.add_argument("--out", metavar="F.mcap", help="the recovered file, which must not exist (default: the partial file's name without .partial)")
+    recover.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd", help="chunk compression (default: zstd)")
+    recover.add_argument("--json", action="store_true", help="print one JSON object")
+    recover.set_defaults(handler=cmd_recover)
+
     convert = commands.add_parser(
         "convert",
         help="convert a ROS bag, a LeRobot dataset or npz rollouts into an MCAP demo file",
@@ -563,14 +594,35 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _sigterm_as_interrupt() -> None:
+    """SIGTERM (docker stop, Slurm preemption) takes Ctrl-C's path: writers close with their
+    finished episodes, trainers save a checkpoint."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, lambda signum, frame: os.kill(os.getpid(), signal.SIGINT))
+
+
+def _one_line(text: str) -> str:
+    """One line, cut to a readable length, even if a message quotes a long multi-line error."""
+    line = " ".join(part.strip() for part in text.splitlines() if part.strip())
+    return line if len(line) <= MAX_ERROR_CHARS else line[: MAX_ERROR_CHARS - 1] + "…"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     handler: Callable[[argparse.Namespace], int] = args.handler
+    _sigterm_as_interrupt()
     try:
         return handler(args)
     except ImitationError as error:
-        # One line even if a message quotes a multi-line error from another library.
-        print("error: " + " ".join(line.strip() for line in str(error).splitlines() if line.strip()), file=sys.stderr)
+        print("error: " + _one_line(str(error)), file=sys.stderr)
+        return EXIT_ERROR
+    except OSError as error:  # a write the writer did not wrap: still one line, naming the file
+        from imitation.output import os_error
+
+        print("error: " + _one_line(str(os_error(error.filename or "output", error, "cannot read or write"))), file=sys.stderr)
+        return EXIT_ERROR
+    except MemoryError:
+        print("error: out of memory; train on fewer demo files, with a smaller --batch-size or network, or on a machine with more memory", file=sys.stderr)
         return EXIT_ERROR
     except KeyboardInterrupt as interrupt:
         # A trainer stopped at a checkpoint says where it is and how to resume.

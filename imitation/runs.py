@@ -8,16 +8,18 @@
       tb/                TensorBoard event files
       *.png              plots
 
-A run is written under `RUN_DIR.partial` and renamed to RUN_DIR only when it is complete; an
-existing RUN_DIR is replaced at that moment, not before, so an interrupted or failed run never
-destroys the previous one.
+A run is written under `RUN_DIR.partial`, under a lock on RUN_DIR (a second writer fails at
+once), and moved to RUN_DIR only when it is complete; an existing RUN_DIR is exchanged with it
+in one step at that moment, not before, so an interrupted or failed run never destroys the
+previous one.
 
 Trainers that can resume (PPO, with GCL's reward learner when `train irl --method gcl` runs it;
 BC; DAgger; tabular MaxEnt/MCE IRL) save a checkpoint into `RUN_DIR.partial/checkpoint/`
 (`tensors.safetensors` and `state.json`, see imitation.checkpoints) every tenth of the run and
-when Ctrl-C stops them. An interrupted run's partial directory is kept when it holds a
-checkpoint (a failed one is removed), and `RunWriter(..., resume=True)` reopens it: the logged
-rows are cut back to the checkpoint and the trainer continues from its state.
+when Ctrl-C (or SIGTERM) stops them. An interrupted or failed run's partial directory is kept
+when it holds a checkpoint (one without is removed); a new run refuses to start over it, and
+`RunWriter(..., resume=True)` reopens it: the logged rows are cut back to the checkpoint and
+the trainer continues from its state.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from imitation.errors import ImitationError
+from imitation.output import OutputLock, check_target, os_error, replace_directory, writing
 
 CHECKPOINT_DIR = "checkpoint"
 CHECKPOINT_TENSORS = "tensors.safetensors"
@@ -150,20 +153,36 @@ class RunWriter:
         self.x_axis = x_axis
         self.partial = self.path.with_name(self.path.name + ".partial")
         self.resumed: tuple[dict[str, torch.Tensor], dict[str, Any]] | None = None
-        if self.path.exists() and not self.path.is_dir():
-            raise ImitationError(f"--out {self.path}: exists and is not a directory")
+        check_target(self.path, directory=True)
+        check_target(self.partial, directory=True, flag="the partial run")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise os_error(self.path, error, "cannot create") from None
+        self._lock: OutputLock | None = OutputLock(self.path).acquire()
+        try:
+            self._open(config, resume, set(resume_ignore), tensorboard=tensorboard, x_axis=x_axis)
+        except BaseException:
+            self._release()
+            raise
+
+    def _open(self, config: dict[str, Any], resume: bool, resume_ignore: set[str], *, tensorboard: bool, x_axis: str) -> None:
         history: list[dict[str, float]] = []
         if resume:
-            history = self._reopen(config, set(resume_ignore))
+            history = self._reopen(config, resume_ignore)
+        elif has_checkpoint(self.partial):
+            raise ImitationError(
+                f"{self.partial}: holds an interrupted run with a checkpoint; continue it with --resume, "
+                "or delete it to start over"
+            )
         else:
-            try:
+            with writing(self.path):
                 shutil.rmtree(self.partial, ignore_errors=True)
-                self.partial.mkdir(parents=True)
-            except OSError as error:
-                raise ImitationError(f"--out {self.path}: cannot create: {error.strerror or error}") from None
+                self.partial.mkdir()
         self.config = config
-        write_json(self.partial / CONFIG_FILE, config)
-        self._csv_file = open(self.partial / PROGRESS_FILE, "w", newline="")
+        with writing(self.partial / CONFIG_FILE):
+            write_json(self.partial / CONFIG_FILE, config)
+            self._csv_file = open(self.partial / PROGRESS_FILE, "w", newline="")
         self._csv: csv.DictWriter | None = None
         self._history: list[dict[str, float]] = []
         self._tensorboard = None
@@ -207,15 +226,17 @@ class RunWriter:
     def update_config(self, **entries: Any) -> None:
         """Add what is only known after training (e.g. the policy's architecture) to config.json."""
         self.config.update(entries)
-        write_json(self.partial / CONFIG_FILE, self.config)
+        with writing(self.partial / CONFIG_FILE):
+            write_json(self.partial / CONFIG_FILE, self.config)
 
     def log(self, row: dict[str, float], *, tensorboard: bool = True) -> None:
         """One row of progress (the same keys every time; the `x_axis` column is the x axis)."""
-        if self._csv is None:
-            self._csv = csv.DictWriter(self._csv_file, fieldnames=list(row))
-            self._csv.writeheader()
-        self._csv.writerow(row)
-        self._csv_file.flush()
+        with writing(self.partial / PROGRESS_FILE):
+            if self._csv is None:
+                self._csv = csv.DictWriter(self._csv_file, fieldnames=list(row))
+                self._csv.writeheader()
+            self._csv.writerow(row)
+            self._csv_file.flush()
         self._history.append(dict(row))
         if self._tensorboard is not None and tensorboard:
             for key, value in row.items():
@@ -223,42 +244,46 @@ class RunWriter:
                     self._tensorboard.add_scalar(key, value, int(row[self.x_axis]))
 
     def save_weights(self, tensors: dict[str, torch.Tensor]) -> None:
-        save_file({name: tensor.detach().cpu().contiguous() for name, tensor in tensors.items()}, str(self.partial / WEIGHTS_FILE))
+        with writing(self.partial / WEIGHTS_FILE):
+            save_file({name: tensor.detach().cpu().contiguous() for name, tensor in tensors.items()}, str(self.partial / WEIGHTS_FILE))
 
     def save_checkpoint(self, tensors: dict[str, torch.Tensor], state: dict[str, Any]) -> None:
         """Save a trainer's checkpoint with the rows logged so far (see `save_checkpoint`)."""
-        save_checkpoint(self.partial, tensors, {"history": self._history, "trainer": state})
+        with writing(self.partial / CHECKPOINT_DIR):
+            save_checkpoint(self.partial, tensors, {"history": self._history, "trainer": state})
 
     def file(self, name: str) -> Path:
         """A path inside the run being written (for plots and extra artefacts)."""
         return self.partial / name
 
     def finish(self, metrics: dict[str, Any]) -> Path:
-        write_json(self.partial / METRICS_FILE, metrics)
-        self._close_logs()
-        if self.path.exists():
-            old = self.path.with_name(self.path.name + ".old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(self.path, old)
-            os.replace(self.partial, self.path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(self.partial, self.path)
+        with writing(self.path):
+            write_json(self.partial / METRICS_FILE, metrics)
+            self._close_logs()
+            replace_directory(self.partial, self.path)
+        self._release()
         return self.path
 
     def abort(self) -> None:
-        self._close_logs()
-        shutil.rmtree(self.partial, ignore_errors=True)
+        """A failed run leaves nothing behind, except a checkpoint to resume from."""
+        try:
+            self._close_logs()
+        except OSError:
+            pass
+        if not has_checkpoint(self.partial):
+            shutil.rmtree(self.partial, ignore_errors=True)
+        self._release()
+
+    def _release(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
 
     def __enter__(self) -> RunWriter:
         return self
 
     def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: Any) -> None:
-        # A failed run leaves nothing behind, nor does an interrupted one without a checkpoint;
-        # an interrupted run with a checkpoint keeps its partial directory for --resume.
-        if exc_type is not None and issubclass(exc_type, KeyboardInterrupt) and has_checkpoint(self.partial):
-            self._close_logs()
-        elif exc_type is not None:
+        if exc_type is not None:
             self.abort()
 
     def _close_logs(self) -> None:

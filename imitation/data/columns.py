@@ -116,7 +116,7 @@ def read_transitions(dataset: DemoDataset, indices: Sequence[int], *, next_obser
     starts = np.cumsum(lengths) - lengths
     columns = {f.topic: _Column(f, np.empty((total, *f.shape), f.native_dtype), np.empty((len(facts), *f.shape), f.native_dtype)) for f in observation_fields}
     columns |= {f.topic: _Column(f, np.empty((total, *f.shape), f.native_dtype), None) for f in action_fields}
-    columns[_REWARD_FIELD.topic] = _Column(_REWARD_FIELD, np.empty(total, np.float32), None)
+    columns[_REWARD_FIELD.topic] = _Column(_REWARD_FIELD, np.empty(total, _REWARD_FIELD.native_dtype), None)
     pieces: dict[tuple[str, int], list[tuple[int, int]]] = defaultdict(list)
     try:
         for plan in plans:

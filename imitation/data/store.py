@@ -52,6 +52,7 @@ from imitation import __version__
 from imitation.data.spaces import LeafPath, space_from_json, space_leaves, space_to_json, spaces_equal
 from imitation.data.types import Episode, Tree, check_fits_space, first_nonfinite, tree_from_leaves, tree_leaves
 from imitation.errors import DemoFileError, ImitationError
+from imitation.output import OutputLock, check_target, create_exclusive, lstat_kind, os_error
 
 FORMAT_VERSION = 1
 PROFILE = "imitation"
@@ -221,9 +222,12 @@ def _interrupts_deferred() -> Iterator[None]:
 class DemoWriter:
     """Write episodes of one environment to an MCAP demo file.
 
-    The file is written under `<path>.partial` and renamed to `path` by `close()`, so `path`
-    never holds a half-written file. Used as a context manager, a KeyboardInterrupt still closes
-    the file properly (finished episodes are kept); any other exception discards it.
+    The file is written under `<path>.partial` (created exclusively, under a lock on `path`: a
+    second writer fails at once) and renamed to `path` by `close()`, so `path` never holds a
+    half-written file. Used as a context manager, a KeyboardInterrupt still closes the file
+    properly. Any other failure (a full disk included) keeps `<path>.partial` when it holds a
+    finished episode, for `recover_partial`; and a new writer refuses to start over a partial
+    file that holds finished episodes, rather than truncating it.
 
     With `flush_episodes=True` every episode is flushed as its own chunk as soon as it is written,
     so if the process is killed, `<path>.partial` holds every finished episode; `durable=True`
@@ -251,10 +255,12 @@ class DemoWriter:
         chunk_size: int = 1024 * 1024,
         compression: str = "zstd",
         finite_only: bool = True,
+        temporary: str | os.PathLike | None = None,
+        lock: bool = True,
     ) -> None:
         self.path = Path(path)
         self._finite_only = finite_only
-        self.partial_path = self.path.with_name(self.path.name + ".partial")
+        self.partial_path = Path(temporary) if temporary is not None else self.path.with_name(self.path.name + ".partial")
         self.observation_space = observation_space
         self.action_space = action_space
         self._fields = _fields_for(observation_space, action_space)
@@ -279,10 +285,21 @@ class DemoWriter:
             "creator": f"imitation-mcap {__version__}",
             "user_metadata": to_json_text(metadata or {}),
         }
+        check_target(self.path)
+        self._lock = OutputLock(self.path).acquire() if lock else None
         try:
-            self._file = open(self.partial_path, "wb")
+            _clear_partial(self.partial_path)
+            self._file = create_exclusive(self.partial_path)
+        except BaseException:
+            self._release()
+            raise
+        self._closed = False
+        try:
+            self._start(dataset, chunk_size, compression)
         except OSError as error:
-            raise ImitationError(f"{self.path}: cannot write: {error.strerror or error}") from error
+            raise self._failed(error) from None
+
+    def _start(self, dataset: dict[str, str], chunk_size: int, compression: str) -> None:
         # No attachment index: python-mcap would point a summary offset at the empty group,
         # which `mcap doctor` reports as an error.
         self._writer = Writer(
@@ -299,7 +316,6 @@ class DemoWriter:
                 self._register(f)
         episode_schema = self._writer.register_schema("imitation.Episode", "jsonschema", json.dumps(_EPISODE_SCHEMA).encode())
         self._channels[EPISODE_TOPIC] = self._writer.register_channel(EPISODE_TOPIC, "json", episode_schema, {"field": "episode"})
-        self._closed = False
 
     @property
     def episodes_written(self) -> int:
@@ -329,8 +345,11 @@ class DemoWriter:
             elif f.kind == "time" and episode.timestamps is not None:
                 columns.append((f, times))
 
-        with _interrupts_deferred():
-            return self._append(episode, columns, times, time_shift_ns, rewards)
+        try:
+            with _interrupts_deferred():
+                return self._append(episode, columns, times, time_shift_ns, rewards)
+        except OSError as error:
+            raise self._failed(error) from None
 
     def _append(
         self, episode: Episode, columns: list[tuple[_Field, np.ndarray]], times: np.ndarray, time_shift_ns: int, rewards: np.ndarray
@@ -371,24 +390,47 @@ class DemoWriter:
         """Write the episode index and summary, then rename `<path>.partial` to `path`."""
         if self._closed:
             return self.path
-        self._writer.flush()
-        episodes = to_json_text([facts.to_json() for facts in self._facts])
-        self._writer.add_metadata(EPISODES_METADATA, _with_crc({"episodes": episodes}))
-        self._writer.finish()
-        self._file.flush()
-        os.fsync(self._file.fileno())
-        self._file.close()
-        self._closed = True
-        os.replace(self.partial_path, self.path)
+        try:
+            self._writer.flush()
+            episodes = to_json_text([facts.to_json() for facts in self._facts])
+            self._writer.add_metadata(EPISODES_METADATA, _with_crc({"episodes": episodes}))
+            self._writer.finish()
+            self._file.flush()
+            os.fsync(self._file.fileno())
+            self._file.close()
+            self._closed = True
+            os.replace(self.partial_path, self.path)
+        except OSError as error:
+            raise self._failed(error) from None
+        self._release()
         return self.path
 
-    def abort(self) -> None:
-        """Discard the file being written."""
+    def abort(self) -> int:
+        """Stop writing after a failure. The partial file stays when it holds finished episodes
+        (how many is returned), so that nothing recorded is lost; otherwise it is removed."""
         if self._closed:
-            return
-        self._file.close()
+            return 0
         self._closed = True
-        self.partial_path.unlink(missing_ok=True)
+        try:
+            self._file.close()
+        except OSError:
+            pass  # the buffered tail cannot be written (a full disk); the flushed episodes are on disk
+        kept = salvageable_episodes(self.partial_path)
+        if not kept:
+            self.partial_path.unlink(missing_ok=True)
+        self._release()
+        return kept
+
+    def _failed(self, error: OSError) -> ImitationError:
+        """Abort, and the one-line error saying what was kept."""
+        error = os_error(self.path, error)
+        self.__exit__(type(error), error, None)
+        return error
+
+    def _release(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
 
     def __enter__(self) -> DemoWriter:
         return self
@@ -396,8 +438,10 @@ class DemoWriter:
     def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: Any) -> None:
         if exc_type is None or (issubclass(exc_type, KeyboardInterrupt) and self._facts):
             self.close()
-        else:
-            self.abort()
+            return
+        kept = self.abort()
+        if kept and isinstance(exc, ImitationError):
+            exc.args = (f"{exc}; {self.partial_path} keeps {kept} finished episode(s): `imitation recover {self.partial_path}` makes it a demo file",)
 
     def _register(self, f: _Field) -> None:
         encoding = "json" if f.dtype is None else BLOCK_ENCODING
@@ -420,6 +464,31 @@ class DemoWriter:
         # shift one that starts too early, and record the shift so readers can undo it.
         shift = max(0, self._next_time_ns - int(times[0]))
         return times + shift, shift
+
+
+def salvageable_episodes(path: str | os.PathLike) -> int:
+    """How many complete episodes a (partial) demo file holds; 0 when it is not readable as one."""
+    try:
+        return len(DemoFile(path, salvage=True))
+    except ImitationError:
+        return 0
+
+
+def _clear_partial(partial: Path) -> None:
+    """Make way for a new partial file: remove one that holds no finished episode, refuse to
+    touch one that does (an interrupted write's episodes) or that is not a regular file."""
+    kind = lstat_kind(partial)
+    if kind is None:
+        return
+    if kind != "a regular file":
+        raise ImitationError(f"{partial}: is {kind}; not writing through it (remove it)")
+    kept = salvageable_episodes(partial)
+    if kept:
+        raise ImitationError(
+            f"{partial}: holds {kept} finished episode(s) of an interrupted write; keep them with "
+            f"`imitation recover {partial}`, or delete it to start over"
+        )
+    partial.unlink()
 
 
 def write_episodes(

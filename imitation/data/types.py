@@ -136,7 +136,7 @@ def first_nonfinite(tree: Tree, what: str) -> tuple[int, str, float] | None:
 class Transitions:
     """A flat batch of N transitions (s, a, r, s', terminated, truncated) drawn from episodes.
 
-    Rewards are float32 (what learners use; the store keeps float64). `next_observations` is
+    Rewards are float64, as stored: a finite reward is never narrowed to ±inf. `next_observations` is
     None when it was not asked for (behavioural cloning does not need s'). `terminated[i]` is true only on the last transition of a terminated episode (no bootstrap
     from `next_observations[i]`), `truncated[i]` only on the last transition of a truncated one.
     `episode_index[i]` is the dataset-wide index of the episode transition i came from.
@@ -192,7 +192,7 @@ def episodes_to_transitions(
     return Transitions(
         observations=gather(lambda e: e.observations, drop_first=False, drop_last=True),
         actions=gather(lambda e: e.actions, drop_first=False, drop_last=False),
-        rewards=np.concatenate([episode.rewards for episode in episodes]).astype(np.float32, copy=False),
+        rewards=np.concatenate([episode.rewards for episode in episodes]).astype(np.float64, copy=False),
         next_observations=gather(lambda e: e.observations, drop_first=True, drop_last=False) if next_observations else None,
         terminated=terminated,
         truncated=truncated,

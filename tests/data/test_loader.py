@@ -60,7 +60,7 @@ def test_torch_tensors_keep_dtypes_and_share_cpu_memory(demo_paths) -> None:
     transitions = load_transitions(paths, finite=False)
     tensors = transitions_to_torch(transitions, "cpu")
     assert tensors.observations.dtype == torch.float32 and tensors.actions.dtype == torch.int64
-    assert tensors.terminated.dtype == torch.bool and tensors.rewards.dtype == torch.float32
+    assert tensors.terminated.dtype == torch.bool and tensors.rewards.dtype == torch.float64
     assert tensors.observations.is_contiguous()
     assert tensors.observations.data_ptr() == transitions.observations.ctypes.data
 
@@ -206,3 +206,76 @@ def test_loading_for_training_names_the_file_episode_and_step_of_a_nan(tmp_path,
         assert len(load_transitions(paths, next_observations=False)) == 18
     assert len(load_transitions(paths, episodes=[0, 1, 2])) == 13  # other episodes are fine
     assert len(load_transitions(paths, next_observations=next_observations, finite=False)) == 18
+
+
+def test_a_huge_finite_reward_loads_as_itself(tmp_path) -> None:
+    """Rewards stay float64 on both paths: 1e300 is finite and must not become inf (float32)."""
+    episode = dataclasses.replace(_finite_episodes([4])[0], rewards=np.array([1.0, 1e300, -1e300, 2.0]))
+    path = write_episodes(tmp_path / "big.mcap", [episode], env_id="T", observation_space=BOX, action_space=ACTIONS)
+    transitions = load_transitions(path)
+    assert transitions.rewards.dtype == np.float64
+    np.testing.assert_array_equal(transitions.rewards, episode.rewards)
+
+
+def test_pieces_tile_only_without_gaps_or_overlaps() -> None:
+    from imitation.data.columns import _tiles
+
+    assert _tiles([(4, 2), (0, 4)], 6)
+    assert not _tiles([(0, 2), (3, 3)], 6)  # a gap at row 2
+    assert not _tiles([(0, 4), (2, 4)], 6)  # rows 2 and 3 twice
+    assert not _tiles([(0, 4)], 6)
+    assert _tiles([], 0)
+
+
+def _rewrite(source, target, change) -> None:
+    """Copy an MCAP file record by record through the mcap library, `change(topic, log_time, data)`
+    returning each message's (log_time, data): a file whose blocks DemoWriter could not have written."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    with open(source, "rb") as stream, open(target, "wb") as out:
+        reader = make_reader(stream)
+        writer = Writer(out, compression=CompressionType.ZSTD)
+        writer.start(profile="", library="test")
+        for record in reader.iter_metadata():
+            writer.add_metadata(record.name, record.metadata)
+        summary = reader.get_summary()
+        schema_ids = {s.id: writer.register_schema(s.name, s.encoding, s.data) for s in summary.schemas.values()}
+        channel_ids = {
+            c.id: writer.register_channel(c.topic, c.message_encoding, schema_ids.get(c.schema_id, 0), c.metadata) for c in summary.channels.values()
+        }
+        for _, channel, message in reader.iter_messages(log_time_order=False):
+            log_time, data = change(channel.topic, message.log_time, message.data)
+            writer.add_message(channel_ids[channel.id], log_time=log_time, data=data, publish_time=log_time)
+        writer.finish()
+
+
+@pytest.mark.parametrize(
+    ("topic", "nth", "change"),
+    [
+        pytest.param("/observation", 4, lambda log_time, data: (log_time + 1, data), id="off-grid log time"),
+        pytest.param("/observation", 4, lambda log_time, data: (log_time, data + b"\0"), id="a block with a partial row"),
+        pytest.param("/action", 2, lambda log_time, data: (log_time, data + bytes(8)), id="a block past its episode's end"),
+    ],
+)
+def test_blocks_not_placed_by_their_time_leave_the_bulk_path(tmp_path, topic, nth, change) -> None:
+    """One block (the second observation block of episode 1, or episode 0's last action block) is
+    moved 1 ns off its time grid, has a byte too many, or a row more than its episode holds: the
+    bulk loader must not place it, and hands the file to the general path."""
+    from imitation.data.columns import read_transitions
+
+    episodes = _finite_episodes([6, 9, 5])
+    good = write_episodes(tmp_path / "good.mcap", episodes, env_id="T", observation_space=BOX, action_space=ACTIONS, block_steps=4)
+    seen = []
+
+    def change_one(message_topic, log_time, data):
+        if message_topic == topic:
+            seen.append(log_time)
+            if len(seen) == nth:
+                return change(log_time, data)
+        return log_time, data
+
+    _rewrite(good, tmp_path / "bad.mcap", change_one)
+    _rewrite(good, tmp_path / "copy.mcap", lambda message_topic, log_time, data: (log_time, data))
+    assert read_transitions(DemoDataset(tmp_path / "copy.mcap"), [0, 1, 2], next_observations=True) is not None
+    assert read_transitions(DemoDataset(tmp_path / "bad.mcap"), [0, 1, 2], next_observations=True) is None
