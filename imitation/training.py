@@ -36,6 +36,7 @@ from imitation.experts.tabular import soft_optimal_policy
 from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy, policy_tensors
 from imitation.rewards import load_reward, make_reward_model, relabel_rollout, reward_tensors
 from imitation.runs import RunWriter, plot_curve
+from imitation.seeding import seed_everything
 
 # What may differ between an interrupted run and its --resume: where and how fast it runs.
 RESUME_IGNORE = ("creator", "ppo.device", "ppo.threads", "ppo.async_envs", "bc.device", "bc.threads", "dagger.bc.device", "dagger.bc.threads")
@@ -73,6 +74,7 @@ def bc_job(
     Without `env_id` it trains offline (recordings with no simulator behind them): the policy
     takes the demos' own spaces and the run reports the validation loss only, no returns.
     `resume` continues the interrupted run in `out`.partial from its checkpoint."""
+    seed_everything(config.seed)
     dataset = DemoDataset(demos)
     env = make_env(env_id) if env_id else None
     if env is not None:
@@ -141,6 +143,7 @@ def dagger_job(
     """DAgger with `expert_spec` into run directory `out`; each round's labelled rollouts are
     written to `out/rounds/round-NN.mcap`. `resume` continues the interrupted run in
     `out`.partial from its checkpoint, with the rounds it had finished."""
+    seed_everything(config.seed)
     env = make_env_for_expert(env_id, expert_spec)
     expert = load_expert(expert_spec, env, seed=config.seed)
     if demos:
@@ -186,6 +189,7 @@ def ppo_job(config: PPOConfig, out: str | os.PathLike, *, progress: bool = True,
     """Train PPO into run directory `out`; returns the metrics also written to metrics.json.
     `resume` continues the interrupted run in `out`.partial from its checkpoint."""
     config.validate()
+    seed_everything(config.seed)
     rollout_rewards = None
     if config.reward_run is not None:
         reward_model = load_reward(config.reward_run)
@@ -233,6 +237,7 @@ def tabular_irl_job(
     exactly from the known dynamics and normalised between the uniform random policy (0) and
     the soft-optimal policy for the true reward (1)."""
     config.validate()
+    seed_everything(config.seed)
     with closing(make_env(env_id)) as env:
         mdp = tabular_mdp_of(env, where=f"--method {config.method}")
         dataset = DemoDataset(demos)
@@ -299,12 +304,12 @@ def gcl_job(
     --reward`) and the PPO policy trained alongside it. `resume` continues the interrupted run in
     `out`.partial from its checkpoint (PPO's, holding the reward learner's state too)."""
     ppo_config.validate()
+    seed_everything(config.seed)
     with closing(make_env(env_id)) as env:
         dataset = DemoDataset(demos)
         _check_demos_fit_env(dataset, env)
         observation_space, action_space = env.observation_space, env.action_space
     transitions = transitions_to_torch(load_transitions(dataset, next_observations=True))
-    torch.manual_seed(config.seed)
     reward = make_reward_model(
         observation_space, action_space, hidden_sizes=list(config.hidden_sizes), inputs=config.inputs,
         normalize_observations=isinstance(observation_space, gym.spaces.Box),
