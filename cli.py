@@ -378,6 +378,11 @@ def build_parser() -> argparse.ArgumentParser:
         description="Imitation learning on MCAP demonstration files: record, inspect, train, evaluate.",
     )
     parser.add_argument("--version", action="version", version=f"imitation-mcap {__version__}")
+    parser.add_argument(
+        "--limit", action="append", default=[], metavar="NAME=N",
+        help="raise a resource bound for this run, e.g. --limit sample_elements=33554432 (bounds: sample_elements, dict_leaves, "
+        "expansion_ratio, chunk_bytes, yaml_nodes, array_elements; see imitation/limits.py)",
+    )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     record = commands.add_parser(
@@ -601,6 +606,17 @@ def _sigterm_as_interrupt() -> None:
         signal.signal(signal.SIGTERM, lambda signum, frame: os.kill(os.getpid(), signal.SIGINT))
 
 
+def _apply_limits(assignments: list[str]) -> None:
+    """The environment's limits, then the command line's; passed on to child processes."""
+    from imitation.limits import limits_from_environment, set_limit
+
+    limits_from_environment()
+    for assignment in assignments:
+        set_limit(assignment)
+    if assignments:
+        os.environ["IMITATION_LIMITS"] = ",".join(filter(None, [os.environ.get("IMITATION_LIMITS", ""), *assignments]))
+
+
 def _one_line(text: str) -> str:
     """One line, cut to a readable length, even if a message quotes a long multi-line error."""
     line = " ".join(part.strip() for part in text.splitlines() if part.strip())
@@ -612,6 +628,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     handler: Callable[[argparse.Namespace], int] = args.handler
     _sigterm_as_interrupt()
     try:
+        _apply_limits(args.limit)
         return handler(args)
     except ImitationError as error:
         print("error: " + _one_line(str(error)), file=sys.stderr)

@@ -15,7 +15,8 @@ from typing import Any, Iterator
 import gymnasium as gym
 import numpy as np
 
-from imitation.errors import SpaceError
+from imitation.errors import ImitationError, SpaceError
+from imitation.limits import LIMITS, over_limit
 
 LeafPath = tuple[str, ...]
 
@@ -51,7 +52,6 @@ def space_to_json(space: gym.Space) -> dict[str, Any]:
 
 # A space read from a file must fit in memory: at most this many numbers in one sample (a 4K RGB
 # image is 25 million). Anything larger is refused before anything that size is allocated.
-MAX_SAMPLE_ELEMENTS = 2**26
 
 
 def space_from_json(description: dict[str, Any] | str) -> gym.Space:
@@ -63,11 +63,43 @@ def space_from_json(description: dict[str, Any] | str) -> gym.Space:
         except (ValueError, RecursionError) as error:
             raise SpaceError(f"space description is not JSON ({str(error)[:100]})") from None
     try:
+        leaves, elements = _declared(description)
+        if leaves > LIMITS.dict_leaves:
+            raise over_limit("the space's leaves", leaves, "dict_leaves")
+        if elements > LIMITS.sample_elements:
+            raise over_limit("numbers per sample of the space", elements, "sample_elements")
         return _space_from_json(description)
-    except SpaceError:
+    except (SpaceError, ImitationError):
         raise
     except (KeyError, TypeError, ValueError, OverflowError, AttributeError, IndexError, RecursionError) as error:
         raise SpaceError(f"malformed space description {_short(description)}: {type(error).__name__}: {str(error)[:100]}") from None
+
+
+def _declared(description: Any) -> tuple[int, int]:
+    """(leaves, numbers per sample) that a description declares, counted before any bound is
+    built; what is malformed counts as nothing here and is refused by `_space_from_json`."""
+    if not isinstance(description, dict):
+        return 1, 0
+    kind = description.get("type")
+    if kind == "Dict" and isinstance(description.get("spaces"), dict):
+        leaves = elements = 0
+        for sub in description["spaces"].values():
+            sub_leaves, sub_elements = _declared(sub)
+            leaves, elements = leaves + sub_leaves, elements + sub_elements
+            if leaves > LIMITS.dict_leaves or elements > LIMITS.sample_elements:
+                break
+        return leaves, elements
+    sizes = {"Box": description.get("shape"), "MultiBinary": description.get("n")}.get(kind, [1])
+    if kind == "MultiDiscrete":
+        try:
+            sizes = list(np.shape(description.get("nvec")))
+        except ValueError:  # ragged
+            return 1, 0
+    if isinstance(sizes, int) and not isinstance(sizes, bool):
+        sizes = [sizes]
+    if not isinstance(sizes, list) or len(sizes) > 32 or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in sizes):
+        return 1, 0
+    return 1, math.prod(sizes)
 
 
 def _short(value: Any) -> str:
@@ -81,8 +113,8 @@ def _short(value: Any) -> str:
 def _shape(value: Any) -> tuple[int, ...]:
     if not isinstance(value, list) or len(value) > 32 or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in value):
         raise SpaceError(f"space shape must be a list of at most 32 sizes ≥ 0, got {_short(value)}")
-    if math.prod(value) > MAX_SAMPLE_ELEMENTS:
-        raise SpaceError(f"space shape {value} holds {math.prod(value)} numbers per sample, more than the {MAX_SAMPLE_ELEMENTS} supported")
+    if math.prod(value) > LIMITS.sample_elements:
+        raise over_limit(f"space shape {value}: numbers per sample", math.prod(value), "sample_elements")
     return tuple(value)
 
 
@@ -196,7 +228,7 @@ def _scalar_to_json(value: Any) -> Any:
 def _bounds_to_json(bounds: np.ndarray) -> Any:
     flat = bounds.reshape(-1)
     # Compare as bytes so that NaN == NaN and -0.0 != 0.0: the scalar form must be exact.
-    if flat.size > 0 and all(flat[i].tobytes() == flat[0].tobytes() for i in range(flat.size)):
+    if flat.size > 0 and bool(np.all(np.ascontiguousarray(flat).view(np.uint8).reshape(flat.size, -1) == np.ascontiguousarray(flat[:1]).view(np.uint8))):
         return _scalar_to_json(flat[0])
     return _nested_to_json(bounds)
 

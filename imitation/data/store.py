@@ -52,6 +52,7 @@ from imitation import __version__
 from imitation.data.spaces import LeafPath, space_from_json, space_leaves, space_to_json, spaces_equal
 from imitation.data.types import Episode, Tree, check_fits_space, first_nonfinite, tree_from_leaves, tree_leaves
 from imitation.errors import DemoFileError, ImitationError
+from imitation.limits import FREE_EXPANSION_BYTES, LIMITS, over_limit
 from imitation.output import OutputLock, check_target, create_exclusive, lstat_kind, os_error
 
 FORMAT_VERSION = 1
@@ -66,7 +67,6 @@ COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none"
 MAGIC = b"\x89MCAP0\r\n"
 # No writer makes chunks this large (ours: 1 MiB); a header claiming more is damaged, and is
 # refused before a buffer of that size is asked for.
-MAX_CHUNK_BYTES = 2**31
 
 _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x02, 0x03, 0x04, 0x05, 0x06
 _OP_CHUNK_INDEX, _OP_METADATA, _OP_METADATA_INDEX, _OP_DATA_END = 0x08, 0x0C, 0x0D, 0x0F
@@ -687,6 +687,15 @@ class DemoFile:
         self._chunk_ends = [chunk.end_time for chunk in index.chunks]
         self._facts_by_end_time = {facts.t_end_ns: facts for facts in self.episodes}
 
+    def _count_chunk(self, uncompressed_size: int) -> None:
+        """Count a chunk's declared size before it is decompressed, and refuse a file whose
+        chunks would expand beyond the limits (a small file of compressed zeros)."""
+        if uncompressed_size > LIMITS.chunk_bytes:
+            raise DemoFileError(f"{self.path}: {over_limit('uncompressed bytes of one chunk', uncompressed_size, 'chunk_bytes')}")
+        self._expanded += uncompressed_size
+        if self._expanded > max(FREE_EXPANSION_BYTES, LIMITS.expansion_ratio * self._size):
+            raise DemoFileError(f"{self.path}: {over_limit(f'uncompressed bytes of its chunks (the file has {self._size})', self._expanded, 'expansion_ratio')}")
+
     # -- public API ---------------------------------------------------------------------------
 
     def __len__(self) -> int:
@@ -812,6 +821,7 @@ class DemoFile:
 
     def _read_summary(self, stream: Any) -> _Index:
         """The fast path: footer → summary (channels, chunk index, metadata index) → 2 records."""
+        self._expanded = 0
         if self._size < len(MAGIC) * 2 + _FOOTER_LENGTH:
             raise _Damage("file too short to hold an MCAP footer")
         stream.seek(self._size - len(MAGIC) - _FOOTER_LENGTH)
@@ -839,8 +849,7 @@ class DemoFile:
                 channels[channel.id] = _channel_field(channel)
             elif opcode == _OP_CHUNK_INDEX:
                 entry = ChunkIndex.read(ReadDataStream(BytesIO(body)))
-                if entry.uncompressed_size > MAX_CHUNK_BYTES:
-                    raise _Damage(f"the chunk index claims a chunk of {entry.uncompressed_size} bytes uncompressed")
+                self._count_chunk(entry.uncompressed_size)
                 chunks.append(
                     _ChunkRef(entry.chunk_start_offset, entry.chunk_length, entry.message_start_time, entry.message_end_time, entry.uncompressed_size)
                 )
@@ -875,6 +884,7 @@ class DemoFile:
 
     def _scan(self, stream: Any) -> _Index:
         """Salvage: read the data section record by record, keeping every complete episode."""
+        self._expanded = 0
         data = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
         dataset: dict[str, str] = {}
         channels: dict[int, _Field | None] = {}
@@ -902,6 +912,7 @@ class DemoFile:
                     if assembler is None:
                         raise _Damage("data before the dataset metadata")
                     start_time, end_time, uncompressed_size = struct.unpack_from("<QQQ", body)
+                    self._count_chunk(uncompressed_size)
                     ref = _ChunkRef(record_offset, 9 + len(body), start_time, end_time, uncompressed_size)
                     pending_chunks.append(ref)
                     record = data[record_offset : record_offset + ref.length]
@@ -989,8 +1000,8 @@ def _chunk_header(record: memoryview) -> _ChunkHeader:
         raise _Damage("chunk data is truncated")
     if compression not in ("zstd", "lz4", ""):
         raise _Damage(f"unsupported chunk compression {compression!r}")
-    if uncompressed_size > MAX_CHUNK_BYTES:
-        raise _Damage(f"the chunk claims {uncompressed_size} bytes uncompressed, more than the {MAX_CHUNK_BYTES} a chunk may hold")
+    if uncompressed_size > LIMITS.chunk_bytes:
+        raise _Damage(f"the chunk claims {uncompressed_size} bytes uncompressed, more than the limit chunk_bytes={LIMITS.chunk_bytes}")
     return _ChunkHeader(compression, uncompressed_size, uncompressed_crc, payload)
 
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import math
 import os
 from pickletools import genops  # disassembles a pickle without running it
 import re
@@ -42,7 +43,8 @@ import numpy as np
 import torch
 
 from imitation.errors import ImitationError
-from imitation.policies import ACTIVATIONS, ActorCritic, make_policy
+from imitation.limits import LIMITS, check_zip_member, over_limit
+from imitation.policies import ACTIVATIONS, ActorCritic, action_logits_size, make_policy
 
 # SB3 module names → ours. The trunks are nn.Sequential(Linear, activation, ...) in both, so
 # hidden-layer indices carry over unchanged.
@@ -71,6 +73,13 @@ def load_sb3_policy(path: str | os.PathLike) -> ActorCritic:
     if isinstance(observation_space, gym.spaces.Box) and observation_space.dtype == np.uint8 and len(observation_space.shape) == 3:
         raise ImitationError(f"{file}: image observations are not supported (SB3 scales them by 1/255 inside the policy)")
     hidden_sizes, shared, state = _rename_weights(file, weights)
+    head = state.get("action_head.weight")
+    if head is not None and head.dim() == 2 and head.shape[0] != action_logits_size(action_space):
+        # Checked before the network is built: a forged space could otherwise ask for a huge head.
+        raise ImitationError(
+            f"{file}: policy.pth does not fit the zip's spaces (its action head has {head.shape[0]} outputs, "
+            f"the action space needs {action_logits_size(action_space)})"
+        )
     policy = make_policy(
         observation_space, action_space, hidden_sizes=hidden_sizes, activation=_activation(file, data), shared_trunk=shared
     )
@@ -92,6 +101,7 @@ def _read_zip(file: str) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
             for member in ("policy.pth", "data"):
                 if member not in names:
                     raise ImitationError(f"{file}: no {member} in the zip, so not a stable-baselines3 PPO/A2C model")
+                check_zip_member(file, archive.getinfo(member))
             weights_bytes, data_bytes = archive.read("policy.pth"), archive.read("data")
     except (zipfile.BadZipFile, zlib.error, OSError) as error:
         raise ImitationError(f"{file}: cannot read as a stable-baselines3 zip ({error})") from None
@@ -108,7 +118,9 @@ def _read_zip(file: str) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     try:
         data = json.loads(data_bytes)
     except ValueError as error:
-        raise ImitationError(f"{file}: its data member is not JSON ({error})") from None
+        raise ImitationError(f"{file}: its data member is not JSON ({str(error)[:200]})") from None
+    except RecursionError:
+        raise ImitationError(f"{file}: its data member is JSON nested too deep to be an SB3 model's") from None
     if not isinstance(data, dict):
         raise ImitationError(f"{file}: its data member is JSON but not an object")
     return weights, data
@@ -125,22 +137,39 @@ def _refusal(error: Exception) -> str:
 def _space(file: str, data: dict[str, Any], key: str) -> gym.Space:
     """A Box or Discrete space from the readable attributes SB3 writes beside the pickle."""
     entry = data.get(key)
-    match = SPACE_TYPE.fullmatch(entry.get(":type:", "")) if isinstance(entry, dict) else None
+    match = SPACE_TYPE.fullmatch(entry[":type:"]) if isinstance(entry, dict) and isinstance(entry.get(":type:"), str) else None
     if match is None:
         raise ImitationError(f"{file}: data has no readable {key} (expected a gym/gymnasium space entry)")
     kind = match[1]
     try:
         if kind == "Discrete":
             # Old gym wrote n as an int; gymnasium's n and start are numpy ints, written as str().
-            return gym.spaces.Discrete(int(entry["n"]), start=int(entry.get("start", 0)))
+            n, start = int(_short_number(entry["n"])), int(_short_number(entry.get("start", 0)))
+            if n > LIMITS.sample_elements:
+                raise over_limit(f"{file}: {key} Discrete(n): n", n, "sample_elements")
+            if n < 1:
+                raise ValueError(f"Discrete n must be at least 1, got {n}")
+            return gym.spaces.Discrete(n, start=start)
         if kind == "Box":
-            shape = tuple(entry["shape"] if "shape" in entry else entry["_shape"])
+            shape = tuple(int(n) for n in (entry["shape"] if "shape" in entry else entry["_shape"]))
+            if len(shape) > 32 or any(n < 0 for n in shape):
+                raise ValueError(f"shape {shape} is not a list of at most 32 sizes ≥ 0")
+            if math.prod(shape) > LIMITS.sample_elements:
+                raise over_limit(f"{file}: {key} Box shape {shape}: numbers per sample", math.prod(shape), "sample_elements")
             dtype = np.dtype(entry["dtype"])
             low, high = (_parse_array(entry[bound], shape, dtype) for bound in ("low", "high"))
             return gym.spaces.Box(low=low, high=high, shape=shape, dtype=dtype)
     except (KeyError, TypeError, ValueError) as error:
         raise ImitationError(f"{file}: cannot read {key} ({kind}) from its readable fields, and its pickle is not opened: {error}") from None
     raise ImitationError(f"{file}: {key} is a {kind}; only Box and Discrete spaces are supported")
+
+
+def _short_number(value: Any) -> Any:
+    """`value`, refused when it is a string too long to be a number of a real space (Python's
+    int() of a 5000-digit string is slow and refused anyway)."""
+    if isinstance(value, str) and len(value) > 40:
+        raise ValueError(f"{value[:40]}... is not a number a space holds")
+    return value
 
 
 def _parse_array(text: str, shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:

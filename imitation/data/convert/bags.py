@@ -21,6 +21,7 @@ from typing import Any, Callable, Iterable, Iterator, Protocol
 
 import yaml
 
+from imitation.data.convert.yaml_bounded import load_yaml
 from imitation.errors import ImitationError
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -136,13 +137,15 @@ def _rosbag2_directory(path: Path) -> tuple[str, list[Path]]:
     metadata = path / "metadata.yaml"
     if metadata.is_file():
         try:
-            info = yaml.safe_load(metadata.read_bytes())["rosbag2_bagfile_information"]
+            info = load_yaml(metadata.read_bytes())["rosbag2_bagfile_information"]
             storage = str(info.get("storage_identifier", ""))
             # Recorders write paths relative to a folder that is often renamed: keep the names.
             names = info.get("relative_file_paths", [])
             if not isinstance(names, list) or not all(isinstance(name, str) for name in names):
                 raise TypeError("relative_file_paths is not a list of file names")
             files = [path / Path(name).name for name in names]
+        except ImitationError as error:
+            raise ImitationError(f"{metadata}: {error}") from None
         except (OSError, yaml.YAMLError, KeyError, TypeError, AttributeError, ValueError, RecursionError) as error:
             raise ImitationError(f"{metadata}: not a rosbag2 metadata file ({type(error).__name__}: {' '.join(str(error).split())[:200]})") from None
         if storage not in ("sqlite3", "mcap"):

@@ -27,6 +27,7 @@ import numpy as np
 from imitation.data.convert.converted import Converted, box_for, cast_rows, infer_action_space
 from imitation.data.types import Episode
 from imitation.errors import ImitationError
+from imitation.limits import check_zip_member
 
 SB_KEYS = {"obs", "actions", "rewards", "episode_starts"}
 IMITATION_KEYS = {"obs", "acts", "indices", "terminal"}
@@ -68,6 +69,7 @@ def _read_npz(path: Path) -> tuple[dict[str, np.ndarray], set[str]]:
         with zipfile.ZipFile(path) as archive:
             for info in archive.infolist():
                 key = info.filename.removesuffix(".npy")
+                check_zip_member(path, info)
                 with archive.open(info) as member:
                     version = np.lib.format.read_magic(member)
                     read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0

@@ -1,0 +1,62 @@
+"""YAML that cannot expand beyond a bound: maps and rosbag2 metadata come from strangers.
+
+PyYAML's safe loader builds shared references for aliases, so an alias bomb (each level nine
+aliases of the one before) is small in memory, but anything that walks the result (checking a
+map, printing it in an error) walks every expansion: ×9 per level. `load_yaml` counts the nodes
+of the document with every alias expanded, before anything is constructed, and refuses one
+above `LIMITS.yaml_nodes`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import yaml
+
+from imitation.limits import LIMITS, over_limit
+
+
+class _BoundedLoader(yaml.SafeLoader):
+    def compose_document(self) -> yaml.Node | None:
+        node = super().compose_document()
+        if node is not None:
+            expanded = _expanded_nodes(node)
+            if expanded > LIMITS.yaml_nodes:
+                raise over_limit("YAML nodes with aliases expanded", expanded, "yaml_nodes")
+        return node
+
+
+def _expanded_nodes(root: yaml.Node) -> int:
+    """Nodes of the tree that the document's graph unfolds to (an alias counts its target's
+    whole subtree again); linear in the graph's size, whatever the expansion."""
+    counted: dict[int, int] = {}
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, children_done = stack.pop()
+        if id(node) in counted:
+            continue
+        children = _children(node)
+        if children_done or not children:
+            counted[id(node)] = 1 + sum(counted.get(id(child), 0) for child in children)
+            continue
+        stack.append((node, True))
+        stack.extend((child, False) for child in children if id(child) not in counted)
+    return counted[id(root)]
+
+
+def _children(node: yaml.Node) -> list[yaml.Node]:
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    if isinstance(node, yaml.MappingNode):
+        return [part for pair in node.value for part in pair]
+    return []
+
+
+def load_yaml(data: bytes) -> Any:
+    """`yaml.safe_load`, bounded (see the module docstring). Raises yaml.YAMLError for bad YAML
+    and ImitationError for a document above the bound."""
+    loader = _BoundedLoader(data)  # a SafeLoader: builds plain values only
+    try:
+        return loader.get_single_data()
+    finally:
+        loader.dispose()

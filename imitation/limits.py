@@ -1,0 +1,70 @@
+"""Resource bounds checked before anything is allocated, so that a small hostile file (a space
+declaring 2^26 numbers, a chunk of zeros expanding a thousandfold, a YAML alias bomb) is refused
+in one line instead of exhausting memory or CPU.
+
+Every bound is generous for real data and can be raised for one run with the global option
+`imitation --limit NAME=VALUE` (repeatable), or the environment variable
+`IMITATION_LIMITS="NAME=VALUE,..."`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import zipfile
+from dataclasses import dataclass
+
+from imitation.errors import ImitationError
+
+
+@dataclass
+class Limits:
+    # Numbers in one sample of a space (all leaves of a Dict together): 2^23 holds a 1080p RGB
+    # frame with room to spare, and its float64 bounds stay under 150 MB.
+    sample_elements: int = 2**23
+    # Leaves of a Dict space.
+    dict_leaves: int = 1024
+    # Decompressed bytes of a file's chunks per byte of the file (beyond the first 64 MiB).
+    expansion_ratio: int = 100
+    # Bytes one chunk may decompress to.
+    chunk_bytes: int = 2**28
+    # Nodes of a YAML document (maps, bag metadata) after aliases are expanded.
+    yaml_nodes: int = 100_000
+    # Elements of one array in a stable-baselines3 zip or an npz file.
+    array_elements: int = 2**31
+
+
+LIMITS = Limits()
+FREE_EXPANSION_BYTES = 64 * 2**20
+
+
+def set_limit(assignment: str) -> None:
+    """Apply one `NAME=VALUE` (VALUE a positive integer)."""
+    name, _, value = assignment.partition("=")
+    names = [f.name for f in dataclasses.fields(Limits)]
+    if name not in names:
+        raise ImitationError(f"--limit {assignment[:100]}: unknown limit; the limits are {', '.join(names)}")
+    if not (value.isdigit() and len(value) <= 19 and int(value) >= 1):
+        raise ImitationError(f"--limit {assignment[:100]}: the value must be a positive integer such as 16777216")
+    number = int(value)
+    setattr(LIMITS, name, number)
+
+
+def limits_from_environment() -> None:
+    for assignment in filter(None, os.environ.get("IMITATION_LIMITS", "").split(",")):
+        set_limit(assignment.strip())
+
+
+def over_limit(what: str, amount: int, name: str) -> ImitationError:
+    """The one-line error for `amount` above limit `name`, saying how to raise it."""
+    return ImitationError(f"{what}: {amount} is more than the limit {name}={getattr(LIMITS, name)} (raise it with `imitation --limit {name}=N` if the data is real)")
+
+
+def check_zip_member(file: str | os.PathLike, info: zipfile.ZipInfo) -> None:
+    """Refuse a zip member whose declared size the archive cannot hold, before reading it: a
+    small crafted zip (an SB3 model, an npz) must not make the reader allocate gigabytes."""
+    allowed = max(FREE_EXPANSION_BYTES, LIMITS.expansion_ratio * max(info.compress_size, 1))
+    if info.compress_size > os.path.getsize(file):
+        raise ImitationError(f"{file}: zip member {info.filename[:100]!r} is damaged (it claims more bytes than the archive has)")
+    if info.file_size > allowed:
+        raise over_limit(f"{file}: zip member {info.filename[:100]!r}: declared bytes", info.file_size, "expansion_ratio")
