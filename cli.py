@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import sys
@@ -187,6 +188,17 @@ def cmd_train_ppo(args: argparse.Namespace) -> int:
         print(f"trained PPO ({config.objective}) on {args.env} for {result['steps']} steps in {result['seconds']:.0f} s "
               f"({result['steps_per_second']:.0f} steps/s); eval return {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f}; run: {result['run']}")
     return 0
+
+
+def _finite(text: str) -> float:
+    """A float option: NaN and ±inf are refused where they enter, not deep inside training."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text[:100]!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text[:100]!r}")
+    return value
 
 
 def _hidden_sizes(text: str) -> list[int]:
@@ -381,7 +393,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--limit", action="append", default=[], metavar="NAME=N",
         help="raise a resource bound for this run, e.g. --limit sample_elements=33554432 (bounds: sample_elements, dict_leaves, "
-        "expansion_ratio, chunk_bytes, yaml_nodes, array_elements; see imitation/limits.py)",
+        "expansion_ratio, chunk_bytes, yaml_nodes, policy_parameters; see imitation/limits.py)",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -491,13 +503,13 @@ def build_parser() -> argparse.ArgumentParser:
                     "offline on the demos' own spaces and reports the validation loss only")
     bc.add_argument("--epochs", type=int, default=300, metavar="N", help="maximum epochs (default: 300)")
     bc.add_argument("--batch-size", type=int, default=256, metavar="B", help="minibatch size (default: 256)")
-    bc.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (default: 1e-3)")
+    bc.add_argument("--lr", type=_finite, default=1e-3, help="Adam learning rate (default: 1e-3)")
     bc.add_argument("--hidden", type=_hidden_sizes, default=[256, 256], metavar="256,256", help="MLP layer widths (default: 256,256)")
     bc.add_argument("--activation", choices=["tanh", "relu"], default="relu", help="hidden-layer activation (default: relu)")
     bc.add_argument("--loss", choices=["nll", "mse"], default="nll", help="nll (log-likelihood) or mse (continuous actions only)")
-    bc.add_argument("--entropy", type=float, default=0.0, metavar="C", help="entropy bonus coefficient (default: 0)")
-    bc.add_argument("--l2", type=float, default=0.0, metavar="C", help="L2 penalty on the policy weights (default: 0)")
-    bc.add_argument("--validation", type=float, default=0.2, metavar="F", help="fraction of episodes held out (default: 0.2)")
+    bc.add_argument("--entropy", type=_finite, default=0.0, metavar="C", help="entropy bonus coefficient (default: 0)")
+    bc.add_argument("--l2", type=_finite, default=0.0, metavar="C", help="L2 penalty on the policy weights (default: 0)")
+    bc.add_argument("--validation", type=_finite, default=0.2, metavar="F", help="fraction of episodes held out (default: 0.2)")
     bc.add_argument("--patience", type=int, default=50, metavar="N", help="epochs without a better validation loss before stopping (default: 50)")
     bc.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     bc.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
@@ -517,7 +529,7 @@ def build_parser() -> argparse.ArgumentParser:
     dagger.add_argument("--rounds", type=int, default=5, metavar="R", help="rounds (default: 5)")
     dagger.add_argument("--episodes-per-round", type=int, default=5, metavar="N", help="rollouts per round (default: 5)")
     dagger.add_argument("--beta-schedule", choices=["linear", "exponential"], default="linear", help="how β decays (default: linear)")
-    dagger.add_argument("--beta-decay", type=float, default=0.5, metavar="P", help="β_i = P^(i-1) for the exponential schedule (default: 0.5)")
+    dagger.add_argument("--beta-decay", type=_finite, default=0.5, metavar="P", help="β_i = P^(i-1) for the exponential schedule (default: 0.5)")
     dagger.add_argument("--epochs", type=int, default=60, metavar="N", help="BC epochs per round (default: 60)")
     dagger.add_argument("--patience", type=int, default=15, metavar="N", help="BC early-stopping patience per round (default: 15)")
     dagger.add_argument("--hidden", type=_hidden_sizes, default=[256, 256], metavar="256,256", help="MLP layer widths (default: 256,256)")
@@ -539,9 +551,9 @@ def build_parser() -> argparse.ArgumentParser:
     irl.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
     irl.add_argument("--demos", required=True, nargs="+", metavar="F.mcap", help="expert demo files of that env")
     irl.add_argument("--iterations", type=int, default=2000, metavar="N", help="tabular: most gradient steps (default: 2000)")
-    irl.add_argument("--tolerance", type=float, default=1e-4, metavar="E", help="tabular: stop when the visitation error (L∞) is below E (default: 1e-4)")
-    irl.add_argument("--discount", type=float, default=1.0, metavar="G", help="tabular: discount γ of the visitation counts (default: 1)")
-    irl.add_argument("--lr", type=float, metavar="LR", help="Adam learning rate of the reward (default: 0.05 tabular, 3e-4 gcl)")
+    irl.add_argument("--tolerance", type=_finite, default=1e-4, metavar="E", help="tabular: stop when the visitation error (L∞) is below E (default: 1e-4)")
+    irl.add_argument("--discount", type=_finite, default=1.0, metavar="G", help="tabular: discount γ of the visitation counts (default: 1)")
+    irl.add_argument("--lr", type=_finite, metavar="LR", help="Adam learning rate of the reward (default: 0.05 tabular, 3e-4 gcl)")
     irl.add_argument("--hidden", type=_hidden_sizes, metavar="32,32", help="reward MLP widths, or 'linear' (default: linear tabular, 64,64 gcl)")
     irl.add_argument("--steps", type=int, metavar="N", help="gcl: PPO environment steps in total (default: 500000 for Pendulum-v1, else 200000)")
     irl.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")

@@ -32,6 +32,8 @@ from typing import Any, Callable, Protocol, runtime_checkable
 import numpy as np
 import torch
 
+from imitation.errors import ImitationError
+
 Tensors = dict[str, torch.Tensor]
 CheckpointData = tuple[Tensors, dict[str, Any]]
 
@@ -127,6 +129,14 @@ def restore_rng(tensors: Tensors, state: dict[str, Any]) -> None:
     numpy = state["numpy"]
     keys = tensors["rng.numpy"].numpy().astype(np.uint32)
     np.random.set_state((numpy["kind"], keys, numpy["position"], numpy["has_gauss"], numpy["cached_gaussian"]))
+
+
+def checked_counter(value: int, name: str, first: int, last: int) -> int:
+    """A counter read from a checkpoint (the next epoch, round, update), which must lie in
+    [first, last]: a damaged or edited checkpoint must not make a run loop for ever."""
+    if not first <= value <= last:
+        raise ImitationError(f"the checkpoint's {name} is {value}, outside {first}..{last} for this run: damaged or edited; start again without --resume")
+    return value
 
 
 def snapshot(tensors: Tensors, state: dict[str, Any]) -> CheckpointData:

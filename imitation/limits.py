@@ -30,8 +30,8 @@ class Limits:
     chunk_bytes: int = 2**28
     # Nodes of a YAML document (maps, bag metadata) after aliases are expanded.
     yaml_nodes: int = 100_000
-    # Elements of one array in a stable-baselines3 zip or an npz file.
-    array_elements: int = 2**31
+    # Weights of a policy network (2^27 float32 weights are 512 MiB).
+    policy_parameters: int = 2**27
 
 
 LIMITS = Limits()

@@ -100,14 +100,15 @@ def check_target(path: str | os.PathLike, *, directory: bool = False, flag: str 
         raise ImitationError(f"{flag} {_printable(path)}: is {_kind(mode)}; it must be {needed} or a new path (remove it, or choose another name)")
 
 
-def create_exclusive(path: str | os.PathLike) -> BinaryIO:
-    """Open a new file for writing; fail if anything (a file, a symlink) is already there."""
+def create_exclusive(path: str | os.PathLike, *, target: str | os.PathLike | None = None) -> BinaryIO:
+    """Open a new file for writing; fail if anything (a file, a symlink) is already there.
+    An OSError names `target` (what the user asked for), the temporary name otherwise."""
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
     except FileExistsError:
         raise ImitationError(f"{_printable(path)}: exists; it was not made by this run (remove it, or choose another name)") from None
     except OSError as error:
-        raise os_error(path, error) from None
+        raise os_error(target if target is not None else path, error) from None
     return os.fdopen(fd, "wb")
 
 

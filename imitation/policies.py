@@ -33,6 +33,7 @@ from torch.distributions import Categorical, Distribution, Normal, kl_divergence
 
 from imitation.data.spaces import check_spaces_fit, space_from_json, space_to_json
 from imitation.errors import ImitationError, SpaceError
+from imitation.limits import LIMITS, over_limit
 from imitation.runs import read_run
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
@@ -57,8 +58,16 @@ class RunningMeanStd(nn.Module):
         self.count.fill_(self.epsilon)
 
     def update(self, batch: torch.Tensor) -> None:
+        """Fold in a batch, in pieces of at most 2^23 numbers: the float64 copy the statistics
+        need stays small however large the batch (a whole demo set, when BC fits them)."""
+        rows = batch.reshape(-1, *self.mean.shape)
+        step = max(1, 2**23 // max(1, self.mean.numel()))
+        for start in range(0, len(rows), step):
+            self._update(rows[start : start + step])
+
+    def _update(self, batch: torch.Tensor) -> None:
         with torch.no_grad():
-            batch = batch.to(torch.float64).reshape(-1, *self.mean.shape)
+            batch = batch.to(torch.float64)
             batch_mean, batch_var, batch_count = batch.mean(0), batch.var(0, unbiased=False), batch.shape[0]
             delta = batch_mean - self.mean
             total = self.count + batch_count
@@ -182,6 +191,16 @@ def action_logits_size(space: gym.Space) -> int:
     return observation_size(space)
 
 
+def _check_size(inputs: int, hidden_sizes: list[int], outputs: int, *, shared: bool) -> None:
+    """Refuse, before any weight is allocated, a network beyond `LIMITS.policy_parameters`
+    (a forged space of 2^23 inputs would otherwise ask for gigabytes of weights)."""
+    widths = [inputs, *hidden_sizes]
+    trunk = sum((a + 1) * b for a, b in zip(widths, widths[1:]))
+    parameters = trunk * (1 if shared else 2) + (widths[-1] + 1) * (outputs + 1)
+    if parameters > LIMITS.policy_parameters:
+        raise over_limit(f"policy parameters ({inputs} inputs, hidden {hidden_sizes}, {outputs} outputs)", parameters, "policy_parameters")
+
+
 class ActorCritic(nn.Module):
     """An MLP actor (categorical, multi-categorical or Gaussian head) and critic, with separate or shared trunks."""
 
@@ -194,6 +213,8 @@ class ActorCritic(nn.Module):
         self.action_space = space_from_json(config.action_space)
         obs_size = observation_size(self.observation_space)
         hidden = config.hidden_sizes[-1] if config.hidden_sizes else obs_size
+        known = isinstance(self.action_space, (gym.spaces.Discrete, gym.spaces.MultiDiscrete, gym.spaces.Box))  # others are refused below
+        _check_size(obs_size, config.hidden_sizes, action_logits_size(self.action_space) if known else 0, shared=config.shared_trunk)
         self.obs_rms = RunningMeanStd((obs_size,)) if config.normalize_observations else None
         self.actor_trunk = _mlp(obs_size, config.hidden_sizes, config.activation)
         self.critic_trunk = self.actor_trunk if config.shared_trunk else _mlp(obs_size, config.hidden_sizes, config.activation)

@@ -208,6 +208,11 @@ class RunWriter:
         except (OSError, json.JSONDecodeError) as error:
             raise ImitationError(f"--resume: {self.partial / CONFIG_FILE} is unreadable ({error})") from None
         differences = _differences(saved, json.loads(json.dumps(_json_ready(config))), ignore)
+        if any(difference.startswith("demo_fingerprints") for difference in differences):
+            raise ImitationError(
+                f"--resume: the demo files changed since {self.partial} was started (their size or checksums differ); "
+                "resume with the same files, or start again without --resume"
+            )
         if differences:
             raise ImitationError(
                 f"--resume: {self.partial} was started with other settings ({differences[0]}); "
@@ -301,18 +306,28 @@ def read_run(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, torch.T
     if not run.is_dir():
         raise ImitationError(f"{run}: not a run directory (it does not exist or is not a folder)")
     config_path, weights_path = run / CONFIG_FILE, run / WEIGHTS_FILE
-    if not config_path.is_file() or not weights_path.is_file():
-        raise ImitationError(f"{run}: not a finished run directory (no {CONFIG_FILE} or {WEIGHTS_FILE})")
+    missing = [path.name for path in (config_path, weights_path) if not os.path.lexists(path)]
+    if missing:
+        raise ImitationError(f"{run}: not a finished run directory (no {' or '.join(missing)})")
+    for path in (config_path, weights_path):
+        if not path.is_file():
+            raise ImitationError(f"{path}: is not a regular file")
     try:
         config = json.loads(config_path.read_bytes())
+    except OSError as error:
+        raise os_error(config_path, error, "cannot read") from None
     except (ValueError, RecursionError) as error:  # ValueError: not JSON, or not UTF-8
         raise ImitationError(f"{config_path}: not valid JSON ({type(error).__name__}: {str(error)[:200]})") from None
     if not isinstance(config, dict):
         raise ImitationError(f"{config_path}: not a run's config (a JSON object), but a {type(config).__name__}")
     try:
+        with open(weights_path, "rb"):
+            pass
         weights = load_file(str(weights_path))
+    except OSError as error:
+        raise os_error(weights_path, error, "cannot read") from None
     except Exception as error:
-        raise ImitationError(f"{weights_path}: unreadable safetensors file ({error})") from None
+        raise ImitationError(f"{weights_path}: unreadable safetensors file ({str(error)[:200]})") from None
     return config, weights
 
 

@@ -59,6 +59,11 @@ def _resumable(run: RunWriter) -> Iterator[None]:
         raise TrainingInterrupted(f"{stopped}; its checkpoint is in {run.partial}: run the same command with --resume to continue") from None
 
 
+def _fingerprints(dataset: DemoDataset | None) -> list[str]:
+    """What the run records of its demo files' content, so that --resume can tell a change."""
+    return [file.fingerprint for file in dataset.files] if dataset is not None else []
+
+
 def _check_demos_fit_env(dataset: DemoDataset, env: gym.Env) -> None:
     first = dataset.files[0].path
     if dataset.num_transitions == 0:
@@ -82,7 +87,10 @@ def bc_job(
     elif dataset.num_transitions == 0:
         raise ImitationError(f"{dataset.files[0].path}: the demos hold no transitions (no episode, or only empty ones)")
     spaces = env if env is not None else dataset
-    policy = make_policy(spaces.observation_space, spaces.action_space, **policy_options(config))
+    try:
+        policy = make_policy(spaces.observation_space, spaces.action_space, **policy_options(config))
+    except ImitationError as error:
+        raise ImitationError(f"{f'--env {env_id}' if env is not None else dataset.files[0].path}: {error}") from None
     config.validate(policy.is_continuous)
     train, validation, split = _bc_split(dataset, config, offline=env is None)
 
@@ -91,7 +99,7 @@ def bc_job(
 
     with closing(env) if env is not None else nullcontext(), RunWriter(out, config={
         "kind": "bc", "env_id": env_id, "offline": env is None, "demos_env_id": dataset.env_id, "creator": f"imitation-mcap {__version__}",
-        "demos": [str(p) for p in demos], "bc": vars(config).copy(), "policy": policy.config.to_json(), "split": split,
+        "demos": [str(p) for p in demos], "demo_fingerprints": _fingerprints(dataset), "bc": vars(config).copy(), "policy": policy.config.to_json(), "split": split,
     }, x_axis="epoch", resume=resume, resume_ignore=RESUME_IGNORE) as run, _resumable(run):
         checkpoints = Checkpointing(save=run.save_checkpoint, resume=run.resumed)
         result = train_bc(
@@ -146,8 +154,9 @@ def dagger_job(
     seed_everything(config.seed)
     env = make_env_for_expert(env_id, expert_spec)
     expert = load_expert(expert_spec, env, seed=config.seed)
-    if demos:
-        _check_demos_fit_env(DemoDataset(demos), env)
+    given = DemoDataset(demos) if demos else None
+    if given is not None:
+        _check_demos_fit_env(given, env)
     policy = make_policy(env.observation_space, env.action_space, **policy_options(config.bc))
     config.bc.validate(policy.is_continuous)
 
@@ -156,7 +165,8 @@ def dagger_job(
 
     with closing(env), RunWriter(out, config={
         "kind": "dagger", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "expert": expert_spec,
-        "demos": [str(p) for p in demos], "dagger": {**vars(config), "bc": vars(config.bc).copy()}, "policy": policy.config.to_json(),
+        "demos": [str(p) for p in demos], "demo_fingerprints": _fingerprints(given), "dagger": {**vars(config), "bc": vars(config.bc).copy()},
+        "policy": policy.config.to_json(),
     }, x_axis="round", resume=resume, resume_ignore=RESUME_IGNORE) as run, _resumable(run):
         bar = tqdm(total=config.rounds, initial=len(run.history), desc="dagger", unit="round", disable=None if progress else True, dynamic_ncols=True)
 
@@ -250,7 +260,7 @@ def tabular_irl_job(
 
     with RunWriter(out, config={
         "kind": "reward", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "demos": [str(p) for p in demos],
-        "irl": vars(config).copy(), "reward": model.config.to_json(),
+        "demo_fingerprints": _fingerprints(dataset), "irl": vars(config).copy(), "reward": model.config.to_json(),
     }, x_axis="iteration", resume=resume, resume_ignore=RESUME_IGNORE) as run, _resumable(run):
         bar = tqdm(
             total=config.iterations, initial=len(run.history), desc=f"irl {config.method}", unit="it", disable=None if progress else True, dynamic_ncols=True,
@@ -318,7 +328,7 @@ def gcl_job(
 
     with RunWriter(out, config={
         "kind": "reward", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "demos": [str(p) for p in demos],
-        "irl": {"method": "gcl", **vars(config)}, "ppo": vars(ppo_config).copy(), "reward": reward.config.to_json(),
+        "demo_fingerprints": _fingerprints(dataset), "irl": {"method": "gcl", **vars(config)}, "ppo": vars(ppo_config).copy(), "reward": reward.config.to_json(),
     }, resume=resume, resume_ignore=RESUME_IGNORE) as run, _resumable(run):
 
         def log(row: dict[str, float]) -> None:

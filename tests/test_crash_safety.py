@@ -293,3 +293,18 @@ def test_kill_9_during_convert_leaves_no_final_file_and_a_partial_one_whose_comp
         np.testing.assert_array_equal(episode.observations, expected[k].observations)
         np.testing.assert_array_equal(episode.actions, expected[k].actions)
         np.testing.assert_array_equal(episode.rewards, expected[k].rewards)
+
+
+def test_resume_refuses_a_checkpoint_whose_counter_was_tampered_with(tmp_path: Path) -> None:
+    out = tmp_path / "bc"
+    args = ["train", "bc", "--demos", str(DATASETS / "CartPole-v1.mcap"), "--env", "CartPole-v1", "--epochs", "200", "--hidden", "16", "--quiet",
+            "--out", str(out)]
+    interrupt_after_first_checkpoint(*args, out=out)
+    state_file = tmp_path / "bc.partial" / "checkpoint" / "state.json"
+    state = json.loads(state_file.read_text())
+    state["trainer"]["epoch"] = -10**12
+    state_file.write_text(json.dumps(state))
+    started = time.monotonic()
+    result = run_cli_many([[*args, "--resume"]])[0]
+    assert_one_line_error(result, "the checkpoint's next epoch is -1000000000000, outside 1..201 for this run")
+    assert time.monotonic() - started < 60

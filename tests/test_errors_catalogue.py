@@ -106,14 +106,15 @@ class Inputs:
     # -- demo files ---------------------------------------------------------------------------
 
     def demo_with(self, name: str, source: str = "CartPole-v1.mcap", *, dataset: Callable[[dict], dict] | None = None, crc: bool = True,
-                  message: Callable[[int, bytes], bytes] | None = None) -> Path:
-        """A bundled demo file written again record by record, its dataset metadata edited
-        (checksum recomputed unless crc=False) or one block message's bytes changed."""
+                  message: Callable[[int, bytes], bytes] | None = None, episodes: Callable[[list], list] | None = None) -> Path:
+        """A bundled demo file written again record by record, its dataset metadata or its
+        episode index edited (checksum recomputed unless crc=False) or one block message's
+        bytes changed."""
         from mcap.records import Channel, Header, Message, Metadata, Schema
         from mcap.stream_reader import StreamReader
         from mcap.writer import Writer
 
-        from imitation.data.store import DATASET_METADATA, metadata_crc
+        from imitation.data.store import DATASET_METADATA, EPISODES_METADATA, metadata_crc
 
         records = [r for r in StreamReader(io.BytesIO((DATASETS / source).read_bytes()), emit_chunks=False).records]
         header = next(r for r in records if isinstance(r, Header))
@@ -131,6 +132,9 @@ class Inputs:
                 if record.name == DATASET_METADATA and dataset is not None:
                     values = dataset({k: v for k, v in values.items() if k != "crc32"})
                     values["crc32"] = metadata_crc(values) if crc else "0"
+                if record.name == EPISODES_METADATA and episodes is not None:
+                    values = {"episodes": json.dumps(episodes(json.loads(values["episodes"])))}
+                    values["crc32"] = metadata_crc(values)
                 writer.add_metadata(record.name, values)
             elif isinstance(record, (Schema, Channel)):
                 if (type(record), record.id) in seen:
@@ -520,14 +524,31 @@ CASE_LIST = [
     case("demo-d14", lambda i: ["info", i.cut_at_record("cut-body.mcap", 20)]),
     case("demo-d3", lambda i: _bc(i.patched("no-summary.mcap", lambda d, s, c: d.__setitem__(slice(len(d) - 28, len(d) - 20), bytes(8))))),
     case("demo-d10", lambda i: _bc(i.patched("index-past.mcap", _index_field(16, struct.pack("<Q", 10**9))))),
-    case("demo-d11", lambda i: _bc(i.patched("index-huge.mcap", _index_field(-8, struct.pack("<Q", 2**40))))),
+    case("demo-d27", lambda i: ["info", i.demo_with("renumbered.mcap", episodes=lambda e: [{**e[0], "index": 5}, *e[1:]])]),
+    case("demo-d28", lambda i: ["info", i.demo_with("twice.mcap", episodes=lambda e: [*e[:2], {**e[1], "index": 2}, *[{**x, "index": k + 3} for k, x in enumerate(e[2:])]])]),
+    case("demo-d29", lambda i: ["info", i.demo_with("forged-steps.mcap", episodes=lambda e: [{**e[0], "length": 10**15}, *e[1:]])]),
+    case("limit-1", lambda i: ["info", i.demo_with("huge-box.mcap", dataset=lambda d: d | {"observation_space": HUGE_BOX})]),
+    case("limit-2", lambda i: ["--limit", "sample_size=5", "info", DATASETS / "CartPole-v1.mcap"]),
+    case("limit-3", lambda i: ["--limit", "sample_elements=many", "info", DATASETS / "CartPole-v1.mcap"]),
+    case("limit-5", lambda i: _convert(TURTLE, "--map", i.text("long-int.yaml", "rate_hz: 1" + "0" * 500 + "\n")), testdata=True),
+    case("train-mem", lambda i: ["train", "bc", "--demos", i.demo_with("wide.mcap", dataset=lambda d: d | {"observation_space": WIDE_BOX}), "--hidden", "linear",
+                                 "--epochs", "1", "--quiet", "--out", i.root / "wide-run"]),
+    case("out-2", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--quiet", "--out", "/dev/null"]),
+    case("out-5", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--quiet", "--out", _planted_link(i, "planted.mcap")]),
+    case("out-6", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--quiet", "--out", _left_partial(i, "held.mcap")]),
+    case("out-7", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "4096", "--quiet", "--out", i.interrupted_ppo("again")]),
+    case("out-10", lambda i: ["eval", "policy", _weights_as_folder(i.policy_run("o10")), "--env", "CartPole-v1", "--episodes", "1"]),
+    case("rec-1", lambda i: ["recover", DATASETS / "CartPole-v1.mcap"]),
+    case("rec-2", lambda i: ["recover", _left_partial(i, "r2.mcap").with_name("r2.mcap.partial"), "--out", i.text("taken.mcap", "x")]),
+    case("rec-3", lambda i: ["recover", _before_first_chunk(i, "early.mcap.partial")]),
+    case("conv-nan", _npz_case("sb_npz", "nan.npz", obs=np.full((6, 4), np.nan, np.float32))),
+    case("sb3-20", lambda i: _sb3(i.sb3_zip("deep.zip", members={"data": b"[" * 100_000 + b"]" * 100_000, "policy.pth": _pth()}))),
     case("demo-d18", lambda i: _bc(i.patched("brotli.mcap", lambda d, s, c: d.__setitem__(slice(c + 9 + 28 + 4, c + 9 + 28 + 8), b"brot")))),
-    case("write-6", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--out", i.root / "missing" / "x.mcap"]),
+    case("out-1", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--out", i.root / "missing" / "x.mcap"]),
     # spaces (inside a demo file's metadata or a run's config)
     case("space-5", lambda i: _bc(i.demo_with("s5.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box"}'}))),
     case("space-6", lambda i: _bc(i.demo_with("s6.mcap", dataset=lambda d: d | {"observation_space": "[1, 2]"}))),
     case("space-7", lambda i: _bc(i.demo_with("s7.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box", "dtype": "float32", "shape": [-1], "low": 0, "high": 1}'}))),
-    case("space-8", lambda i: _bc(i.demo_with("s8.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box", "dtype": "float32", "shape": [100000, 100000], "low": 0, "high": 1}'}))),
     case("space-3", lambda i: _bc(i.demo_with("s3.mcap", dataset=lambda d: d | {"observation_space": json.dumps({"type": "Dict", "spaces": {"a/b": {"type": "Discrete", "n": 2}}})}))),
     case("space-9", lambda i: _bc(i.demo_with("s9.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box", "dtype": 5, "shape": [4], "low": 0, "high": 1}'}))),
     case("space-11", lambda i: _bc(i.demo_with("s11.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Discrete", "n": 0}'}))),
@@ -550,8 +571,7 @@ CASE_LIST = [
     case("train-21", _checkpoint_case("ckpt-not-json", **{"checkpoint__state.json": "{"})),
     case("train-22", _checkpoint_case("ckpt-list", **{"checkpoint__state.json": "[]"})),
     case("train-23", _checkpoint_case("ckpt-rows", **{"checkpoint__state.json": '{"history": 5}'})),
-    case("train-24", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--out", i.text("a-file", "x"))),
-    case("train-25", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--out", i.text("plain", "x") / "run")),
+    case("train-25", lambda i: ["demo", "--quick", "--quiet", "--out", i.text("plain-file", "x") / "run"]),
     case("train-26", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--device", "toaster", "--out", i.root / "t26")),
     case("train-27", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--device", "cuda", "--out", i.root / "t27")),
     case("train-28", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--validation", "1", "--out", i.root / "t28")),
@@ -611,7 +631,6 @@ CASE_LIST = [
     case("conv-7", lambda i: _convert(TURTLE), testdata=True),
     case("conv-8", lambda i: _convert(i.sb_npz("c8.npz"), "--map", i.turtle_map("c8.yaml"))),
     case("conv-9", lambda i: _convert(i.sb_npz("c9.npz"), "--inspect", out=None)),
-    case("conv-11", lambda i: _convert(TURTLE, "--inspect", "--write-map", i.root / "missing-folder" / "m.yaml", out=None), testdata=True),
     case("conv-12", lambda i: ["convert", i.sb_npz("c12.npz"), "--out", i.folder("out-folder")]),
     case("conv-15", _npz_case("sb_npz", "c15.npz", "--env", "CartPole-v1", actions=np.zeros((6, 2), np.int64))),
     case("conv-16", _npz_case("sb_npz", "c16.npz", "--env", "CartPole-v1", actions=np.full((6, 1), 0.5))),
@@ -739,6 +758,39 @@ def _replace(root: Path, relative: str, text: str) -> Path:
 def _remove(root: Path, relative: str) -> Path:
     (root / relative).unlink()
     return root
+
+
+HUGE_BOX = json.dumps({"type": "Box", "dtype": "float32", "shape": [2**26], "low": "-inf", "high": "inf"})
+WIDE_BOX = json.dumps({"type": "Box", "dtype": "float32", "shape": [2**23], "low": "-inf", "high": "inf"})
+
+
+def _planted_link(i: Inputs, name: str) -> Path:
+    """`name`, whose partial file is a symlink to a file the writer must not touch."""
+    (i.root / f"{name}.partial").symlink_to(i.text(f"{name}.victim", "keep me"))
+    return i.root / name
+
+
+def _left_partial(i: Inputs, name: str) -> Path:
+    """`name`, beside a partial file holding finished episodes (a bundled demo file's)."""
+    shutil.copy(DATASETS / "CartPole-v1.mcap", i.root / f"{name}.partial")
+    return i.root / name
+
+
+def _before_first_chunk(i: Inputs, name: str) -> Path:
+    """A bundled demo file cut where its first chunk starts: the dataset metadata, no episode."""
+    data = (DATASETS / "CartPole-v1.mcap").read_bytes()
+    at = 8  # magic
+    while data[at] != 0x06:  # chunk opcode
+        at += 9 + struct.unpack_from("<Q", data, at + 1)[0]
+    path = i.path(name)
+    path.write_bytes(data[:at])
+    return path
+
+
+def _weights_as_folder(run: Path) -> Path:
+    (run / "model.safetensors").unlink()
+    (run / "model.safetensors").mkdir()
+    return run
 
 
 def _dict_demos(i: Inputs) -> Path:

@@ -26,8 +26,19 @@ import torch
 from tqdm import tqdm
 
 from imitation.checkpoints import (
-    CheckpointData, Checkpointing, StopAtBoundary, TrainingInterrupted, floats, optimizer_checkpoint, prefixed, restore_optimizer,
-    restore_rng, rng_checkpoint, snapshot, unprefixed,
+    CheckpointData,
+    Checkpointing,
+    StopAtBoundary,
+    TrainingInterrupted,
+    checked_counter,
+    floats,
+    optimizer_checkpoint,
+    prefixed,
+    restore_optimizer,
+    restore_rng,
+    rng_checkpoint,
+    snapshot,
+    unprefixed,
 )
 from imitation.data.loader import MinibatchLoader, TransitionTensors, resolve_device
 from imitation.errors import ImitationError
@@ -140,6 +151,7 @@ def train_bc(
         first_epoch, best_loss, best_epoch, best_state, samples, elapsed = restore_bc_checkpoint(
             checkpoints.resume, policy=policy, optimizer=optimizer, loader=loader, history=history, device=device
         )
+        first_epoch = checked_counter(first_epoch, "next epoch", 1, config.epochs + 1)
         started -= elapsed
     bar = tqdm(range(first_epoch, config.epochs + 1), initial=first_epoch - 1, total=config.epochs, desc="bc", unit="epoch", disable=None if progress else True, dynamic_ncols=True)
     with StopAtBoundary(enabled=checkpoints is not None) as interrupt:

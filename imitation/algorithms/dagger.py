@@ -33,7 +33,17 @@ import gymnasium as gym
 import numpy as np
 
 from imitation.algorithms.bc import BCConfig, train_bc
-from imitation.checkpoints import CheckpointData, Checkpointing, StopAtBoundary, TrainingInterrupted, floats, prefixed, snapshot, unprefixed
+from imitation.checkpoints import (
+    CheckpointData,
+    Checkpointing,
+    StopAtBoundary,
+    TrainingInterrupted,
+    checked_counter,
+    floats,
+    prefixed,
+    snapshot,
+    unprefixed,
+)
 from imitation.data.loader import load_transitions, split_episodes, transitions_to_torch
 from imitation.data.store import DemoDataset, DemoWriter
 from imitation.data.types import Episode, stack_samples
@@ -147,6 +157,7 @@ def train_dagger(
     with StopAtBoundary(enabled=checkpoints is not None) as stop:
         if checkpoints is not None and checkpoints.resume is not None:
             first_round, labels = restore_dagger_checkpoint(checkpoints.resume, policy=policy, rng=rng, round_dir=round_dir, files=files, history=history)
+            first_round = checked_counter(first_round, "next round", 1, config.rounds + 1)
             learner = SingleObservationPolicy(policy, deterministic=True)
         elif demos:
             policy, _ = _fit(policy, list(demos), config)

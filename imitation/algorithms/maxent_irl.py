@@ -41,7 +41,16 @@ import numpy as np
 import torch
 
 from imitation.checkpoints import (
-    CheckpointData, Checkpointing, StopAtBoundary, TrainingInterrupted, floats, optimizer_checkpoint, prefixed, restore_optimizer, snapshot,
+    CheckpointData,
+    Checkpointing,
+    StopAtBoundary,
+    TrainingInterrupted,
+    checked_counter,
+    floats,
+    optimizer_checkpoint,
+    prefixed,
+    restore_optimizer,
+    snapshot,
     unprefixed,
 )
 from imitation.data.types import Episode, Transitions
@@ -332,6 +341,7 @@ def train_maxent_irl(
     first_iteration = 1
     if checkpoints is not None and checkpoints.resume is not None:
         first_iteration, elapsed = restore_irl_checkpoint(checkpoints.resume, reward_model=reward_model, optimizer=optimizer, history=history)
+        first_iteration = checked_counter(first_iteration, "next iteration", 1, config.iterations + 1)
         started -= elapsed
     with StopAtBoundary(enabled=checkpoints is not None) as stop:
         for iteration in range(first_iteration, config.iterations + 1):

@@ -37,8 +37,20 @@ from torch.distributions import Distribution, kl_divergence
 from tqdm import tqdm
 
 from imitation.checkpoints import (
-    Checkpointable, CheckpointData, Checkpointing, StopAtBoundary, TrainingInterrupted, floats, optimizer_checkpoint, prefixed,
-    restore_optimizer, restore_rng, rng_checkpoint, snapshot, unprefixed,
+    CheckpointData,
+    Checkpointable,
+    Checkpointing,
+    StopAtBoundary,
+    TrainingInterrupted,
+    checked_counter,
+    floats,
+    optimizer_checkpoint,
+    prefixed,
+    restore_optimizer,
+    restore_rng,
+    rng_checkpoint,
+    snapshot,
+    unprefixed,
 )
 from imitation.data.loader import resolve_device
 from imitation.envs.make import make_env
@@ -471,6 +483,7 @@ def _train(
             checkpoints.resume, policy=policy, optimizer=optimizer, reward_scaler=reward_scaler, history=history,
             recent_returns=recent_returns, recent_optimised_returns=recent_optimised_returns, timers=timers, learner=learner,
         )
+        first_update = checked_counter(first_update, "next update", 0, n_updates)
         started -= elapsed
 
     observations, _ = envs.reset(seed=config.seed + first_update * config.n_envs)

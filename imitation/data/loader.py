@@ -11,7 +11,9 @@ Typical use::
 
 from __future__ import annotations
 
+import math
 import os
+import resource
 from dataclasses import dataclass, fields
 from typing import Any, Callable, Iterator, Sequence
 
@@ -19,6 +21,7 @@ import numpy as np
 import torch
 
 from imitation.data.columns import read_transitions
+from imitation.data.spaces import space_leaves
 from imitation.data.store import DemoDataset
 from imitation.data.types import Episode, Transitions, episodes_to_transitions, first_nonfinite
 from imitation.errors import ImitationError
@@ -122,14 +125,46 @@ def load_transitions(
     if indices and not 0 <= indices[0] <= indices[-1] < len(dataset):
         raise ImitationError(f"episode indices must lie in [0, {len(dataset)}), got {indices[0]}..{indices[-1]}")
     all_facts = dataset.episodes
-    if sum(all_facts[k].length for k in indices) == 0:
+    steps = sum(all_facts[k].length for k in indices)
+    if steps == 0:
         raise ImitationError("no transitions to load: the demos hold no steps")
+    _check_memory(dataset, steps, len(indices), next_observations=next_observations)
     transitions = read_transitions(dataset, indices, next_observations=next_observations)
     if transitions is None:
         transitions = episodes_to_transitions(_read(dataset, indices), indices, next_observations=next_observations)
     if finite:
         check_finite(transitions, dataset)
     return transitions
+
+
+def _check_memory(dataset: DemoDataset, steps: int, episodes: int, *, next_observations: bool) -> None:
+    """Refuse, before allocating, a load that cannot fit in the memory this machine has free:
+    one line naming the size, instead of an out-of-memory kill or traceback midway."""
+    observation_row = sum(dtype.itemsize * math.prod(shape) for _, dtype, shape in space_leaves(dataset.observation_space))
+    action_row = sum(dtype.itemsize * math.prod(shape) for _, dtype, shape in space_leaves(dataset.action_space))
+    # observations and final rows, s' if asked for, actions, rewards, the two flags, episode indices
+    needed = (steps + episodes) * observation_row + (steps * observation_row if next_observations else 0) + steps * (action_row + 8 + 2 + 8)
+    available = available_memory()
+    if available is not None and needed > available:
+        raise ImitationError(
+            f"{dataset.files[0].path}: loading {steps} transitions ({len(dataset.files)} file(s)) needs {needed / 2**30:.1f} GiB of memory "
+            f"and {available / 2**30:.1f} GiB is available; train on fewer demo files, or on a machine with more memory"
+        )
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (Linux's MemAvailable, bounded by an
+    address-space limit if one is set); None where it cannot be told."""
+    found: list[int] = []
+    try:
+        with open("/proc/meminfo") as stream:
+            found += [int(line.split()[1]) * 1024 for line in stream if line.startswith("MemAvailable:")]
+    except (OSError, ValueError, IndexError):
+        pass
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft != resource.RLIM_INFINITY:
+        found.append(soft)
+    return min(found) if found else None
 
 
 def check_finite(transitions: Transitions, dataset: DemoDataset) -> None:

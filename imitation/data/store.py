@@ -289,7 +289,7 @@ class DemoWriter:
         self._lock = OutputLock(self.path).acquire() if lock else None
         try:
             _clear_partial(self.partial_path)
-            self._file = create_exclusive(self.partial_path)
+            self._file = create_exclusive(self.partial_path, target=self.path)
         except BaseException:
             self._release()
             raise
@@ -625,6 +625,22 @@ class _EpisodeAssembler:
         )
 
 
+def _check_episode_index(episodes: list[EpisodeFacts], content_bytes: int) -> None:
+    """The episode index must be what a writer could have written: episodes numbered in order,
+    in disjoint increasing time ranges, and no more steps than the chunks hold 8-byte rewards
+    for. A forged index (duplicated episodes, 10^15 steps) is damage, which the scan rebuilds."""
+    previous_end = -1
+    for position, facts in enumerate(episodes):
+        if facts.index != position:
+            raise _Damage(f"the episode index is inconsistent (entry {position} is numbered {facts.index})")
+        if facts.length < 0 or facts.t_start_ns > facts.t_end_ns or facts.t_start_ns <= previous_end:
+            raise _Damage(f"the episode index is inconsistent (episode {position}: length {facts.length}, time range overlapping or reversed)")
+        previous_end = facts.t_end_ns
+    steps = sum(facts.length for facts in episodes)
+    if 8 * steps > content_bytes:
+        raise _Damage(f"the episode index claims {steps} steps, more than the file's chunks hold")
+
+
 class DemoFile:
     """One MCAP demo file, opened for reading.
 
@@ -704,6 +720,13 @@ class DemoFile:
     @property
     def num_transitions(self) -> int:
         return sum(facts.length for facts in self.episodes)
+
+    @property
+    def fingerprint(self) -> str:
+        """The file's size and checksums of its dataset metadata, episode index and summary
+        section: a run records it, and `--resume` refuses demos whose content changed since."""
+        described = json.dumps(self._index.dataset, sort_keys=True) + to_json_text([facts.to_json() for facts in self.episodes])
+        return f"{self._size}-{zlib.crc32(described.encode()):08x}-{self._summary_crc:08x}"
 
     @property
     def channels(self) -> list[str]:
@@ -821,6 +844,7 @@ class DemoFile:
 
     def _read_summary(self, stream: Any) -> _Index:
         """The fast path: footer → summary (channels, chunk index, metadata index) → 2 records."""
+        self._summary_crc = 0
         self._expanded = 0
         if self._size < len(MAGIC) * 2 + _FOOTER_LENGTH:
             raise _Damage("file too short to hold an MCAP footer")
@@ -836,6 +860,7 @@ class DemoFile:
             raise _Damage("footer points outside the file")
         stream.seek(footer.summary_start)
         summary = stream.read(footer_start - footer.summary_start)
+        self._summary_crc = footer.summary_crc
         if footer.summary_crc != 0:
             expected = zlib.crc32(tail[:9 + 16], zlib.crc32(summary))
             if expected != footer.summary_crc:
@@ -869,6 +894,7 @@ class DemoFile:
         for chunk in chunks:
             if chunk.offset + chunk.length > footer.summary_start:
                 raise _Damage("chunk index points past the data section")
+        _check_episode_index(episodes, sum(chunk.uncompressed_size for chunk in chunks))
         chunks.sort(key=lambda c: (c.start_time, c.offset))
         return _Index(dataset, channels, chunks, episodes)
 

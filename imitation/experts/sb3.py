@@ -76,10 +76,8 @@ def load_sb3_policy(path: str | os.PathLike) -> ActorCritic:
     head = state.get("action_head.weight")
     if head is not None and head.dim() == 2 and head.shape[0] != action_logits_size(action_space):
         # Checked before the network is built: a forged space could otherwise ask for a huge head.
-        raise ImitationError(
-            f"{file}: policy.pth does not fit the zip's spaces (its action head has {head.shape[0]} outputs, "
-            f"the action space needs {action_logits_size(action_space)})"
-        )
+        details = f"its action head has {head.shape[0]} outputs, the action space needs {action_logits_size(action_space)}"
+        raise ImitationError(f"{file}: policy.pth does not fit the zip's spaces ({details})")
     policy = make_policy(
         observation_space, action_space, hidden_sizes=hidden_sizes, activation=_activation(file, data), shared_trunk=shared
     )

@@ -19,7 +19,7 @@ from tqdm import tqdm
 
 from imitation.data.spaces import describe_space
 from imitation.data.store import DemoWriter
-from imitation.data.types import Episode
+from imitation.data.types import Episode, first_nonfinite
 from imitation.errors import ImitationError
 
 
@@ -107,6 +107,14 @@ def write_converted(converted: Converted, out: str | Path, *, progress: bool = T
         raise ImitationError(f"--out {out}: is a directory; give a file name such as {out / 'demos.mcap'}")
     if not converted.episodes:
         raise ImitationError(f"{converted.source}: no episode to write")
+    for index, episode in enumerate(converted.episodes):
+        for what, tree in (("observation", episode.observations), ("action", episode.actions), ("reward", np.asarray(episode.rewards, dtype=np.float64))):
+            if found := first_nonfinite(tree, what):
+                step, name, value = found
+                raise ImitationError(
+                    f"{converted.source}: episode {index}, step {step}: the {name} is {value}; "
+                    "demo files hold finite observations, actions and rewards only (nothing was written)"
+                )
     writer = DemoWriter(
         out, env_id=converted.env_id, observation_space=converted.observation_space, action_space=converted.action_space,
         dt=converted.dt, source=converted.source, metadata=converted.metadata, flush_episodes=True,

@@ -16,6 +16,7 @@ import yaml
 from imitation.data.convert.bags import Bag
 from imitation.data.convert.fields import numeric_fields
 from imitation.errors import ImitationError
+from imitation.output import create_exclusive, os_error
 
 # Topics a starter map leaves out: logging, transforms, parameters, clocks and services.
 _INFRASTRUCTURE = re.compile(r"^/(rosout(_agg)?|tf(_static)?|parameter_events|clock|events/.*)$|/_service_event$|/_action/")
@@ -117,10 +118,12 @@ def write_starter_map(report: dict[str, Any], path: str | Path) -> Path:
     if path.exists():
         raise ImitationError(f"--write-map {path}: exists; remove it or choose another name (maps hold hand edits)")
     partial = path.with_name(path.name + ".partial")
+    stream = create_exclusive(partial, target=f"--write-map {path}")
     try:
-        partial.write_text(starter_map(report))
+        with stream:
+            stream.write(starter_map(report).encode())
         partial.replace(path)
     except OSError as error:
         partial.unlink(missing_ok=True)
-        raise ImitationError(f"--write-map {path}: cannot write: {error.strerror or error}") from None
+        raise os_error(f"--write-map {path}", error) from None
     return path

@@ -95,12 +95,34 @@ def load_map(path: str | Path) -> RecordingMap:
     return parse_map(raw, path)
 
 
+def _unplain(value: Any, where: str) -> str | None:
+    """What makes a parsed map unusable before it is read field by field: a key that is not
+    text (YAML allows `3: x`), or an integer beyond any float (`rate_hz: 1` followed by 5000
+    digits, `default: 1e400` written out as an integer)."""
+    stack = [(value, where)]
+    while stack:
+        item, place = stack.pop()
+        if isinstance(item, dict):
+            for key, sub in item.items():
+                if not isinstance(key, str):
+                    return f"{place}: keys must be text, got {type(key).__name__} {str(key)[:40]!r}"
+                stack.append((sub, f"{place}.{key}" if place != "the map" else key))
+        elif isinstance(item, list):
+            stack.extend((sub, f"{place}[{i}]") for i, sub in enumerate(item))
+        elif isinstance(item, int) and not isinstance(item, bool) and item.bit_length() > 1023:
+            return f"{place}: an integer of {item.bit_length()} bits is beyond any float"
+    return None
+
+
 def parse_map(raw: Any, path: Path) -> RecordingMap:
     def fail(message: str) -> ImitationError:
         return ImitationError(f"{path}: {message}")
 
     if not isinstance(raw, dict):
         raise fail("a map is a YAML mapping with rate_hz, observation and action (see docs/CONVERT.md)")
+    problem = _unplain(raw, "the map")
+    if problem:
+        raise fail(problem)
     unknown = sorted(set(raw) - _TOP_KEYS)
     if unknown:
         raise fail(f"unknown key {unknown[0]!r} (a map has {', '.join(sorted(_TOP_KEYS))})")

@@ -13,7 +13,10 @@ from typing import Any
 
 import yaml
 
+from imitation.errors import ImitationError
 from imitation.limits import LIMITS, over_limit
+
+MAX_INTEGER_DIGITS = 400
 
 
 class _BoundedLoader(yaml.SafeLoader):
@@ -24,6 +27,15 @@ class _BoundedLoader(yaml.SafeLoader):
             if expanded > LIMITS.yaml_nodes:
                 raise over_limit("YAML nodes with aliases expanded", expanded, "yaml_nodes")
         return node
+
+    def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
+        # Python refuses int() of more than 4300 digits with a ValueError; no real value has 400.
+        if len(node.value) > MAX_INTEGER_DIGITS:
+            raise ImitationError(f"line {node.start_mark.line + 1}: an integer of {len(node.value)} digits, more than any real value has")
+        return super().construct_yaml_int(node)
+
+
+_BoundedLoader.add_constructor("tag:yaml.org,2002:int", _BoundedLoader.construct_yaml_int)
 
 
 def _expanded_nodes(root: yaml.Node) -> int:

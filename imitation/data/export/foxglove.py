@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import gymnasium as gym
 import numpy as np
@@ -26,6 +26,7 @@ from imitation.data.spaces import space_to_json
 from imitation.data.store import DemoFile, to_json_text
 from imitation.data.types import Tree
 from imitation.errors import ImitationError
+from imitation.output import OutputLock, check_target, create_exclusive, lstat_kind, writing
 
 STEP_TOPIC = "/step"
 EPISODE_TOPIC = "/episode"
@@ -76,11 +77,17 @@ def export_foxglove(demo_path: str | os.PathLike, out: str | os.PathLike, *, pro
         raise ImitationError(f"{out}: is a directory; give a file name such as {out / 'steps.mcap'}")
     if out.resolve() == demo.path.resolve():
         raise ImitationError(f"{out}: is the demo file itself; choose another name")
+    check_target(out)
     partial = out.with_name(out.name + ".partial")
-    try:
-        stream = open(partial, "wb")
-    except OSError as error:
-        raise ImitationError(f"{out}: cannot write: {error.strerror or error}") from None
+    with OutputLock(out), writing(out):
+        if lstat_kind(partial) == "a regular file":
+            partial.unlink()  # an earlier export's leftover: derived data, made again below
+        messages = _write(demo, create_exclusive(partial), partial, out, progress=progress)
+    return {"out": str(out), "to": "foxglove", "episodes": len(demo), "messages": messages, "topics": [STEP_TOPIC, EPISODE_TOPIC]}
+
+
+def _write(demo: DemoFile, stream: BinaryIO, partial: Path, out: Path, *, progress: bool) -> int:
+    """Write the steps to `stream` (the file `partial`), then move it to `out`; the number of messages."""
     dt_ns = max(1, round(demo.dt * 1e9))
     messages = 0
     try:
@@ -118,4 +125,4 @@ def export_foxglove(demo_path: str | os.PathLike, out: str | os.PathLike, *, pro
     except BaseException:
         partial.unlink(missing_ok=True)
         raise
-    return {"out": str(out), "to": "foxglove", "episodes": len(demo), "messages": messages, "topics": [STEP_TOPIC, EPISODE_TOPIC]}
+    return messages

@@ -28,6 +28,7 @@ from imitation.data.spaces import space_leaves, space_to_json
 from imitation.data.store import DemoFile, to_json_text
 from imitation.data.types import Episode, tree_leaves
 from imitation.errors import ImitationError
+from imitation.output import OutputLock, check_target, writing
 
 
 def _feature_names(space: gym.Space, role: str) -> dict[tuple[str, ...], str]:
@@ -45,7 +46,8 @@ def export_lerobot(demo_path: str | os.PathLike, out_dir: str | os.PathLike, *, 
     if len(demo) == 0:
         raise ImitationError(f"{demo.path}: holds no episode to export")
     out = Path(out_dir)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    check_target(out, directory=True, flag="--to lerobot")
+    if out.exists() and any(out.iterdir()):
         raise ImitationError(f"{out}: exists and is not an empty folder; choose a new folder for the dataset")
     observation_names = _feature_names(demo.observation_space, "observation")
     action_names = _feature_names(demo.action_space, "action")
@@ -58,7 +60,19 @@ def export_lerobot(demo_path: str | os.PathLike, out_dir: str | os.PathLike, *, 
     fps = max(1, round(1.0 / demo.dt))
     task = task or demo.env_id or "demonstration"
     partial = out.with_name(out.name + ".partial")
-    shutil.rmtree(partial, ignore_errors=True)
+    check_target(partial, directory=True, flag="the partial dataset")
+    with OutputLock(out), writing(out):
+        shutil.rmtree(partial, ignore_errors=True)
+        frames = _write(demo, partial, out, features, observation_names, action_names, fps, task, progress)
+    return {"out": str(out), "to": "lerobot", "codebase_version": "v3.0", "episodes": len(demo), "frames": frames, "fps": fps,
+            "features": sorted(features)}
+
+
+def _write(
+    demo: DemoFile, partial: Path, out: Path, features: dict[str, dict[str, Any]], observation_names: dict, action_names: dict, fps: int,
+    task: str, progress: bool,
+) -> int:
+    """Build the dataset in `partial`, then move it to `out`; the number of frames written."""
     frames = 0
     try:
         with lerobot_quietly():
@@ -86,8 +100,7 @@ def export_lerobot(demo_path: str | os.PathLike, out_dir: str | os.PathLike, *, 
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
         raise
-    return {"out": str(out), "to": "lerobot", "codebase_version": "v3.0", "episodes": len(demo), "frames": frames, "fps": fps,
-            "features": sorted(features)}
+    return frames
 
 
 def _frames(episode: Episode, observation_names: dict, action_names: dict, features: dict, task: str) -> Any:
