@@ -1,0 +1,36 @@
+"""Small hostile files (tools/hostile_inputs.py builds them) are refused in one line, exit 1,
+within 2 s and 200 MB beyond what the same command costs on a trivially bad input."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+from support import REPO, TESTDATA
+
+spec = importlib.util.spec_from_file_location("hostile_inputs", REPO / "tools" / "hostile_inputs.py")
+hostile = importlib.util.module_from_spec(spec)
+sys.modules["hostile_inputs"] = hostile
+spec.loader.exec_module(hostile)
+
+CASES = {case.name: case for case in hostile.CASES}
+
+
+@pytest.fixture(scope="module")
+def baselines(tmp_path_factory) -> dict[str, object]:
+    return {name: hostile.measure(CASES[name], tmp_path_factory.mktemp("baseline")) for name in {case.baseline for case in CASES.values()}}
+
+
+@pytest.mark.parametrize("name", [name for name, case in CASES.items() if case.baseline != name])
+def test_a_small_hostile_input_is_refused_in_one_line_cheaply(name: str, baselines, tmp_path: Path) -> None:
+    case = CASES[name]
+    if case.testdata and not TESTDATA.is_dir():
+        pytest.skip("needs ../shared/testdata (a real ROS 2 bag to convert)")
+    outcome = hostile.measure(case, tmp_path)
+    base = baselines[case.baseline]
+    assert outcome.returncode == 1, outcome
+    assert outcome.message.startswith("error: ") and case.expect in outcome.message, outcome.message
+    assert outcome.seconds - base.seconds < 2.0, (outcome.seconds, base.seconds)
+    assert outcome.peak_rss_mb - base.peak_rss_mb < 200, (outcome.peak_rss_mb, base.peak_rss_mb)

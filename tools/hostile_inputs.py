@@ -1,0 +1,309 @@
+"""Small hostile inputs through the command line: each is built here, given to the command a user
+would run, and measured (exit code, the one line on stderr, wall time, peak RSS).
+
+    python tools/hostile_inputs.py            # the table, as markdown (for bench/RESULTS.md)
+    python tools/hostile_inputs.py --json     # one JSON object per case
+
+tests/test_hostile_inputs.py runs the same cases and checks that each is refused in one line,
+within 2 s and 200 MB beyond what the same command costs on a trivially bad input (its
+`baseline`: a command that imports torch costs ~2 s and ~400 MB before it reads anything).
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import os
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+REPO = Path(__file__).resolve().parent.parent
+DATASETS = REPO / "datasets"
+CARTPOLE = DATASETS / "CartPole-v1.mcap"
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    build: Callable[[Path], list[str]]  # folder → the command's arguments
+    expect: str  # a fragment of the one-line error
+    baseline: str  # the name of the case whose cost is the command's own
+    testdata: bool = False  # needs ../shared/testdata (a real ROS 2 bag to convert)
+
+
+@dataclass(frozen=True)
+class Outcome:
+    name: str
+    command: str
+    input_bytes: int
+    returncode: int
+    message: str
+    seconds: float
+    peak_rss_mb: float
+
+
+# Runs one command and reports its peak RSS: the wrapper has that one child, so its
+# RUSAGE_CHILDREN maximum is the command's own.
+_WRAPPER = (
+    "import resource, subprocess, sys; "
+    "code = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL).returncode; "
+    "print(code, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stdout)"
+)
+
+
+def run(args: list[str], timeout: float = 120) -> tuple[int, str, float, float]:
+    """(exit code, stderr, wall seconds, peak RSS in MB) of `imitation ARGS` in a fresh process."""
+    started = time.perf_counter()
+    result = subprocess.run([sys.executable, "-c", _WRAPPER, sys.executable, str(REPO / "cli.py"), *args], capture_output=True, text=True,
+                            timeout=timeout, cwd=REPO)
+    seconds = time.perf_counter() - started
+    code, rss_kb = (int(part) for part in result.stdout.split())
+    return code, result.stderr, seconds, rss_kb / 1024
+
+
+# -- the inputs -------------------------------------------------------------------------------
+
+
+def _alias_bomb(levels: int = 8) -> str:
+    lines = ["a0: &a0 [x, x, x, x, x, x, x, x, x]"]
+    lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, levels + 1)]
+    return "\n".join(lines + ["rate_hz: 10", f"observation: *a{levels}", "action: []"]) + "\n"
+
+
+def _demo_with_space(folder: Path, name: str, observation_space: dict) -> Path:
+    """A real demo file with its dataset metadata's observation space replaced (checksum kept valid)."""
+    sys.path.insert(0, str(REPO))
+    from mcap.records import Channel, Header, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap.writer import Writer
+
+    from imitation.data.store import DATASET_METADATA, metadata_crc
+
+    return _rewrite(folder / name, lambda values: {**values, "observation_space": json.dumps(observation_space)}, DATASET_METADATA,
+                    metadata_crc, StreamReader, Writer, (Channel, Header, Message, Metadata, Schema))
+
+
+def _demo_with_episodes(folder: Path, name: str, edit: Callable[[list], list]) -> Path:
+    sys.path.insert(0, str(REPO))
+    from mcap.records import Channel, Header, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap.writer import Writer
+
+    from imitation.data.store import EPISODES_METADATA, metadata_crc
+
+    return _rewrite(folder / name, lambda values: {"episodes": json.dumps(edit(json.loads(values["episodes"])))}, EPISODES_METADATA,
+                    metadata_crc, StreamReader, Writer, (Channel, Header, Message, Metadata, Schema))
+
+
+def _rewrite(path: Path, edit: Callable[[dict], dict], record_name: str, crc, StreamReader, Writer, types) -> Path:  # noqa: N803
+    Channel, Header, Message, Metadata, Schema = types
+    records = list(StreamReader(io.BytesIO(CARTPOLE.read_bytes()), emit_chunks=False).records)
+    out = io.BytesIO()
+    writer = Writer(out)
+    header = next(r for r in records if isinstance(r, Header))
+    writer.start(profile=header.profile, library=header.library)
+    seen: set = set()
+    for record in records:
+        if isinstance(record, Metadata) and record.name not in seen:
+            seen.add(record.name)
+            values = {k: v for k, v in record.metadata.items() if k != "crc32"}
+            if record.name == record_name:
+                values = edit(values)
+            writer.add_metadata(record.name, {**values, "crc32": crc(values)})
+        elif isinstance(record, Schema) and ("s", record.id) not in seen:
+            seen.add(("s", record.id))
+            writer.register_schema(record.name, record.encoding, record.data)
+        elif isinstance(record, Channel) and ("c", record.id) not in seen:
+            seen.add(("c", record.id))
+            writer.register_channel(record.topic, record.message_encoding, record.schema_id, dict(record.metadata))
+        elif isinstance(record, Message):
+            writer.add_message(record.channel_id, log_time=record.log_time, data=record.data, publish_time=record.publish_time)
+    writer.finish()
+    path.write_bytes(out.getvalue())
+    return path
+
+
+def _box(shape: list[int]) -> dict:
+    return {"type": "Box", "dtype": "float64", "shape": shape, "low": "-inf", "high": "inf"}
+
+
+def _zeros_file(folder: Path) -> Path:
+    """A demo file written by DemoWriter whose observations are all zeros: 98 MB of data in 7 KB."""
+    sys.path.insert(0, str(REPO))
+    import gymnasium as gym
+    import numpy as np
+
+    from imitation.data.store import write_episodes
+    from imitation.data.types import Episode
+
+    space = gym.spaces.Box(-1, 1, (4096,), np.float32)
+    episodes = [Episode(observations=np.zeros((2001, 4096), np.float32), actions=np.zeros(2000, np.int64), rewards=np.zeros(2000), truncated=True)
+                for _ in range(3)]
+    return write_episodes(folder / "zeros.mcap", episodes, env_id="CartPole-v1", observation_space=space, action_space=gym.spaces.Discrete(2),
+                          chunk_size=2**26)
+
+
+def _sb3_zip(folder: Path, name: str, data: dict | bytes, weights: bytes | None = None) -> Path:
+    sys.path.insert(0, str(REPO / "tests"))
+    import gymnasium as gym
+    import numpy as np
+    import torch
+    from sb3_zips import space_entry, sb3_weights
+
+    if weights is None:
+        buffer = io.BytesIO()
+        torch.save(sb3_weights(4, 2, pi=[8], vf=[8]), buffer)
+        weights = buffer.getvalue()
+    if isinstance(data, dict):
+        fields = {"observation_space": space_entry(gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)), "action_space": space_entry(gym.spaces.Discrete(2)),
+                  "policy_kwargs": {}, "use_sde": False}
+        data = json.dumps(fields | data).encode()
+    path = folder / name
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr("data", data)
+        archive.writestr("policy.pth", weights)
+    return path
+
+
+def _lying_zip(folder: Path, name: str, member: str, payload: bytes, claimed: int, *, compressed: bool = False) -> Path:
+    """A zip whose headers claim `claimed` uncompressed (or, with `compressed`, compressed)
+    bytes for `member`."""
+    path = folder / name
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr(member, payload)
+    data = bytearray(path.read_bytes())
+    central, local = data.rindex(b"PK\x01\x02"), data.index(b"PK\x03\x04")
+    struct.pack_into("<I", data, central + (20 if compressed else 24), claimed)  # the sizes in the central directory
+    struct.pack_into("<I", data, local + (18 if compressed else 22), claimed)  # and in the local header
+    path.write_bytes(bytes(data))
+    return path
+
+
+def _npy_bytes(shape: tuple[int, ...]) -> bytes:
+    import numpy as np
+
+    member = io.BytesIO()
+    np.lib.format.write_array_header_1_0(member, {"descr": "<f4", "fortran_order": False, "shape": shape})
+    return member.getvalue() + b"\0" * 64
+
+
+def _rosbag2(folder: Path, text: str) -> Path:
+    bag = folder / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text(text)
+    return bag
+
+
+def _map(folder: Path, name: str, text: str) -> Path:
+    (folder / name).write_text(text)
+    return folder / name
+
+
+_OBS_ACT = "observation: [{topic: /a, fields: [x]}]\naction: [{topic: /b, fields: [y]}]\n"
+_BAG = REPO.parent / "shared" / "testdata" / "ros2" / "replay_testing" / "cmd_vel_only.mcap"
+
+
+HUGE_DISCRETE = {":type:": "<class 'gymnasium.spaces.discrete.Discrete'>", "n": "10000000000000", "_shape": []}
+
+
+def _record_sb3(folder: Path, zip_path: Path) -> list[str]:
+    return ["record", "--env", "CartPole-v1", "--expert", f"sb3:{zip_path}", "--out", str(folder / "o.mcap")]
+
+
+def _convert_bag(map_path: Path, folder: Path) -> list[str]:
+    return ["convert", str(_BAG), "--map", str(map_path), "--out", str(folder / "out.mcap")]
+
+
+CASES = [
+    Case("info baseline", lambda f: ["info", str(_map(f, "plain.mcap", "not mcap"))], "not an MCAP file", "info baseline"),
+    Case("record sb3 baseline", lambda f: _record_sb3(f, _map(f, "plain.zip", "not a zip")), "cannot read as a stable-baselines3 zip",
+         "record sb3 baseline"),
+    Case("convert baseline", lambda f: ["convert", str(_map(f, "plain.npz", "not an npz")), "--out", str(f / "o.mcap")], "not a readable npz",
+         "convert baseline"),
+    Case("YAML alias bomb in --map", lambda f: _convert_bag(_map(f, "bomb.yaml", _alias_bomb()), f), "yaml_nodes", "convert baseline", testdata=True),
+    Case("YAML alias bomb in rosbag2 metadata.yaml", lambda f: ["convert", str(_rosbag2(f, "rosbag2_bagfile_information:\n" + "".join(
+        f"  {line}\n" for line in _alias_bomb().splitlines()))), "--inspect"], "yaml_nodes", "convert baseline"),
+    Case("map with int and str keys", lambda f: _convert_bag(_map(f, "mixed.yaml", "rate_hz: 10\n3: x\n" + _OBS_ACT), f), "keys must be text",
+         "convert baseline", testdata=True),
+    Case("map with a 5000-digit rate_hz", lambda f: _convert_bag(_map(f, "digits.yaml", "rate_hz: 1" + "0" * 5000 + "\n" + _OBS_ACT), f),
+         "an integer of 5001 digits", "convert baseline", testdata=True),
+    Case("map with default 1e400 as an integer", lambda f: _convert_bag(_map(f, "huge.yaml", "rate_hz: 10\nobservation: [{topic: /a, fields: [x], default: [1"
+                                                                                + "0" * 400 + "]}]\naction: [{topic: /b, fields: [y]}]\n"), f),
+         "an integer of 401 digits", "convert baseline", testdata=True),
+    Case("demo file declaring Box(2^26)", lambda f: ["info", str(_demo_with_space(f, "box.mcap", _box([2**26])))], "sample_elements", "info baseline"),
+    Case("demo file with a Dict of 40 × Box(2^26)", lambda f: ["info", str(_demo_with_space(
+        f, "dict.mcap", {"type": "Dict", "spaces": {f"k{i}": _box([2**26]) for i in range(40)}}))], "sample_elements", "info baseline"),
+    Case("demo file of zeros (98 MB in 7 KB)", lambda f: ["info", str(_zeros_file(f))], "expansion_ratio", "info baseline"),
+    Case("episode index claiming 10^15 steps", lambda f: ["info", str(_demo_with_episodes(f, "steps.mcap", lambda e: [{**e[0], "length": 10**15}, *e[1:]]))],
+         "more than the file's chunks hold", "info baseline"),
+    Case("episode index listing an episode twice", lambda f: ["info", str(_demo_with_episodes(
+        f, "twice.mcap", lambda e: [*e[:2], {**e[1], "index": 2}, *[{**x, "index": k + 3} for k, x in enumerate(e[2:])]]))], "overlapping", "info baseline"),
+    Case("SB3 zip declaring Discrete(1e13)", lambda f: _record_sb3(f, _sb3_zip(f, "discrete.zip", {"action_space": HUGE_DISCRETE})), "sample_elements",
+         "record sb3 baseline"),
+    Case("SB3 zip whose :type: is an int", lambda f: _record_sb3(f, _sb3_zip(f, "type.zip", {"observation_space": {":type:": 7}})),
+         "no readable observation_space", "record sb3 baseline"),
+    Case("SB3 zip with data nested 100,000 deep", lambda f: _record_sb3(f, _sb3_zip(f, "deep.zip", b"[" * 100_000 + b"]" * 100_000)), "nested too deep",
+         "record sb3 baseline"),
+    Case("SB3 zip whose header claims a 4 GB policy.pth", lambda f: _record_sb3(f, _lying_zip(f, "lying.zip", "policy.pth", b"x" * 1000, 2**32 - 1)),
+         "expansion_ratio", "record sb3 baseline"),
+    Case("npz claiming more compressed bytes than it has", lambda f: ["convert", str(_lying_zip(f, "short.npz", "obs.npy", _npy_bytes((4,)), 10**6,
+                                                                                               compressed=True)), "--out", str(f / "o.mcap")],
+         "is damaged (it claims more bytes than the archive has)", "convert baseline"),
+    Case("npz whose zip header claims 4 GB", lambda f: ["convert", str(_lying_zip(f, "lying.npz", "obs.npy", _npy_bytes((10**9,)), 2**32 - 1)), "--out",
+                                                        str(f / "o.mcap")], "expansion_ratio", "convert baseline"),
+    Case("npz whose .npy header claims 74.5 GiB", lambda f: ["convert", str(_lying_zip(f, "claims.npz", "obs.npy", _npy_bytes((20 * 10**9,)), 1000)),
+                                                             "--out", str(f / "o.mcap")], "promises more data", "convert baseline"),
+]
+
+
+def measure(case: Case, folder: Path) -> Outcome:
+    args = case.build(folder)
+    size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
+    code, stderr, seconds, rss = run(args)
+    lines = [line for line in stderr.splitlines() if line.strip() and not line.startswith("warning:")]
+    message = lines[-1] if lines else ""
+    return Outcome(case.name, "imitation " + " ".join(a if len(a) < 40 else "…/" + Path(a).name for a in args[:3]), size, code, message, seconds, rss)
+
+
+def measure_all(cases: list[Case] = CASES) -> list[Outcome]:
+    outcomes = []
+    for case in cases:
+        with tempfile.TemporaryDirectory(prefix="imitation-hostile-") as folder:
+            outcomes.append(measure(case, Path(folder)))
+    return outcomes
+
+
+def table(outcomes: list[Outcome]) -> str:
+    by_name = {o.name: o for o in outcomes}
+    rows = ["| input | command | exit | message | time | peak RSS | beyond the command's baseline |", "|---|---|---|---|---|---|---|"]
+    for case, outcome in zip(CASES, outcomes):
+        base = by_name[case.baseline]
+        extra = "—" if case.baseline == case.name else f"{outcome.seconds - base.seconds:+.2f} s, {outcome.peak_rss_mb - base.peak_rss_mb:+.0f} MB"
+        message = outcome.message if len(outcome.message) <= 140 else outcome.message[:139] + "…"
+        rows.append(f"| {case.name} ({outcome.input_bytes:,} B) | `{outcome.command}` | {outcome.returncode} | {message.replace('|', '/')} | "
+                    f"{outcome.seconds:.2f} s | {outcome.peak_rss_mb:.0f} MB | {extra} |")
+    return "\n".join(rows)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true", help="one JSON object per case instead of the markdown table")
+    args = parser.parse_args()
+    outcomes = measure_all()
+    if args.json:
+        for outcome in outcomes:
+            print(json.dumps(vars(outcome)))
+    else:
+        print(table(outcomes))
+
+
+if __name__ == "__main__":
+    main()
