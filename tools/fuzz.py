@@ -215,6 +215,13 @@ def mutate_json_text(text: bytes, rng: random.Random) -> bytes:
     return mutate_bytes(text, rng)
 
 
+def alias_bomb(levels: int) -> bytes:
+    """A YAML mapping whose last alias expands to 9^levels nodes."""
+    lines = ["bomb0: &bomb0 [x, x, x, x, x, x, x, x, x]"]
+    lines += [f"bomb{i}: &bomb{i} [" + ", ".join([f"*bomb{i - 1}"] * 9) + "]" for i in range(1, levels + 1)]
+    return ("\n".join(lines) + "\n").encode()
+
+
 def mutate_yaml_text(text: bytes, rng: random.Random) -> bytes:
     import yaml
 
@@ -227,6 +234,10 @@ def mutate_yaml_text(text: bytes, rng: random.Random) -> bytes:
         except (yaml.YAMLError, ValueError, TypeError, RecursionError):
             pass
     edits = (b"&a [*a, *a]", b"!!python/object/apply:os.system ['true']", b": : :", b"\t", b"- - -", b"{{{{", b"'", b"%YAML 9.9\n---\n")
+    if rng.random() < 0.15:
+        return alias_bomb(rng.randrange(2, 10)) + text  # ×9 per level once expanded
+    if rng.random() < 0.15:
+        return b"3: x\n" + text if rng.random() < 0.5 else text + b"\n7: [1, 2]\n"  # int keys beside str ones
     if rng.random() < 0.3:
         at = rng.randrange(len(text) + 1)
         return text[:at] + rng.choice(edits) + text[at:]
@@ -889,6 +900,118 @@ def map_run(folder: Path, scratch: Path) -> str:
     return _convert(_MAP_BAG["bag"], scratch, source="ros1", map_path=folder / "map.yaml")
 
 
+# -- stable-baselines3 zips: load_sb3_policy ---------------------------------------------------------
+
+
+def sb3_seeds(work: Path) -> list[Files]:
+    """A zip as SB3 2.x writes it (tests/sb3_zips.py) and, with ../shared/testdata, the real
+    ones: a PPO CartPole agent and the zoo's."""
+    import gymnasium as gym
+    import numpy as np
+    import torch
+
+    sys.path.insert(0, str(REPO / "tests"))
+    from sb3_zips import sb3_weights, space_entry
+
+    buffer = io.BytesIO()
+    torch.save(sb3_weights(4, 2, pi=[8], vf=[8]), buffer)
+    data = {"observation_space": space_entry(gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)), "action_space": space_entry(gym.spaces.Discrete(2)),
+            "policy_kwargs": {}, "use_sde": False}
+    seeds = [{"model.zip": _zip({"data": json.dumps(data).encode(), "policy.pth": buffer.getvalue()})}]
+    real = TESTDATA / "experts" / "sb3_ppo_cartpole" / "CartPole-v1.zip"
+    if real.is_file():
+        seeds.append({"model.zip": real.read_bytes()})
+    return seeds
+
+
+def _zip(members: dict[str, bytes]) -> bytes:
+    import zipfile
+
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
+        for name, content in members.items():
+            archive.writestr(name, content)
+    return buffer.getvalue()
+
+
+def sb3_mutate(files: Files, rng: random.Random, seeds: list[Files]) -> Files:
+    """Edit one member (the data JSON node by node, policy.pth's bytes) and zip it again, or
+    mutate the zip's own bytes (its headers' sizes and offsets)."""
+    import zipfile
+
+    data = files["model.zip"]
+    if rng.random() < 0.3:
+        return {"model.zip": mutate_bytes(data, rng, hot=[i for i in range(len(data) - 3) if data[i : i + 2] == b"PK"])}
+    with zipfile.ZipFile(io.BytesIO(data)) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    name = rng.choice([n for n in ("data", "data", "policy.pth") if n in members] or list(members))
+    members[name] = mutate_json_text(members[name], rng) if name == "data" else mutate_bytes(members[name], rng, hot=(0, 64))
+    return {"model.zip": _zip(members)}
+
+
+def sb3_run(folder: Path, scratch: Path) -> str:
+    from imitation.experts.sb3 import load_sb3_policy
+
+    policy = load_sb3_policy(folder / "model.zip")
+    return "loaded:" + ("continuous" if policy.is_continuous else "discrete")
+
+
+# -- whole commands: exit codes, one stderr line, nothing left behind --------------------------------
+
+_CLI_BATCH = r"""
+import contextlib, io, json, sys, traceback
+import cli
+results = []
+for argv in json.loads(sys.argv[1]):
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        try:
+            code = cli.main(argv)
+        except SystemExit as exit:
+            code = exit.code if isinstance(exit.code, int) else 1
+        except BaseException:
+            traceback.print_exc()
+            code = 1
+    results.append([code, err.getvalue()])
+print(json.dumps(results))
+"""
+
+
+def cli_run(folder: Path, scratch: Path) -> str:
+    """`info`, `export --to foxglove` and `recover` on a mutated demo file, in a fresh process
+    running the command line's own main: each must exit 0, or 1 with exactly one `error:` line
+    and no traceback, and leave no partial or lock file behind."""
+    import subprocess
+
+    demo = folder / "demo.mcap"
+    partial = scratch / "copy.mcap.partial"
+    partial.write_bytes(demo.read_bytes())
+    commands = [["info", str(demo)], ["export", str(demo), "--to", "foxglove", str(scratch / "steps.mcap"), "--quiet"], ["recover", str(partial)]]
+    process = subprocess.run([sys.executable, "-c", _CLI_BATCH, json.dumps(commands)], capture_output=True, text=True, cwd=REPO, timeout=120)
+    if process.returncode != 0:
+        raise AssertionError(f"the command process died ({process.returncode}): {process.stderr[-500:]}")
+    outcomes = []
+    for argv, (code, stderr) in zip(commands, json.loads(process.stdout.splitlines()[-1])):
+        lines = [line for line in stderr.splitlines() if line.strip() and not line.startswith("warning:")]
+        if "Traceback" in stderr or code not in (0, 1) or (code == 1 and (len(lines) != 1 or not lines[0].startswith("error: "))):
+            raise AssertionError(f"imitation {argv[0]}: exit {code}, stderr {stderr[-500:]!r}")
+        if code == 1:
+            NOTES.append(lines[0].removeprefix("error: "))
+        outcomes.append(f"{argv[0]}:{code}")
+    leftovers = sorted(p.name for p in scratch.iterdir() if p.name.endswith((".lock", ".recovering")) or p.name == "steps.mcap.partial")
+    if leftovers:
+        raise AssertionError(f"left behind: {leftovers}")
+    return ",".join(outcomes)
+
+
+def cli_mutate(files: Files, rng: random.Random, seeds: list[Files]) -> Files:
+    return demo_mutate(files, rng, seeds)
+
+
+def cli_seeds(work: Path) -> list[Files]:
+    return [{"demo.mcap": (REPO / "datasets" / name).read_bytes()} for name in ("CartPole-v1.mcap", "Pendulum-v1.mcap")]
+
+
 TARGETS = {
     target.name: target
     for target in (
@@ -900,6 +1023,8 @@ TARGETS = {
         Target("ros1", "ROS 1 bag: inspect + convert", ros1_seeds, ros1_mutate, ros1_run, needs_testdata=True),
         Target("sqlite", "rosbag2 sqlite: inspect + convert (.db3 and metadata.yaml)", sqlite_seeds, sqlite_mutate, sqlite_run, needs_testdata=True),
         Target("map", "conversion-map YAML: load_map + convert with it", map_seeds, map_mutate, map_run, needs_testdata=True),
+        Target("sb3", "stable-baselines3 zips: load_sb3_policy (data JSON, policy.pth, the zip's headers)", sb3_seeds, sb3_mutate, sb3_run),
+        Target("cli", "whole commands (info, export --to foxglove, recover) on demo files, in a fresh process each", cli_seeds, cli_mutate, cli_run),
     )
 }
 

@@ -269,7 +269,7 @@ def measure(case: Case, folder: Path) -> Outcome:
     size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
     code, stderr, seconds, rss = run(args)
     lines = [line for line in stderr.splitlines() if line.strip() and not line.startswith("warning:")]
-    message = lines[-1] if lines else ""
+    message = (lines[-1] if lines else "").replace(f"{folder}/", "")
     return Outcome(case.name, "imitation " + " ".join(a if len(a) < 40 else "…/" + Path(a).name for a in args[:3]), size, code, message, seconds, rss)
 
 

@@ -685,8 +685,24 @@ class DemoFile:
                 scanned.damage = scanned.damage or summary_damage
                 if scanned.damage and not salvage:
                     raise DemoFileError(f"{self.path}: damaged ({scanned.damage})")
-                if index is None or scanned.damage:
+                if index is not None and scanned.damage and self._reads_whole(index):
+                    # The damage lies where the episode index never reads (an /episode marker, a
+                    # message index): every episode is readable, as training will read it.
+                    index.damage = f"{scanned.damage}; outside the data the episode index reads, so every episode is whole"
+                elif index is None or scanned.damage:
                     index = scanned
+        self._use(index)
+
+    def _reads_whole(self, index: _Index) -> bool:
+        """Whether every episode `index` lists reads without error (each chunk's checksum checked)."""
+        self._use(index)
+        try:
+            self.read_episodes(range(len(index.episodes)))
+        except (ImitationError, _Damage):
+            return False
+        return True
+
+    def _use(self, index: _Index) -> None:
         self._index = index
         self._check_dataset(index.dataset)
         self.env_id: str = index.dataset["env_id"]

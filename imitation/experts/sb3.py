@@ -101,8 +101,8 @@ def _read_zip(file: str) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
                     raise ImitationError(f"{file}: no {member} in the zip, so not a stable-baselines3 PPO/A2C model")
                 check_zip_member(file, archive.getinfo(member))
             weights_bytes, data_bytes = archive.read("policy.pth"), archive.read("data")
-    except (zipfile.BadZipFile, zlib.error, OSError) as error:
-        raise ImitationError(f"{file}: cannot read as a stable-baselines3 zip ({error})") from None
+    except (zipfile.BadZipFile, zlib.error, OSError, NotImplementedError, EOFError, ValueError) as error:  # an unknown zip version; a name not UTF-8
+        raise ImitationError(f"{file}: cannot read as a stable-baselines3 zip ({str(error)[:200]})") from None
     try:
         with warnings.catch_warnings():  # torch warns on stderr about pickle protocols; one line only
             warnings.simplefilter("ignore")
@@ -157,7 +157,7 @@ def _space(file: str, data: dict[str, Any], key: str) -> gym.Space:
             dtype = np.dtype(entry["dtype"])
             low, high = (_parse_array(entry[bound], shape, dtype) for bound in ("low", "high"))
             return gym.spaces.Box(low=low, high=high, shape=shape, dtype=dtype)
-    except (KeyError, TypeError, ValueError) as error:
+    except (KeyError, TypeError, ValueError, OverflowError) as error:
         raise ImitationError(f"{file}: cannot read {key} ({kind}) from its readable fields, and its pickle is not opened: {error}") from None
     raise ImitationError(f"{file}: {key} is a {kind}; only Box and Discrete spaces are supported")
 
@@ -173,6 +173,8 @@ def _short_number(value: Any) -> Any:
 def _parse_array(text: str, shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
     """An array from its numpy `str()`, e.g. '[-4.8 -inf]'. numpy elides long arrays with '...',
     which loses values: refused rather than guessed."""
+    if not isinstance(text, str):
+        raise TypeError(f"bounds must be numpy's text of an array, got {type(text).__name__}")
     values = np.array(text.replace("[", " ").replace("]", " ").split()).astype(dtype)
     if values.size != int(np.prod(shape)):
         raise ValueError(f"bounds for shape {shape} (got {values.size} values from {text[:40]!r})")

@@ -60,3 +60,26 @@ def assert_episodes_equal(actual: Episode, expected: Episode) -> None:
         assert actual.timestamps is None
     else:
         assert actual.timestamps is not None and len(actual.timestamps) == len(expected.timestamps)
+
+
+def rewrite_messages(source, target, change) -> None:
+    """Copy an MCAP file record by record through the mcap library, `change(topic, log_time, data)`
+    returning each message's (log_time, data): a file whose blocks DemoWriter could not have written."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    with open(source, "rb") as stream, open(target, "wb") as out:
+        reader = make_reader(stream)
+        writer = Writer(out, compression=CompressionType.ZSTD)
+        writer.start(profile="", library="test")
+        for record in reader.iter_metadata():
+            writer.add_metadata(record.name, record.metadata)
+        summary = reader.get_summary()
+        schema_ids = {s.id: writer.register_schema(s.name, s.encoding, s.data) for s in summary.schemas.values()}
+        channel_ids = {
+            c.id: writer.register_channel(c.topic, c.message_encoding, schema_ids.get(c.schema_id, 0), c.metadata) for c in summary.channels.values()
+        }
+        for _, channel, message in reader.iter_messages(log_time_order=False):
+            log_time, data = change(channel.topic, message.log_time, message.data)
+            writer.add_message(channel_ids[channel.id], log_time=log_time, data=data, publish_time=log_time)
+        writer.finish()

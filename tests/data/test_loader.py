@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from helpers import random_episode
+from helpers import random_episode, rewrite_messages
 
 from imitation.data.loader import MinibatchLoader, load_transitions, resolve_device, split_episodes, transitions_to_torch
 from imitation.data.store import DemoDataset, write_episodes
@@ -227,29 +227,6 @@ def test_pieces_tile_only_without_gaps_or_overlaps() -> None:
     assert _tiles([], 0)
 
 
-def _rewrite(source, target, change) -> None:
-    """Copy an MCAP file record by record through the mcap library, `change(topic, log_time, data)`
-    returning each message's (log_time, data): a file whose blocks DemoWriter could not have written."""
-    from mcap.reader import make_reader
-    from mcap.writer import CompressionType, Writer
-
-    with open(source, "rb") as stream, open(target, "wb") as out:
-        reader = make_reader(stream)
-        writer = Writer(out, compression=CompressionType.ZSTD)
-        writer.start(profile="", library="test")
-        for record in reader.iter_metadata():
-            writer.add_metadata(record.name, record.metadata)
-        summary = reader.get_summary()
-        schema_ids = {s.id: writer.register_schema(s.name, s.encoding, s.data) for s in summary.schemas.values()}
-        channel_ids = {
-            c.id: writer.register_channel(c.topic, c.message_encoding, schema_ids.get(c.schema_id, 0), c.metadata) for c in summary.channels.values()
-        }
-        for _, channel, message in reader.iter_messages(log_time_order=False):
-            log_time, data = change(channel.topic, message.log_time, message.data)
-            writer.add_message(channel_ids[channel.id], log_time=log_time, data=data, publish_time=log_time)
-        writer.finish()
-
-
 @pytest.mark.parametrize(
     ("topic", "nth", "change"),
     [
@@ -275,7 +252,7 @@ def test_blocks_not_placed_by_their_time_leave_the_bulk_path(tmp_path, topic, nt
                 return change(log_time, data)
         return log_time, data
 
-    _rewrite(good, tmp_path / "bad.mcap", change_one)
-    _rewrite(good, tmp_path / "copy.mcap", lambda message_topic, log_time, data: (log_time, data))
+    rewrite_messages(good, tmp_path / "bad.mcap", change_one)
+    rewrite_messages(good, tmp_path / "copy.mcap", lambda message_topic, log_time, data: (log_time, data))
     assert read_transitions(DemoDataset(tmp_path / "copy.mcap"), [0, 1, 2], next_observations=True) is not None
     assert read_transitions(DemoDataset(tmp_path / "bad.mcap"), [0, 1, 2], next_observations=True) is None

@@ -120,3 +120,25 @@ def test_ros2_bag_is_not_a_demo_file(testdata) -> None:
     bag = testdata / "ros2" / "replay_testing" / "cmd_vel_only.mcap"
     with pytest.raises(DemoFileError, match="not an imitation demo file"):
         DemoFile(bag)
+
+
+def test_damage_the_episode_index_never_reads_is_reported_with_every_episode_whole(tmp_path) -> None:
+    """A garbled /episode marker (the index intact): `info`'s full scan reports the damage, but
+    says that every episode is readable, as training reads them through the index."""
+    from helpers import rewrite_messages
+
+    source = tmp_path / "good.mcap"
+    write_episodes(source, [random_episode(BOX, ACTIONS, 6, seed=i) for i in range(4)], env_id="T", observation_space=BOX, action_space=ACTIONS, finite_only=False)
+    markers = []
+
+    def garble_second_marker(topic, log_time, data):
+        if topic == "/episode":
+            markers.append(log_time)
+            if len(markers) == 2:
+                return log_time, b"\xff" + data[1:]
+        return log_time, data
+
+    rewrite_messages(source, tmp_path / "marker.mcap", garble_second_marker)
+    verified = DemoFile(tmp_path / "marker.mcap", verify=True, salvage=True)
+    assert verified.damage and "every episode is whole" in verified.damage
+    assert len(verified) == 4 and len(list(DemoFile(tmp_path / "marker.mcap"))) == 4
