@@ -105,3 +105,23 @@ def test_info_reports_salvage_of_a_truncated_file(tmp_path) -> None:
     assert_one_line_error(result, "cut.mcap", "damaged", "complete episodes are readable")
     info = json.loads(result.stdout.strip().splitlines()[-1])
     assert 0 < info["salvaged"] == info["episodes"] < 50 and info["damage"]
+
+
+@pytest.mark.parametrize(("flag", "value"), [("--entropy", "nan"), ("--l2", "inf"), ("--lr", "nan"), ("--validation", "inf")])
+def test_non_finite_numbers_are_refused_where_they_enter(tmp_path, flag: str, value: str) -> None:
+    result = run_cli("train", "bc", "--demos", str(DATASETS / "CartPole-v1.mcap"), flag, value, "--out", str(tmp_path / "r"))
+    assert result.returncode == 2 and f"argument {flag}: expected a finite number, got {value!r}" in result.stderr
+    assert not any(tmp_path.iterdir())
+
+
+def test_bc_on_demos_a_policy_cannot_take_names_the_file(tmp_path) -> None:
+    import gymnasium as gym
+    import numpy as np
+
+    from imitation.data.store import write_episodes
+    from imitation.data.types import Episode
+
+    space = gym.spaces.Dict({"a": gym.spaces.Box(-1, 1, (2,), np.float32)})
+    episode = Episode(observations={"a": np.zeros((4, 2), np.float32)}, actions=np.zeros(3, np.int64), rewards=np.zeros(3), truncated=True)
+    demos = write_episodes(tmp_path / "dict.mcap", [episode], env_id="", observation_space=space, action_space=gym.spaces.Discrete(2))
+    assert_one_line_error(run_cli("train", "bc", "--demos", str(demos), "--out", str(tmp_path / "r")), f"{demos}: policies take Box or Discrete observations")

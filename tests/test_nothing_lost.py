@@ -114,11 +114,28 @@ def test_every_writer_on_a_full_disk_fails_in_one_line_naming_the_output(tmp_pat
         assert " keeps " in error and len(DemoFile(partial, salvage=True)) >= 1
 
 
+def _mount_tmpfs(mount: Path, options: str) -> None:
+    mount.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(mount)], capture_output=True).returncode != 0:
+        pytest.skip("mounting a tmpfs needs root in a machine that allows it (RLIMIT_FSIZE covers the same code path)")
+
+
+def test_a_read_only_folder(tmp_path: Path) -> None:
+    mount = tmp_path / "read-only"
+    _mount_tmpfs(mount, "size=1m,ro")
+    try:
+        demos = str(DATASETS / "CartPole-v1.mcap")
+        for args in (["export", demos, "--to", "lerobot", str(mount / "dataset")], ["export", demos, "--to", "foxglove", str(mount / "steps.mcap")],
+                     ["record", "--env", "CartPole-v1", "--episodes", "1", "--out", str(mount / "new.mcap")]):
+            error = one_line_error(run_cli(*args, "--quiet"))
+            assert str(mount) in error and "read-only file system" in error
+    finally:
+        subprocess.run(["umount", str(mount)], check=False)
+
+
 def test_a_real_full_tmpfs(tmp_path: Path) -> None:
     mount = tmp_path / "small"
-    mount.mkdir()
-    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mount)], capture_output=True).returncode != 0:
-        pytest.skip("mounting a tmpfs needs root in a machine that allows it (RLIMIT_FSIZE covers the same path above)")
+    _mount_tmpfs(mount, "size=1m")
     try:
         (mount / "filler").write_bytes(b"\0" * (1024 * 1024 - 80 * 1024))
         error = one_line_error(run_cli("record", "--env", "CartPole-v1", "--episodes", "40", "--quiet", "--out", str(mount / "new.mcap")))

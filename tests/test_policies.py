@@ -142,6 +142,19 @@ def test_observation_normaliser_tracks_mean_and_variance() -> None:
     assert torch.allclose(policy.obs_rms.var.float(), data.var(0, unbiased=False), rtol=1e-3)
 
 
+def test_a_batch_larger_than_one_piece_updates_the_normaliser_exactly_as_a_whole() -> None:
+    """RunningMeanStd folds a batch in pieces of 2^23 numbers (a bounded float64 copy): a batch of
+    three and a half pieces must give the whole batch's mean and variance."""
+    from imitation.policies import RunningMeanStd
+
+    stats = RunningMeanStd((64,), epsilon=0.0)
+    data = torch.randn(7 * 2**16, 64, dtype=torch.float64) * 3.0 + 2.0
+    stats.update(data.float())
+    assert stats.count.item() == len(data)
+    torch.testing.assert_close(stats.mean, data.float().double().mean(0), rtol=0, atol=1e-9)
+    torch.testing.assert_close(stats.var, data.float().double().var(0, unbiased=False), rtol=1e-9, atol=0)
+
+
 def test_normalised_observations_are_standardised_then_clipped_at_ten() -> None:
     """(x - μ) / √(σ² + 1e-8), clipped to ±10; a constant dimension (σ² = 0) stays finite."""
     policy = make_policy(BOX4, gym.spaces.Discrete(2), normalize_observations=True)
