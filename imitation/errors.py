@@ -11,3 +11,7 @@ class DemoFileError(ImitationError):
 
 class SpaceError(ImitationError):
     """A gymnasium space that cannot be serialised, or data that does not fit its space."""
+
+
+class WriteError(ImitationError):
+    """An operating-system error while writing an output (disk full, read-only, permission)."""

@@ -27,7 +27,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, BinaryIO, Iterator
 
-from imitation.errors import ImitationError
+from imitation.errors import ImitationError, WriteError
 
 _CAUSES = {
     errno.ENOSPC: "no space left on the device (disk full)",
@@ -42,10 +42,10 @@ _CAUSES = {
 }
 
 
-def os_error(path: str | os.PathLike, error: OSError, doing: str = "cannot write") -> ImitationError:
+def os_error(path: str | os.PathLike, error: OSError, doing: str = "cannot write") -> WriteError:
     """The one-line error for an OSError while writing `path`."""
     cause = _CAUSES.get(error.errno) if error.errno is not None else None
-    return ImitationError(f"{_printable(path)}: {doing}: {cause or error.strerror or error}")
+    return WriteError(f"{_printable(path)}: {doing}: {cause or error.strerror or error}")
 
 
 @contextmanager

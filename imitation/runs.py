@@ -16,8 +16,9 @@ previous one.
 Trainers that can resume (PPO, with GCL's reward learner when `train irl --method gcl` runs it;
 BC; DAgger; tabular MaxEnt/MCE IRL) save a checkpoint into `RUN_DIR.partial/checkpoint/`
 (`tensors.safetensors` and `state.json`, see imitation.checkpoints) every tenth of the run and
-when Ctrl-C (or SIGTERM) stops them. An interrupted or failed run's partial directory is kept
-when it holds a checkpoint (one without is removed); a new run refuses to start over it, and
+when Ctrl-C (or SIGTERM) stops them. The partial directory of a run interrupted, or stopped by a
+failed write (a full disk), is kept when it holds a checkpoint; any other failure removes it. A new
+run refuses to start over a kept one, and
 `RunWriter(..., resume=True)` reopens it: the logged rows are cut back to the checkpoint and
 the trainer continues from its state.
 """
@@ -35,7 +36,7 @@ from typing import Any
 import torch
 from safetensors.torch import load_file, save_file
 
-from imitation.errors import ImitationError
+from imitation.errors import ImitationError, WriteError
 from imitation.output import OutputLock, check_target, os_error, replace_directory, writing
 
 CHECKPOINT_DIR = "checkpoint"
@@ -269,15 +270,18 @@ class RunWriter:
         self._release()
         return self.path
 
-    def abort(self) -> None:
-        """A failed run leaves nothing behind, except a checkpoint to resume from."""
+    def abort(self, *, keep_checkpoint: bool = False) -> bool:
+        """Stop after a failure. The partial run is removed, unless `keep_checkpoint` and it holds
+        a checkpoint to resume from; whether it was kept."""
         try:
             self._close_logs()
         except OSError:
             pass
-        if not has_checkpoint(self.partial):
+        kept = keep_checkpoint and has_checkpoint(self.partial)
+        if not kept:
             shutil.rmtree(self.partial, ignore_errors=True)
         self._release()
+        return kept
 
     def _release(self) -> None:
         if self._lock is not None:
@@ -288,8 +292,13 @@ class RunWriter:
         return self
 
     def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: Any) -> None:
-        if exc_type is not None:
-            self.abort()
+        # Ctrl-C and failed writes (a full disk) keep a checkpoint for --resume; other failures,
+        # which a resumed run would meet again, leave nothing behind.
+        if exc_type is None:
+            return
+        kept = self.abort(keep_checkpoint=issubclass(exc_type, (KeyboardInterrupt, WriteError)))
+        if kept and isinstance(exc, WriteError):
+            exc.args = (f"{exc}; {self.partial} keeps the run's last checkpoint: make room, then run the same command with --resume",)
 
     def _close_logs(self) -> None:
         if self._csv_file.closed:

@@ -51,7 +51,11 @@ def test_nan_from_an_environment_is_named_by_episode_and_step(tmp_path: Path) ->
     assert_one_line_error(results["ppo reward"], "the environment returned a non-finite reward at env step 1157 (env copy 0)")
     # On call 300 the episode ends: the NaN is in the final observation, which the env has replaced by a reset one.
     assert_one_line_error(results["ppo final obs"], "the environment returned a non-finite final observation at env step 1197 (env copy 0)")
-    assert_nothing_written(tmp_path / "obs.mcap", tmp_path / "reward.mcap", tmp_path / "ppo-obs", tmp_path / "ppo-reward", tmp_path / "ppo-final")
+    assert_nothing_written(tmp_path / "ppo-obs", tmp_path / "ppo-reward", tmp_path / "ppo-final")
+    # The recordings' five finished episodes are kept, for `imitation recover`, and said so.
+    for name in ("obs.mcap", "reward.mcap"):
+        assert f"{tmp_path / name}.partial keeps 5 finished episode(s)" in results[f"record {name.split('.')[0]}"].stderr
+        assert not (tmp_path / name).exists() and len(DemoFile(tmp_path / f"{name}.partial", salvage=True)) == 5
 
 
 def test_every_learner_refuses_demos_holding_nan_naming_file_episode_and_step(tmp_path: Path) -> None:
