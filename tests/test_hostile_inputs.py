@@ -34,3 +34,17 @@ def test_a_small_hostile_input_is_refused_in_one_line_cheaply(name: str, baselin
     assert outcome.message.startswith("error: ") and case.expect in outcome.message, outcome.message
     assert outcome.seconds - base.seconds < 2.0, (outcome.seconds, base.seconds)
     assert outcome.peak_rss_mb - base.peak_rss_mb < 200, (outcome.peak_rss_mb, base.peak_rss_mb)
+
+
+def test_a_bound_raised_with_limit_lets_real_data_through(tmp_path: Path) -> None:
+    """The zeros file is real data DemoWriter wrote: `--limit` (or IMITATION_LIMITS) admits it."""
+    import os
+    import subprocess
+
+    zeros = hostile._zeros_file(tmp_path)
+    refused = hostile.run(["info", str(zeros)])
+    assert refused[0] == 1 and "expansion_ratio" in refused[1]
+    assert hostile.run(["--limit", "expansion_ratio=1000000", "info", str(zeros)])[0] == 0
+    inherited = subprocess.run([sys.executable, str(REPO / "cli.py"), "info", str(zeros)], capture_output=True, text=True,
+                               env={**os.environ, "IMITATION_LIMITS": "expansion_ratio=1000000"})
+    assert inherited.returncode == 0, inherited.stderr

@@ -274,3 +274,13 @@ def test_a_finished_run_replaces_the_old_one_in_one_step(tmp_path: Path) -> None
     replace_directory(new, old)
     assert (old / "weights").read_text() == "new"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_an_out_name_that_is_not_utf8_is_written_or_refused_cleanly(tmp_path: Path) -> None:
+    name = os.fsencode(tmp_path) + b"/\xff-demos.mcap"
+    result = subprocess.run([sys.executable, str(REPO / "cli.py").encode(), b"record", b"--env", b"CartPole-v1", b"--episodes", b"1", b"--quiet",
+                             b"--out", name], capture_output=True, timeout=120, cwd=REPO)
+    assert b"Traceback" not in result.stderr and result.returncode in (0, 1), result.stderr
+    assert not [p for p in os.listdir(os.fsencode(tmp_path)) if p.endswith((b".partial", b".lock"))]
+    if result.returncode == 0:
+        assert len(DemoFile(os.fsdecode(name))) == 1
