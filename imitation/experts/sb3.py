@@ -101,7 +101,7 @@ def _read_zip(file: str) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
                     raise ImitationError(f"{file}: no {member} in the zip, so not a stable-baselines3 PPO/A2C model")
                 check_zip_member(file, archive.getinfo(member))
             weights_bytes, data_bytes = archive.read("policy.pth"), archive.read("data")
-    except (zipfile.BadZipFile, zlib.error, OSError, NotImplementedError, EOFError, ValueError) as error:  # an unknown zip version; a name not UTF-8
+    except (zipfile.BadZipFile, zlib.error, OSError, NotImplementedError, EOFError, ValueError, RuntimeError) as error:  # RuntimeError: "encrypted"
         raise ImitationError(f"{file}: cannot read as a stable-baselines3 zip ({str(error)[:200]})") from None
     try:
         with warnings.catch_warnings():  # torch warns on stderr about pickle protocols; one line only

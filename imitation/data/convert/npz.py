@@ -84,7 +84,7 @@ def _read_npz(path: Path) -> tuple[dict[str, np.ndarray], set[str]]:
         return arrays, object_keys
     except ImitationError:
         raise
-    except (OSError, EOFError, ValueError, KeyError, SyntaxError, TokenError, zipfile.BadZipFile, zlib.error, NotImplementedError) as error:
+    except (OSError, EOFError, ValueError, KeyError, SyntaxError, TokenError, zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError) as error:
         # zipfile's and numpy's ways of saying the bytes are not an npz archive (or a damaged one).
         raise ImitationError(f"{path}: not a readable npz file ({type(error).__name__}: {str(error)[:200]})") from None
 
