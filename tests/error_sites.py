@@ -9,7 +9,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-ERROR_TYPES = {"ImitationError", "DemoFileError", "SpaceError", "TrainingInterrupted"}
+ERROR_TYPES = {"ImitationError", "DemoFileError", "SpaceError", "TrainingInterrupted", "WriteError"}
 # Helpers whose argument becomes (part of) an ImitationError message.
 MESSAGE_HELPERS = {"fail": "{}: ", "_Damage": ""}
 

@@ -683,9 +683,14 @@ class DemoFile:
                 # summary cannot show (flipped bits inside the data).
                 scanned = self._scan(stream)
                 scanned.damage = scanned.damage or summary_damage
+                # The scan reads the file in order, training through the summary's index: the
+                # verdict must hold for both.
+                unread = self._index_unreadable(index) if index is not None else None
+                if scanned.damage is None and unread is not None:
+                    scanned.damage = f"the summary's episode index does not fit the data ({unread})"
                 if scanned.damage and not salvage:
                     raise DemoFileError(f"{self.path}: damaged ({scanned.damage})")
-                if index is not None and scanned.damage and self._reads_whole(index):
+                if index is not None and scanned.damage and unread is None:
                     # The damage lies where the episode index never reads (an /episode marker, a
                     # message index): every episode is readable, as training will read it.
                     index.damage = f"{scanned.damage}; outside the data the episode index reads, so every episode is whole"
@@ -693,14 +698,14 @@ class DemoFile:
                     index = scanned
         self._use(index)
 
-    def _reads_whole(self, index: _Index) -> bool:
-        """Whether every episode `index` lists reads without error (each chunk's checksum checked)."""
+    def _index_unreadable(self, index: _Index) -> str | None:
+        """Why some episode `index` lists does not read (each chunk's checksum checked), or None."""
         self._use(index)
         try:
             self.read_episodes(range(len(index.episodes)))
-        except (ImitationError, _Damage):
-            return False
-        return True
+        except (ImitationError, _Damage) as error:
+            return str(error).replace(f"{self.path}: ", "")[:200]
+        return None
 
     def _use(self, index: _Index) -> None:
         self._index = index
