@@ -142,3 +142,26 @@ def test_damage_the_episode_index_never_reads_is_reported_with_every_episode_who
     verified = DemoFile(tmp_path / "marker.mcap", verify=True, salvage=True)
     assert verified.damage and "every episode is whole" in verified.damage
     assert len(verified) == 4 and len(list(DemoFile(tmp_path / "marker.mcap"))) == 4
+
+
+@pytest.mark.parametrize("k", [486, 780, 908])
+def test_info_and_training_agree_on_files_the_fuzzer_found(tmp_path, k: int) -> None:
+    """Inputs k of tools/fuzz.py's `cli` target (seed 0): before, `info`'s in-order scan called
+    them whole while reading through the episode index (what training does) failed."""
+    import importlib.util
+    import random
+    import sys
+
+    from support import REPO
+
+    spec = importlib.util.spec_from_file_location("imitation_fuzz", REPO / "tools" / "fuzz.py")
+    fuzz = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("imitation_fuzz", fuzz)
+    spec.loader.exec_module(fuzz)
+    seeds = fuzz.cli_seeds(tmp_path)
+    rng = random.Random(f"cli:0:{k}")
+    path = tmp_path / "input.mcap"
+    path.write_bytes(fuzz.cli_mutate(rng.choice(seeds), rng, seeds)["demo.mcap"])
+    with pytest.raises(DemoFileError):
+        list(DemoFile(path))
+    assert DemoFile(path, verify=True, salvage=True).damage is not None
