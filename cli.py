@@ -613,9 +613,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _sigterm_as_interrupt() -> None:
     """SIGTERM (docker stop, Slurm preemption) takes Ctrl-C's path: writers close with their
-    finished episodes, trainers save a checkpoint."""
+    finished episodes, trainers save a checkpoint. It goes to whatever handles SIGINT at that
+    moment (a writer or trainer defers it to a safe point), and stops the process even where
+    SIGINT is ignored (a background job of a script)."""
+
+    def on_sigterm(signum: int, frame: Any) -> None:
+        handler = signal.getsignal(signal.SIGINT)
+        if callable(handler):
+            handler(signal.SIGTERM, frame)
+        else:
+            raise KeyboardInterrupt
+
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, lambda signum, frame: os.kill(os.getpid(), signal.SIGINT))
+        signal.signal(signal.SIGTERM, on_sigterm)
 
 
 def _apply_limits(assignments: list[str]) -> None:

@@ -250,9 +250,32 @@ def test_resume_refuses_demos_whose_content_changed(tmp_path: Path) -> None:
     assert "holds an interrupted run with a checkpoint; continue it with --resume" in error
 
 
+def start_ignoring_sigint(*args: str) -> subprocess.Popen:
+    """`imitation ARGS` with SIGINT ignored, as a script's background job has it: SIGTERM must
+    still stop it."""
+    return subprocess.Popen([sys.executable, str(REPO / "cli.py"), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+
+
+def test_sigterm_stops_a_recording_with_its_finished_episodes(tmp_path: Path) -> None:
+    out = tmp_path / "long.mcap"
+    process = start_ignoring_sigint("record", "--env", "CartPole-v1", "--episodes", "100000", "--quiet", "--out", str(out))
+    try:
+        wait_for(tmp_path / "long.mcap.partial", process)
+        time.sleep(2)
+        process.send_signal(signal.SIGTERM)
+        _, stderr = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130 and "Traceback" not in stderr, stderr[-2000:]
+    kept = int(stderr.split("kept ")[1].split()[0])
+    assert kept >= 1 and len(DemoFile(out, verify=True)) == kept
+
+
 def test_sigterm_stops_training_at_a_checkpoint_like_ctrl_c(tmp_path: Path) -> None:
     out = tmp_path / "ppo"
-    process = start("train", "ppo", "--env", "CartPole-v1", "--steps", "51200", "--quiet", "--out", str(out))
+    process = start_ignoring_sigint("train", "ppo", "--env", "CartPole-v1", "--steps", "51200", "--quiet", "--out", str(out))
     try:
         wait_for(tmp_path / "ppo.partial" / "checkpoint" / "state.json", process)
         process.send_signal(signal.SIGTERM)

@@ -215,7 +215,7 @@ def _interrupts_deferred() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
         if received and callable(previous):
             previous(signal.SIGINT, None)
-        elif received and previous == signal.SIG_DFL:
+        elif received and (previous == signal.SIG_DFL or signal.SIGTERM in received):  # SIGTERM stops even where SIGINT is ignored
             raise KeyboardInterrupt
 
 
