@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import io
 import json
-import os
 import struct
 import subprocess
 import sys
@@ -80,31 +79,23 @@ def _alias_bomb(levels: int = 8) -> str:
 
 def _demo_with_space(folder: Path, name: str, observation_space: dict) -> Path:
     """A real demo file with its dataset metadata's observation space replaced (checksum kept valid)."""
-    sys.path.insert(0, str(REPO))
-    from mcap.records import Channel, Header, Message, Metadata, Schema
-    from mcap.stream_reader import StreamReader
-    from mcap.writer import Writer
-
-    from imitation.data.store import DATASET_METADATA, metadata_crc
-
-    return _rewrite(folder / name, lambda values: {**values, "observation_space": json.dumps(observation_space)}, DATASET_METADATA,
-                    metadata_crc, StreamReader, Writer, (Channel, Header, Message, Metadata, Schema))
+    return _rewrite(folder / name, "imitation.dataset", lambda values: {**values, "observation_space": json.dumps(observation_space)})
 
 
 def _demo_with_episodes(folder: Path, name: str, edit: Callable[[list], list]) -> Path:
+    """A real demo file with its episode index edited (checksum kept valid)."""
+    return _rewrite(folder / name, "imitation.episodes", lambda values: {"episodes": json.dumps(edit(json.loads(values["episodes"])))})
+
+
+def _rewrite(path: Path, record_name: str, edit: Callable[[dict], dict]) -> Path:
+    """The bundled CartPole demo file written again record by record, metadata `record_name` edited."""
     sys.path.insert(0, str(REPO))
     from mcap.records import Channel, Header, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
     from mcap.writer import Writer
 
-    from imitation.data.store import EPISODES_METADATA, metadata_crc
+    from imitation.data.store import metadata_crc
 
-    return _rewrite(folder / name, lambda values: {"episodes": json.dumps(edit(json.loads(values["episodes"])))}, EPISODES_METADATA,
-                    metadata_crc, StreamReader, Writer, (Channel, Header, Message, Metadata, Schema))
-
-
-def _rewrite(path: Path, edit: Callable[[dict], dict], record_name: str, crc, StreamReader, Writer, types) -> Path:  # noqa: N803
-    Channel, Header, Message, Metadata, Schema = types
     records = list(StreamReader(io.BytesIO(CARTPOLE.read_bytes()), emit_chunks=False).records)
     out = io.BytesIO()
     writer = Writer(out)
@@ -117,7 +108,7 @@ def _rewrite(path: Path, edit: Callable[[dict], dict], record_name: str, crc, St
             values = {k: v for k, v in record.metadata.items() if k != "crc32"}
             if record.name == record_name:
                 values = edit(values)
-            writer.add_metadata(record.name, {**values, "crc32": crc(values)})
+            writer.add_metadata(record.name, {**values, "crc32": metadata_crc(values)})
         elif isinstance(record, Schema) and ("s", record.id) not in seen:
             seen.add(("s", record.id))
             writer.register_schema(record.name, record.encoding, record.data)
