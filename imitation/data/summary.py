@@ -16,7 +16,8 @@ def _stats(values: list[float]) -> dict[str, float] | None:
     if not values:
         return None
     array = np.asarray(values, dtype=np.float64)
-    return {"mean": float(array.mean()), "std": float(array.std()), "min": float(array.min()), "max": float(array.max())}
+    with np.errstate(all="ignore"):  # a damaged file's ±inf returns give nan, not a warning on stderr
+        return {"mean": float(array.mean()), "std": float(array.std()), "min": float(array.min()), "max": float(array.max())}
 
 
 def summarize(path: str | os.PathLike) -> dict[str, Any]:
