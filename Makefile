@@ -5,7 +5,7 @@ DEMO_OUT := demo-output
 # Bundled datasets: seeds start at 1000 so evaluations on seeds 0, 1, 2, ... see fresh starts.
 DATASET_SEED := 1000
 
-.PHONY: venv demo test test-all bench fuzz mutate datasets clean
+.PHONY: venv demo lint test test-all bench fuzz mutate datasets clean
 
 venv:
 	@bash scripts/bootstrap.sh
@@ -13,8 +13,15 @@ venv:
 demo: venv
 	@$(IMITATION) demo --out $(DEMO_OUT)
 
+# The guardrails ([tool.ruff] and [tool.mypy] in pyproject.toml): formatting, lint and types of
+# the package and the command line. `make test` runs them first, so CI does too.
+lint: venv
+	@$(PY) -m ruff format --check --quiet imitation cli.py
+	@$(PY) -m ruff check --quiet imitation cli.py
+	@$(PY) -m mypy
+
 # pytest exits 5 when it collects nothing; that is not a pass, but not a crash either: say so.
-test: venv
+test: venv lint
 	@$(PY) -m pytest -q; rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests"; exit 0; fi; exit $$rc
 
@@ -48,4 +55,4 @@ datasets: venv
 	$(IMITATION) record --env imitation/GridWorld8x8Slippery-v0 --expert scripted --episodes 50 --seed $(DATASET_SEED) --out datasets/GridWorld8x8Slippery-v0.mcap
 
 clean:
-	rm -rf $(DEMO_OUT) .pytest_cache mutants
+	rm -rf $(DEMO_OUT) .pytest_cache .mypy_cache .ruff_cache mutants

@@ -14,11 +14,12 @@ import os
 import signal
 import sys
 import threading
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 from imitation import __version__
-from imitation.errors import ImitationError
+from imitation.errors import ConfigError, ImitationError
 
 EXIT_ERROR = 1
 EXIT_INTERRUPTED = 130
@@ -30,54 +31,24 @@ def _print_json(data: dict[str, Any]) -> None:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    from imitation.data.recorder import RecordEpisodes, run_episodes
-    from imitation.data.store import DemoWriter
-    from imitation.envs.make import control_period
-    from imitation.experts.load import load_expert, make_env_for_expert
+    from imitation.jobs.record import record_job
 
-    out = Path(args.out)
-    if out.is_dir():
-        raise ImitationError(f"--out {out}: is a directory; give a file name such as {out / 'demos.mcap'}")
-    if args.episodes < 1:
-        raise ImitationError(f"--episodes must be at least 1, got {args.episodes}")
-    env = make_env_for_expert(args.env, args.expert)
-    policy = load_expert(args.expert, env, seed=args.seed)
-    writer = DemoWriter(
-        out,
-        env_id=args.env,
-        observation_space=env.observation_space,
-        action_space=env.action_space,
-        dt=control_period(env),
-        source=f"imitation record --expert {args.expert}",
-        metadata={"expert": args.expert, "seed": args.seed},
-        durable=True,
+    result = record_job(
+        args.env,
+        args.expert,
+        args.out,
+        episodes=args.episodes,
+        seed=args.seed,
         compression=args.compression,
+        progress=not args.quiet,
     )
-    recorder = RecordEpisodes(env, writer)
-    try:
-        with writer:
-            returns = run_episodes(recorder, policy, episodes=args.episodes, seed=args.seed, progress=not args.quiet)
-    except KeyboardInterrupt:
-        kept = writer.episodes_written
-        where = f"kept {kept} finished episode(s) in {out}" if kept else "no episode had finished; nothing written"
-        print(f"interrupted: {where}", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    finally:
-        env.close()
-    result = {
-        "out": str(out),
-        "env_id": args.env,
-        "expert": args.expert,
-        "episodes": len(returns),
-        "mean_return": sum(returns) / len(returns),
-        "min_return": min(returns),
-        "max_return": max(returns),
-    }
     if args.json:
         _print_json(result)
     else:
-        print(f"recorded {result['episodes']} episodes of {args.env} to {out}: mean return {result['mean_return']:.2f} "
-              f"(min {result['min_return']:.2f}, max {result['max_return']:.2f})")
+        print(
+            f"recorded {result['episodes']} episodes of {args.env} to {args.out}: mean return {result['mean_return']:.2f} "
+            f"(min {result['min_return']:.2f}, max {result['max_return']:.2f})"
+        )
     return 0
 
 
@@ -90,7 +61,10 @@ def cmd_info(args: argparse.Namespace) -> int:
     else:
         print(format_summary(summary))
     if summary["damage"]:
-        print(f"error: {summary['file']}: damaged ({summary['damage']}); {summary['salvaged']} complete episodes are readable", file=sys.stderr)
+        print(
+            f"error: {summary['file']}: damaged ({summary['damage']}); {summary['salvaged']} complete episodes are readable",
+            file=sys.stderr,
+        )
         return EXIT_ERROR
     return 0
 
@@ -102,10 +76,17 @@ def cmd_recover(args: argparse.Namespace) -> int:
     if args.json:
         _print_json(result)
         return 0
-    print(f"recovered {result['episodes']} complete episodes ({result['transitions']} transitions) from {result['partial']} to {result['out']}")
+    print(
+        f"recovered {result['episodes']} complete episodes ({result['transitions']} transitions) from {result['partial']} to "
+        f"{result['out']}"
+    )
     if result["lost"]:
         print(f"not recovered: {result['lost']}")
-    print(f"removed {result['partial']}" if result["partial_removed"] else f"kept {result['partial']}: the damage is not only an unfinished tail")
+    print(
+        f"removed {result['partial']}"
+        if result["partial_removed"]
+        else f"kept {result['partial']}: the damage is not only an unfinished tail"
+    )
     return 0
 
 
@@ -129,19 +110,31 @@ def cmd_convert(args: argparse.Namespace) -> int:
 
             print(format_report(report))
             if report["map"]:
-                print(f"wrote a starter map to {report['map']}; edit it, then: imitation convert {args.source} --map {report['map']} --out demos.mcap")
+                print(
+                    f"wrote a starter map to {report['map']}; edit it, then: imitation convert {args.source} --map "
+                    f"{report['map']} --out demos.mcap"
+                )
         return 0
     if not args.out:
         args.parser.error("--out F.mcap is required (or --inspect to list a bag's topics)")
     result = convert(
-        args.source, args.out, source=args.source_kind, map_path=args.map, env_id=args.env, ros_distro=args.ros_distro, progress=not args.quiet,
+        args.source,
+        args.out,
+        source=args.source_kind,
+        map_path=args.map,
+        env_id=args.env,
+        ros_distro=args.ros_distro,
+        progress=not args.quiet,
     )
     _print_warnings(result["warnings"])
     if args.json:
         _print_json(result)
     else:
-        print(f"converted {result['from']} {args.source} to {result['out']}: {result['episodes']} episodes, {result['transitions']} transitions; "
-              f"observation {result['observation_space']}, action {result['action_space']}; env {result['env_id'] or '- (none: offline demos)'}")
+        print(
+            f"converted {result['from']} {args.source} to {result['out']}: {result['episodes']} episodes, "
+            f"{result['transitions']} transitions; observation {result['observation_space']}, action "
+            f"{result['action_space']}; env {result['env_id'] or '- (none: offline demos)'}"
+        )
     return 0
 
 
@@ -167,26 +160,20 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_train_ppo(args: argparse.Namespace) -> int:
-    from imitation.algorithms.ppo import PPOConfig, learned_reward_ppo_defaults, ppo_defaults
-    from imitation.envs.make import make_env
-    from imitation.training import ppo_job
+    from imitation.jobs.ppo import ppo_job
+    from imitation.jobs.presets import ppo_config
 
-    env = make_env(args.env)
-    settings = (learned_reward_ppo_defaults if args.reward else ppo_defaults)(args.env, env.action_space)
-    env.close()
-    for name in ("n_envs", "objective", "seed", "device", "threads"):
-        if getattr(args, name) is not None:
-            settings[name] = getattr(args, name)
-    if args.async_envs:
-        settings["async_envs"] = True
-    config = PPOConfig(env_id=args.env, total_steps=args.steps, reward_run=args.reward, **settings)
-    result = ppo_job(config, args.out, progress=not args.quiet, resume=args.resume)
+    config = ppo_config(args.env, learned_reward=args.reward is not None, **_fields(args, "PPOConfig"))
+    result = ppo_job(config, args.out, reward_run=args.reward, progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
     else:
         evaluation = result["eval"]
-        print(f"trained PPO ({config.objective}) on {args.env} for {result['steps']} steps in {result['seconds']:.0f} s "
-              f"({result['steps_per_second']:.0f} steps/s); eval return {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f}; run: {result['run']}")
+        print(
+            f"trained PPO ({config.objective}) on {args.env} for {result['steps']} steps in {result['seconds']:.0f} s "
+            f"({result['steps_per_second']:.0f} steps/s); eval return {evaluation['mean_return']:.1f} ± "
+            f"{evaluation['std_return']:.1f}; run: {result['run']}"
+        )
     return 0
 
 
@@ -215,119 +202,122 @@ def _hidden_sizes(text: str) -> list[int]:
 
 def cmd_train_bc(args: argparse.Namespace) -> int:
     from imitation.algorithms.bc import BCConfig
-    from imitation.training import bc_job
+    from imitation.jobs.bc import bc_job
 
-    config = BCConfig(
-        epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, hidden_sizes=args.hidden, activation=args.activation, loss=args.loss,
-        entropy_coef=args.entropy, l2_coef=args.l2, validation_fraction=args.validation, patience=args.patience,
-        seed=args.seed, device=args.device,
+    result = bc_job(
+        args.demos, args.env, BCConfig(**_fields(args, "BCConfig")), args.out, progress=not args.quiet, resume=args.resume
     )
-    result = bc_job(args.demos, args.env, config, args.out, progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
     elif result["offline"]:
-        print(f"trained BC offline (no --env, so no rollouts) on {result['train_transitions']} transitions for {result['epochs']} epochs "
-              f"(best {result['best_epoch']}); validation loss {result['best_validation_loss']:.4f} on {result['validation_transitions']} "
-              f"held-out transitions; run: {result['run']}")
+        print(
+            f"trained BC offline (no --env, so no rollouts) on {result['train_transitions']} transitions for "
+            f"{result['epochs']} epochs (best {result['best_epoch']}); validation loss {result['best_validation_loss']:.4f} "
+            f"on {result['validation_transitions']} held-out transitions; run: {result['run']}"
+        )
     else:
         evaluation = result["eval"]
-        print(f"trained BC on {result['train_transitions']} transitions for {result['epochs']} epochs (best {result['best_epoch']}, "
-              f"validation loss {result['best_validation_loss']:.4f}); eval return {evaluation['mean_return']:.1f} ± "
-              f"{evaluation['std_return']:.1f}; run: {result['run']}")
+        print(
+            f"trained BC on {result['train_transitions']} transitions for {result['epochs']} epochs (best "
+            f"{result['best_epoch']}, validation loss {result['best_validation_loss']:.4f}); eval return "
+            f"{evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f}; run: {result['run']}"
+        )
     return 0
 
 
 def cmd_train_dagger(args: argparse.Namespace) -> int:
     from imitation.algorithms.bc import BCConfig
     from imitation.algorithms.dagger import DAggerConfig
-    from imitation.training import dagger_job
+    from imitation.jobs.dagger import dagger_job
 
-    config = DAggerConfig(
-        rounds=args.rounds, episodes_per_round=args.episodes_per_round, beta_schedule=args.beta_schedule,
-        beta_decay=args.beta_decay, seed=args.seed,
-        bc=BCConfig(epochs=args.epochs, patience=args.patience, hidden_sizes=args.hidden, seed=args.seed, device=args.device),
-    )
-    result = dagger_job(args.env, args.expert, config, args.out, demos=args.demos or [], progress=not args.quiet, resume=args.resume)
+    config = DAggerConfig(**_fields(args, "DAggerConfig"), bc=BCConfig(**_fields(args, "BCConfig")))
+    result = dagger_job(args.env, args.expert, config, args.out, demos=args.demos, progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
     else:
         evaluation = result["eval"]
         returns = ", ".join(f"{value:.1f}" for value in result["round_returns"])
-        print(f"DAgger on {args.env} with expert {args.expert}: {result['rounds']} rounds, {result['expert_labels']} expert labels; "
-              f"return by round: {returns}; eval return {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f}; run: {result['run']}")
+        print(
+            f"DAgger on {args.env} with expert {args.expert}: {result['rounds']} rounds, {result['expert_labels']} expert "
+            f"labels; return by round: {returns}; eval return {evaluation['mean_return']:.1f} ± "
+            f"{evaluation['std_return']:.1f}; run: {result['run']}"
+        )
     return 0
 
 
 def cmd_train_irl(args: argparse.Namespace) -> int:
-    from imitation.algorithms.maxent_irl import MaxEntIRLConfig
-    from imitation.training import tabular_irl_job
-
     if args.method == "gcl":
         return _train_gcl(args)
-    config = MaxEntIRLConfig(
-        method=args.method, discount=args.discount, iterations=args.iterations, tolerance=args.tolerance,
-        hidden_sizes=args.hidden if args.hidden is not None else [], seed=args.seed, **({"learning_rate": args.lr} if args.lr is not None else {}),
-    )
+    from imitation.algorithms.maxent_irl import MaxEntIRLConfig
+    from imitation.jobs.irl import tabular_irl_job
+
+    config = MaxEntIRLConfig(**_fields(args, "MaxEntIRLConfig"))
     result = tabular_irl_job(args.demos, args.env, config, args.out, progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
     else:
-        print(f"{args.method} IRL on {args.env}: {result['iterations']} iterations, occupancy error {result['occupancy_error']:.2e}; "
-              f"the soft-optimal policy for the learned reward earns {result['learned_policy_return']:.2f} (expert {result['expert_return']:.2f}, "
-              f"random {result['random_return']:.2f}, normalised {result['normalized_return']:.3f}); run: {result['run']}")
+        print(
+            f"{args.method} IRL on {args.env}: {result['iterations']} iterations, occupancy error "
+            f"{result['occupancy_error']:.2e}; the soft-optimal policy for the learned reward earns "
+            f"{result['learned_policy_return']:.2f} (expert {result['expert_return']:.2f}, random "
+            f"{result['random_return']:.2f}, normalised {result['normalized_return']:.3f}); run: {result['run']}"
+        )
     return 0
 
 
 def _train_gcl(args: argparse.Namespace) -> int:
-    from imitation.algorithms.gcl import GCLConfig, default_steps
-    from imitation.algorithms.ppo import PPOConfig, learned_reward_ppo_defaults
-    from imitation.envs.make import make_env
-    from imitation.training import gcl_job
+    from imitation.algorithms.gcl import GCLConfig
+    from imitation.jobs.irl import gcl_job
+    from imitation.jobs.presets import ppo_config, preset
 
-    with make_env(args.env) as env:
-        settings = learned_reward_ppo_defaults(args.env, env.action_space)
-    config = GCLConfig(hidden_sizes=args.hidden if args.hidden is not None else [64, 64], seed=args.seed,
-                       **({"learning_rate": args.lr} if args.lr is not None else {}))
-    ppo_config = PPOConfig(env_id=args.env, total_steps=args.steps if args.steps is not None else default_steps(args.env), seed=args.seed, **settings)
-    result = gcl_job(args.demos, args.env, config, ppo_config, args.out, progress=not args.quiet, resume=args.resume)
+    fields = {"total_steps": preset(args.env).gcl_steps} | _fields(args, "PPOConfig")
+    config = ppo_config(args.env, learned_reward=True, **fields)
+    result = gcl_job(
+        args.demos,
+        args.env,
+        GCLConfig(**_fields(args, "GCLConfig")),
+        config,
+        args.out,
+        progress=not args.quiet,
+        resume=args.resume,
+    )
     if args.json:
         _print_json(result)
     else:
         evaluation = result["eval"]
-        print(f"GCL on {args.env}: {result['steps']} PPO steps in {result['seconds']:.0f} s; the maximum-entropy sampler trained alongside (not for use) earns "
-              f"{evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f} (demos {result['demo_return']:.1f}); "
-              f"reward model for `train ppo --reward`: {result['run']}")
+        print(
+            f"GCL on {args.env}: {result['steps']} PPO steps in {result['seconds']:.0f} s; the maximum-entropy sampler "
+            f"trained alongside (not for use) earns {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f} (demos "
+            f"{result['demo_return']:.1f}); reward model for `train ppo --reward`: {result['run']}"
+        )
     return 0
 
 
 def cmd_eval_policy(args: argparse.Namespace) -> int:
-    from imitation.envs.make import make_env
-    from imitation.evaluation.policy import evaluate_policy, normalized_return, run_demos
-    from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
+    from imitation.jobs.evaluate_policy import eval_policy_job
 
-    policy = load_policy(args.run)
-    env = make_env(args.env)
-    check_policy_fits_env(policy, env, args.run)
-    actor = SingleObservationPolicy(policy, deterministic=not args.stochastic)
-    result = evaluate_policy(actor, env, episodes=args.episodes, seed=args.seed)
-    demos = args.demos if args.demos is not None else run_demos(args.run)
-    if demos:
-        result |= normalized_return(result, env, demos, seed=args.seed)
-    env.close()
-    if args.video:
-        from imitation.evaluation.video import record_video
-
-        result["video"] = {"path": args.video, **record_video(args.env, actor, args.video, seed=args.seed)}
-    result = {"run": args.run, "env_id": args.env, "deterministic": not args.stochastic, **result}
+    result = eval_policy_job(
+        args.run,
+        args.env,
+        episodes=args.episodes,
+        seed=args.seed,
+        stochastic=args.stochastic,
+        demos=args.demos,
+        video=args.video,
+    )
     if args.json:
         _print_json(result)
         return 0
-    print(f"{args.run} on {args.env}: mean return {result['mean_return']:.2f} ± {result['std_return']:.2f} "
-          f"(min {result['min_return']:.2f}, max {result['max_return']:.2f}) over {args.episodes} episodes")
+    print(
+        f"{args.run} on {args.env}: mean return {result['mean_return']:.2f} ± {result['std_return']:.2f} "
+        f"(min {result['min_return']:.2f}, max {result['max_return']:.2f}) over {args.episodes} episodes"
+    )
     if "normalized_return" in result:
         reference = result["reference"]
-        print(f"normalised return {result['normalized_return']:.3f} (0 = uniform random actions, {reference['random_return']:.2f}; "
-              f"1 = the demos, {reference['expert_return']:.2f})")
+        print(
+            f"normalised return {result['normalized_return']:.3f} (0 = uniform random actions, "
+            f"{reference['random_return']:.2f}; 1 = the demos, {reference['expert_return']:.2f})"
+        )
     if args.video:
         print(f"video of episode 0 (return {result['video']['return']:.2f}): {args.video}")
     return 0
@@ -336,10 +326,10 @@ def cmd_eval_policy(args: argparse.Namespace) -> int:
 def cmd_eval_reward(args: argparse.Namespace) -> int:
     import torch
 
-    from imitation.evaluation.reward import RewardEvaluationConfig, evaluate_reward
+    from imitation.jobs.evaluate_reward import RewardEvaluationConfig, evaluate_reward
 
     torch.set_num_threads(1)  # EPIC's many small reward calls; measured 2-10x faster than 2 threads on 2 busy cores
-    config = RewardEvaluationConfig(retrain_steps=args.retrain_steps, seeds=args.seeds, demos=args.demos, jobs=args.jobs, seed=args.seed)
+    config = RewardEvaluationConfig(**_fields(args, "RewardEvaluationConfig"))
     out = args.out or str(Path(args.run) / "eval-reward")
     result = evaluate_reward(args.run, args.env, config, out, progress=not args.quiet)
     if args.json:
@@ -350,6 +340,7 @@ def cmd_eval_reward(args: argparse.Namespace) -> int:
     rows = [("recovered", result["epic"], result["pearson"], retrain["normalized"])]
     rows += [(name, c["epic"], c["pearson"], c["normalized"]) for name, c in result["controls"].items()]
     for name, epic, pearson, score in rows:
+
         def shown(value: float | None) -> str:
             return "n/a" if value is None else f"{value:.3f}"
 
@@ -359,9 +350,11 @@ def cmd_eval_reward(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from imitation.demo import run_demo
+    from imitation.jobs.demo import run_demo
 
-    result = run_demo(args.out, quick=args.quick, progress=not args.quiet, **({"datasets": args.datasets} if args.datasets else {}))
+    result = run_demo(
+        args.out, quick=args.quick, progress=not args.quiet, **({"datasets": args.datasets} if args.datasets else {})
+    )
     if args.json:
         _print_json(result)
     else:
@@ -369,17 +362,117 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+# Which flag sets which config field, per command (and config class): the one place the command
+# line's vocabulary meets the learners'. `_fields` builds configs from it, and a ConfigError that
+# names a field is reported with the flag the user typed.
+FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
+    "record": {"record": {"episodes": "--episodes"}},
+    "train ppo": {
+        "PPOConfig": {
+            "total_steps": "--steps",
+            "objective": "--objective",
+            "n_envs": "--n-envs",
+            "async_envs": "--async",
+            "seed": "--seed",
+            "device": "--device",
+            "threads": "--threads",
+        },
+        None: {"device": "--device"},  # the device's own check, where any learner meets it
+    },
+    "train bc": {
+        "BCConfig": {
+            "epochs": "--epochs",
+            "batch_size": "--batch-size",
+            "learning_rate": "--lr",
+            "hidden_sizes": "--hidden",
+            "activation": "--activation",
+            "loss": "--loss",
+            "entropy_coef": "--entropy",
+            "l2_coef": "--l2",
+            "validation_fraction": "--validation",
+            "patience": "--patience",
+            "seed": "--seed",
+            "device": "--device",
+        },
+        None: {"device": "--device"},
+    },
+    "train dagger": {
+        "DAggerConfig": {
+            "rounds": "--rounds",
+            "episodes_per_round": "--episodes-per-round",
+            "beta_schedule": "--beta-schedule",
+            "beta_decay": "--beta-decay",
+            "seed": "--seed",
+        },
+        "BCConfig": {
+            "epochs": "--epochs",
+            "patience": "--patience",
+            "hidden_sizes": "--hidden",
+            "seed": "--seed",
+            "device": "--device",
+        },
+        None: {"device": "--device"},
+    },
+    "train irl": {
+        "MaxEntIRLConfig": {
+            "method": "--method",
+            "iterations": "--iterations",
+            "tolerance": "--tolerance",
+            "discount": "--discount",
+            "learning_rate": "--lr",
+            "hidden_sizes": "--hidden",
+            "seed": "--seed",
+        },
+        "GCLConfig": {"learning_rate": "--lr", "hidden_sizes": "--hidden", "seed": "--seed"},
+        "PPOConfig": {"total_steps": "--steps", "seed": "--seed"},
+        # The tabular planner's own check of the discount.
+        None: {"discount": "--discount"},
+    },
+    "eval reward": {
+        "RewardEvaluationConfig": {
+            "retrain_steps": "--retrain-steps",
+            "seeds": "--seeds",
+            "demos": "--demos",
+            "jobs": "--jobs",
+            "seed": "--seed",
+        },
+    },
+}
+
+
+def _dest(flag: str) -> str:
+    return flag.lstrip("-").replace("-", "_")
+
+
+def _fields(args: argparse.Namespace, owner: str) -> dict[str, Any]:
+    """The fields of config class `owner` that this command's flags set.
+
+    Flags not given (None) are left to the config's default.
+    """
+    flags = FLAGS[args.command_key].get(owner, {})
+    return {field: value for field, flag in flags.items() if (value := getattr(args, _dest(flag))) is not None}
+
+
+def _flag_message(error: ConfigError, command_key: str) -> str:
+    """A config error in the command line's words: the field named by the flag that sets it."""
+    flag = FLAGS.get(command_key, {}).get(error.owner, {}).get(error.field)
+    return error.renamed(flag) if flag is not None else str(error)
+
+
 def _add_resume(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--resume", action="store_true",
-        help="continue the interrupted run in RUN_DIR.partial from its last checkpoint (saved every tenth of the run and on Ctrl-C), "
-        "with the same settings, to the same total",
+        "--resume",
+        action="store_true",
+        help="continue the interrupted run in RUN_DIR.partial from its last checkpoint (saved every tenth of the run and on "
+        "Ctrl-C), with the same settings, to the same total",
     )
 
 
 def _add_run_output(parser: argparse.ArgumentParser) -> None:
     """--out, --json and --quiet, shared by every `train` command."""
-    parser.add_argument("--out", required=True, metavar="RUN_DIR", help="run directory to write (replaced only when the run completes)")
+    parser.add_argument(
+        "--out", required=True, metavar="RUN_DIR", help="run directory to write (replaced only when the run completes)"
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object with the results")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -391,9 +484,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"imitation-mcap {__version__}")
     parser.add_argument(
-        "--limit", action="append", default=[], metavar="NAME=N",
-        help="raise a resource bound for this run, e.g. --limit sample_elements=33554432 (bounds: sample_elements, dict_leaves, "
-        "expansion_ratio, chunk_bytes, yaml_nodes, policy_parameters; see imitation/limits.py)",
+        "--limit",
+        action="append",
+        default=[],
+        metavar="NAME=N",
+        help="raise a resource bound for this run, e.g. --limit sample_elements=33554432 (bounds: sample_elements, "
+        "dict_leaves, expansion_ratio, chunk_bytes, yaml_nodes, policy_parameters; see imitation/limits.py)",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -404,11 +500,24 @@ def build_parser() -> argparse.ArgumentParser:
         "demo file as it ends (while recording the file is named F.mcap.partial; Ctrl-C keeps the finished episodes).",
     )
     record.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id, e.g. CartPole-v1")
-    record.add_argument("--expert", default="scripted", metavar="SPEC", help="scripted (hand-written controller), random, keyboard (you play, discrete actions), a run directory with a policy, or sb3:ZIP (a stable-baselines3 policy, read without unpickling) (default: scripted)")
+    record.add_argument(
+        "--expert",
+        default="scripted",
+        metavar="SPEC",
+        help=(
+            "scripted (hand-written controller), random, keyboard (you play, discrete actions), a run directory with a "
+            "policy, or sb3:ZIP (a stable-baselines3 policy, read without unpickling) (default: scripted)"
+        ),
+    )
     record.add_argument("--episodes", type=int, default=10, metavar="N", help="number of episodes (default: 10)")
     record.add_argument("--seed", type=int, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
     record.add_argument("--out", required=True, metavar="F.mcap", help="output demo file")
-    record.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd", help="chunk compression (default: zstd; none loads fastest)")
+    record.add_argument(
+        "--compression",
+        choices=["zstd", "lz4", "none"],
+        default="zstd",
+        help="chunk compression (default: zstd; none loads fastest)",
+    )
     record.add_argument("--json", action="store_true", help="print one JSON object with the results")
     record.add_argument("--quiet", action="store_true", help="no progress bar")
     record.set_defaults(handler=cmd_record)
@@ -426,13 +535,19 @@ def build_parser() -> argparse.ArgumentParser:
     recover = commands.add_parser(
         "recover",
         help="turn the F.mcap.partial of an interrupted or failed write into a demo file",
-        description="A writer that was killed, ran out of disk space or stopped on an error leaves F.mcap.partial with every "
-        "episode it had finished. recover writes those episodes, bit-exact, to a new demo file (default: F.mcap), then removes "
-        "the partial file unless more than its unfinished tail was damaged.",
+        description="A writer that was killed, ran out of disk space or stopped on an error leaves F.mcap.partial with "
+        "every episode it had finished. recover writes those episodes, bit-exact, to a new demo file (default: F.mcap), "
+        "then removes the partial file unless more than its unfinished tail was damaged.",
     )
     recover.add_argument("partial", metavar="F.mcap.partial", help="the partial demo file")
-    recover.add_argument("--out", metavar="F.mcap", help="the recovered file, which must not exist (default: the partial file's name without .partial)")
-    recover.add_argument("--compression", choices=["zstd", "lz4", "none"], default="zstd", help="chunk compression (default: zstd)")
+    recover.add_argument(
+        "--out",
+        metavar="F.mcap",
+        help="the recovered file, which must not exist (default: the partial file's name without .partial)",
+    )
+    recover.add_argument(
+        "--compression", choices=["zstd", "lz4", "none"], default="zstd", help="chunk compression (default: zstd)"
+    )
     recover.add_argument("--json", action="store_true", help="print one JSON object")
     recover.set_defaults(handler=cmd_recover)
 
@@ -445,14 +560,32 @@ def build_parser() -> argparse.ArgumentParser:
         "map. LeRobot datasets (v3.0, v2.1) and npz rollouts (stable-baselines GAIL, HumanCompatibleAI/imitation) convert "
         "without a map. Video and image features are skipped with a warning.",
     )
-    convert.add_argument("source", metavar="SRC", help="a .mcap bag or rosbag2 folder, a ROS 1 .bag, a LeRobot dataset root, or an .npz file")
-    convert.add_argument("--from", dest="source_kind", metavar="KIND", help="ros2, ros1, lerobot or npz (default: recognised from SRC)")
-    convert.add_argument("--map", metavar="MAP.yaml", help="for bags: which topics and fields form the observation and the action")
+    convert.add_argument(
+        "source", metavar="SRC", help="a .mcap bag or rosbag2 folder, a ROS 1 .bag, a LeRobot dataset root, or an .npz file"
+    )
+    convert.add_argument(
+        "--from", dest="source_kind", metavar="KIND", help="ros2, ros1, lerobot or npz (default: recognised from SRC)"
+    )
+    convert.add_argument(
+        "--map", metavar="MAP.yaml", help="for bags: which topics and fields form the observation and the action"
+    )
     convert.add_argument("--out", metavar="F.mcap", help="output demo file (written atomically)")
-    convert.add_argument("--env", metavar="ID", help="gymnasium id the demos belong to: its spaces are used (overrides the map's env_id)")
-    convert.add_argument("--inspect", action="store_true", help="list a bag's topics, types, counts, rates and numeric fields; convert nothing")
+    convert.add_argument(
+        "--env", metavar="ID", help="gymnasium id the demos belong to: its spaces are used (overrides the map's env_id)"
+    )
+    convert.add_argument(
+        "--inspect", action="store_true", help="list a bag's topics, types, counts, rates and numeric fields; convert nothing"
+    )
     convert.add_argument("--write-map", metavar="MAP.yaml", help="with --inspect: also write a starter map to edit")
-    convert.add_argument("--ros-distro", default="latest", metavar="NAME", help="message definitions for rosbag2 sqlite bags that carry none (recorded before Iron): foxy, humble, ... (default: latest)")
+    convert.add_argument(
+        "--ros-distro",
+        default="latest",
+        metavar="NAME",
+        help=(
+            "message definitions for rosbag2 sqlite bags that carry none (recorded before Iron): foxy, humble, ... "
+            "(default: latest)"
+        ),
+    )
     convert.add_argument("--json", action="store_true", help="print one JSON object with the results")
     convert.add_argument("--quiet", action="store_true", help="no progress bar")
     convert.set_defaults(handler=cmd_convert, parser=convert)
@@ -470,7 +603,9 @@ def build_parser() -> argparse.ArgumentParser:
     export.add_argument("--quiet", action="store_true", help="no progress bar")
     export.set_defaults(handler=cmd_export)
 
-    train = commands.add_parser("train", help="train a policy or reward model", description="Train a policy or reward model into a run directory.")
+    train = commands.add_parser(
+        "train", help="train a policy or reward model", description="Train a policy or reward model into a run directory."
+    )
     algorithms = train.add_subparsers(dest="algorithm", required=True, metavar="ALGORITHM")
     ppo = algorithms.add_parser(
         "ppo",
@@ -481,9 +616,13 @@ def build_parser() -> argparse.ArgumentParser:
     ppo.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
     ppo.add_argument("--steps", type=int, default=100_000, metavar="N", help="environment steps in total (default: 100000)")
     ppo.add_argument("--objective", choices=["clip", "kl"], help="clipped surrogate or adaptive KL penalty (default: clip)")
-    ppo.add_argument("--reward", metavar="RUN_DIR", help="optimise this reward model instead of the env's reward (true returns are still logged)")
+    ppo.add_argument(
+        "--reward",
+        metavar="RUN_DIR",
+        help="optimise this reward model instead of the env's reward (true returns are still logged)",
+    )
     ppo.add_argument("--n-envs", dest="n_envs", type=int, metavar="K", help="parallel environments (default: per env)")
-    ppo.add_argument("--async", dest="async_envs", action="store_true", help="step the environments in subprocesses")
+    ppo.add_argument("--async", action="store_true", help="step the environments in subprocesses")
     ppo.add_argument("--seed", type=int, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
     ppo.add_argument("--device", metavar="auto|cpu|cuda", help="where the networks run (default: auto)")
     ppo.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (default: 1, fastest for small networks)")
@@ -499,18 +638,34 @@ def build_parser() -> argparse.ArgumentParser:
         "training stops early when the validation loss stops improving.",
     )
     bc.add_argument("--demos", required=True, nargs="+", metavar="F.mcap", help="one or more demo files of the same env")
-    bc.add_argument("--env", metavar="ID", help="gymnasium environment id (for spaces and evaluation); without it BC trains "
-                    "offline on the demos' own spaces and reports the validation loss only")
+    bc.add_argument(
+        "--env",
+        metavar="ID",
+        help="gymnasium environment id (for spaces and evaluation); without it BC trains "
+        "offline on the demos' own spaces and reports the validation loss only",
+    )
     bc.add_argument("--epochs", type=int, default=300, metavar="N", help="maximum epochs (default: 300)")
     bc.add_argument("--batch-size", type=int, default=256, metavar="B", help="minibatch size (default: 256)")
     bc.add_argument("--lr", type=_finite, default=1e-3, help="Adam learning rate (default: 1e-3)")
-    bc.add_argument("--hidden", type=_hidden_sizes, default=[256, 256], metavar="256,256", help="MLP layer widths (default: 256,256)")
+    bc.add_argument(
+        "--hidden", type=_hidden_sizes, default=[256, 256], metavar="256,256", help="MLP layer widths (default: 256,256)"
+    )
     bc.add_argument("--activation", choices=["tanh", "relu"], default="relu", help="hidden-layer activation (default: relu)")
-    bc.add_argument("--loss", choices=["nll", "mse"], default="nll", help="nll (log-likelihood) or mse (continuous actions only)")
+    bc.add_argument(
+        "--loss", choices=["nll", "mse"], default="nll", help="nll (log-likelihood) or mse (continuous actions only)"
+    )
     bc.add_argument("--entropy", type=_finite, default=0.0, metavar="C", help="entropy bonus coefficient (default: 0)")
     bc.add_argument("--l2", type=_finite, default=0.0, metavar="C", help="L2 penalty on the policy weights (default: 0)")
-    bc.add_argument("--validation", type=_finite, default=0.2, metavar="F", help="fraction of episodes held out (default: 0.2)")
-    bc.add_argument("--patience", type=int, default=50, metavar="N", help="epochs without a better validation loss before stopping (default: 50)")
+    bc.add_argument(
+        "--validation", type=_finite, default=0.2, metavar="F", help="fraction of episodes held out (default: 0.2)"
+    )
+    bc.add_argument(
+        "--patience",
+        type=int,
+        default=50,
+        metavar="N",
+        help="epochs without a better validation loss before stopping (default: 50)",
+    )
     bc.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     bc.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
     _add_run_output(bc)
@@ -528,11 +683,23 @@ def build_parser() -> argparse.ArgumentParser:
     dagger.add_argument("--demos", nargs="+", metavar="F.mcap", help="expert demos to start from (optional)")
     dagger.add_argument("--rounds", type=int, default=5, metavar="R", help="rounds (default: 5)")
     dagger.add_argument("--episodes-per-round", type=int, default=5, metavar="N", help="rollouts per round (default: 5)")
-    dagger.add_argument("--beta-schedule", choices=["linear", "exponential"], default="linear", help="how β decays (default: linear)")
-    dagger.add_argument("--beta-decay", type=_finite, default=0.5, metavar="P", help="β_i = P^(i-1) for the exponential schedule (default: 0.5)")
+    dagger.add_argument(
+        "--beta-schedule", choices=["linear", "exponential"], default="linear", help="how β decays (default: linear)"
+    )
+    dagger.add_argument(
+        "--beta-decay",
+        type=_finite,
+        default=0.5,
+        metavar="P",
+        help="β_i = P^(i-1) for the exponential schedule (default: 0.5)",
+    )
     dagger.add_argument("--epochs", type=int, default=60, metavar="N", help="BC epochs per round (default: 60)")
-    dagger.add_argument("--patience", type=int, default=15, metavar="N", help="BC early-stopping patience per round (default: 15)")
-    dagger.add_argument("--hidden", type=_hidden_sizes, default=[256, 256], metavar="256,256", help="MLP layer widths (default: 256,256)")
+    dagger.add_argument(
+        "--patience", type=int, default=15, metavar="N", help="BC early-stopping patience per round (default: 15)"
+    )
+    dagger.add_argument(
+        "--hidden", type=_hidden_sizes, default=[256, 256], metavar="256,256", help="MLP layer widths (default: 256,256)"
+    )
     dagger.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     dagger.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
     _add_run_output(dagger)
@@ -551,25 +718,54 @@ def build_parser() -> argparse.ArgumentParser:
     irl.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
     irl.add_argument("--demos", required=True, nargs="+", metavar="F.mcap", help="expert demo files of that env")
     irl.add_argument("--iterations", type=int, default=2000, metavar="N", help="tabular: most gradient steps (default: 2000)")
-    irl.add_argument("--tolerance", type=_finite, default=1e-4, metavar="E", help="tabular: stop when the visitation error (L∞) is below E (default: 1e-4)")
-    irl.add_argument("--discount", type=_finite, default=1.0, metavar="G", help="tabular: discount γ of the visitation counts (default: 1)")
-    irl.add_argument("--lr", type=_finite, metavar="LR", help="Adam learning rate of the reward (default: 0.05 tabular, 3e-4 gcl)")
-    irl.add_argument("--hidden", type=_hidden_sizes, metavar="32,32", help="reward MLP widths, or 'linear' (default: linear tabular, 64,64 gcl)")
-    irl.add_argument("--steps", type=int, metavar="N", help="gcl: PPO environment steps in total (default: 500000 for Pendulum-v1, else 200000)")
+    irl.add_argument(
+        "--tolerance",
+        type=_finite,
+        default=1e-4,
+        metavar="E",
+        help="tabular: stop when the visitation error (L∞) is below E (default: 1e-4)",
+    )
+    irl.add_argument(
+        "--discount", type=_finite, default=1.0, metavar="G", help="tabular: discount γ of the visitation counts (default: 1)"
+    )
+    irl.add_argument(
+        "--lr", type=_finite, metavar="LR", help="Adam learning rate of the reward (default: 0.05 tabular, 3e-4 gcl)"
+    )
+    irl.add_argument(
+        "--hidden",
+        type=_hidden_sizes,
+        metavar="32,32",
+        help="reward MLP widths, or 'linear' (default: linear tabular, 64,64 gcl)",
+    )
+    irl.add_argument(
+        "--steps",
+        type=int,
+        metavar="N",
+        help="gcl: PPO environment steps in total (default: 500000 for Pendulum-v1, else 200000)",
+    )
     irl.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     _add_run_output(irl)
     _add_resume(irl)
     irl.set_defaults(handler=cmd_train_irl)
 
-    evaluate = commands.add_parser("eval", help="evaluate a policy or a recovered reward", description="Evaluate a trained policy or reward.")
+    evaluate = commands.add_parser(
+        "eval", help="evaluate a policy or a recovered reward", description="Evaluate a trained policy or reward."
+    )
     targets = evaluate.add_subparsers(dest="target", required=True, metavar="TARGET")
-    policy = targets.add_parser("policy", help="return of a run's policy", description="Mean, std, min and max return of a run directory's policy.")
+    policy = targets.add_parser(
+        "policy", help="return of a run's policy", description="Mean, std, min and max return of a run directory's policy."
+    )
     policy.add_argument("run", metavar="RUN_DIR", help="a PPO, BC or DAgger run directory")
     policy.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
     policy.add_argument("--episodes", type=int, default=10, metavar="N", help="episodes (default: 10)")
     policy.add_argument("--seed", type=int, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
     policy.add_argument("--stochastic", action="store_true", help="sample actions instead of taking the most likely one")
-    policy.add_argument("--demos", nargs="+", metavar="F.mcap", help="demos whose mean return is the normalised score's 1 (default: those the run learnt from)")
+    policy.add_argument(
+        "--demos",
+        nargs="+",
+        metavar="F.mcap",
+        help="demos whose mean return is the normalised score's 1 (default: those the run learnt from)",
+    )
     policy.add_argument("--video", metavar="FILE.mp4|.gif", help="also write episode 0 (seed S) as a video")
     policy.add_argument("--json", action="store_true", help="print one JSON object")
     policy.set_defaults(handler=cmd_eval_policy)
@@ -585,11 +781,30 @@ def build_parser() -> argparse.ArgumentParser:
     )
     reward.add_argument("run", metavar="RUN_DIR", help="a reward run directory (`train irl`)")
     reward.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
-    reward.add_argument("--retrain-steps", type=int, metavar="N", help="PPO steps per retraining; 0 skips it (default: 600000 for Pendulum-v1, 300000 for fixed-horizon CartPole, else 200000)")
+    reward.add_argument(
+        "--retrain-steps",
+        type=int,
+        metavar="N",
+        help=(
+            "PPO steps per retraining; 0 skips it (default: 600000 for Pendulum-v1, 300000 for fixed-horizon CartPole, else "
+            "200000)"
+        ),
+    )
     reward.add_argument("--seeds", type=int, default=3, metavar="K", help="retraining seeds per reward (default: 3)")
-    reward.add_argument("--demos", nargs="+", metavar="F.mcap", help="expert demos for the reference return and EPIC's coverage (default: those the reward was learned from)")
+    reward.add_argument(
+        "--demos",
+        nargs="+",
+        metavar="F.mcap",
+        help="expert demos for the reference return and EPIC's coverage (default: those the reward was learned from)",
+    )
     reward.add_argument("--jobs", type=int, default=2, metavar="J", help="retrainings run side by side (default: 2)")
-    reward.add_argument("--seed", type=int, default=0, metavar="S", help="first retraining seed; also seeds the controls and EPIC sampling (default: 0)")
+    reward.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        metavar="S",
+        help="first retraining seed; also seeds the controls and EPIC sampling (default: 0)",
+    )
     reward.add_argument("--out", metavar="DIR", help="where the evaluation goes (default: RUN_DIR/eval-reward)")
     reward.add_argument("--json", action="store_true", help="print one JSON object")
     reward.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -598,13 +813,17 @@ def build_parser() -> argparse.ArgumentParser:
     demo = commands.add_parser(
         "demo",
         help="the whole chain on the bundled data, with one report",
-        description="Bundled demos → behavioural cloning and DAgger (CartPole-v1) → MaxEnt IRL on a gridworld and guided cost "
-        "learning on fixed-horizon CartPole → PPO from scratch on the recovered reward → eval policy and eval reward, offline, "
-        "in about three minutes on 2 cores; writes DIR/report.md with every result and plot.",
+        description="Bundled demos → behavioural cloning and DAgger (CartPole-v1) → MaxEnt IRL on a gridworld and guided "
+        "cost learning on fixed-horizon CartPole → PPO from scratch on the recovered reward → eval policy and eval reward, "
+        "offline, in about three minutes on 2 cores; writes DIR/report.md with every result and plot.",
     )
     demo.add_argument("--out", default="demo-output", metavar="DIR", help="output directory (default: demo-output)")
     demo.add_argument("--datasets", metavar="DIR", help="where the bundled datasets are (default: the repository's datasets/)")
-    demo.add_argument("--quick", action="store_true", help="a one-minute smoke run: every training cut short (its learning results mean nothing)")
+    demo.add_argument(
+        "--quick",
+        action="store_true",
+        help="a one-minute smoke run: every training cut short (its learning results mean nothing)",
+    )
     demo.add_argument("--json", action="store_true", help="print one JSON object")
     demo.add_argument("--quiet", action="store_true", help="no progress output")
     demo.set_defaults(handler=cmd_demo)
@@ -647,11 +866,16 @@ def _one_line(text: str) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    subcommand = getattr(args, "algorithm", None) or getattr(args, "target", None)
+    args.command_key = f"{args.command} {subcommand}" if subcommand else args.command
     handler: Callable[[argparse.Namespace], int] = args.handler
     _sigterm_as_interrupt()
     try:
         _apply_limits(args.limit)
         return handler(args)
+    except ConfigError as error:
+        print("error: " + _one_line(_flag_message(error, args.command_key)), file=sys.stderr)
+        return EXIT_ERROR
     except ImitationError as error:
         print("error: " + _one_line(str(error)), file=sys.stderr)
         return EXIT_ERROR
@@ -661,7 +885,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("error: " + _one_line(str(os_error(error.filename or "output", error, "cannot read or write"))), file=sys.stderr)
         return EXIT_ERROR
     except MemoryError:
-        print("error: out of memory; train on fewer demo files, with a smaller --batch-size or network, or on a machine with more memory", file=sys.stderr)
+        print(
+            "error: out of memory; train on fewer demo files, with a smaller --batch-size or network, or on a machine with "
+            "more memory",
+            file=sys.stderr,
+        )
         return EXIT_ERROR
     except KeyboardInterrupt as interrupt:
         # A trainer stopped at a checkpoint says where it is and how to resume.

@@ -5,7 +5,7 @@ lr 1e-3, batch 256) to the same 49,527 (s, a) pairs of the CartPole expert in
 shared/testdata/experts/expert_cartpole.npz, and report:
 
 - training samples/s: epochs × transitions trained on / wall time of the training call alone
-  (ours: `train_bc`; theirs: `BC.train(n_epochs=...)`), policy and data building excluded, the
+  (ours: `BehaviouralCloning(...)` and `fit` on it; theirs: `BC.train(n_epochs=...)`), policy and data building excluded, the
   median of --repeats fresh processes with one torch/OpenMP thread. Each process makes two
   identical calls, each with a fresh policy: "cold" is the first, which pays one-time lazy
   initialisation (ours: about 1 s in the first `torch.optim.Adam(...)`, which theirs pays while
@@ -148,12 +148,13 @@ def _our_transitions(path: str) -> Any:
 
 
 def our_worker(spec: dict[str, Any]) -> dict[str, Any]:
-    """Build the data and, per run, the policy (untimed); time each train_bc; evaluate the last."""
+    """Build the data and, per run, the policy (untimed); time each BC training (the learner,
+    whose Adam is built in it, and `fit`); evaluate the last."""
     # Imported here, in the worker process only: the driver stays free of torch and of our package.
     import gymnasium as gym
     import torch
 
-    from imitation.algorithms.bc import BCConfig, policy_options, train_bc
+    from imitation.algorithms.bc import BCConfig, BehaviouralCloning, fit, policy_options
     from imitation.evaluation.policy import evaluate_policy
     from imitation.policies import SingleObservationPolicy, make_policy
 
@@ -178,11 +179,12 @@ def our_worker(spec: dict[str, Any]) -> dict[str, Any]:
         torch.manual_seed(spec["seed"])
         policy = make_policy(env.observation_space, env.action_space, **policy_options(config))
         started = time.perf_counter()
-        result = train_bc(policy, train, None, config, progress=False)
+        learner = BehaviouralCloning(policy, train, None, config)
+        fit(learner)
         speeds.append(epochs * len(train) / (time.perf_counter() - started))
     out: dict[str, Any] = {"samples_per_second": speeds}
     if spec["eval_episodes"] > 0:
-        out["returns"] = evaluate_policy(SingleObservationPolicy(result.policy), env, episodes=spec["eval_episodes"], seed=0)["returns"]
+        out["returns"] = evaluate_policy(SingleObservationPolicy(learner.policy), env, episodes=spec["eval_episodes"], seed=0)["returns"]
     env.close()
     return out
 

@@ -18,14 +18,14 @@ Pendulum episodes also always last 200 steps, so every episode costs exactly 200
 sides and the label axes line up.
 
 - BC: for each budget of n expert episodes (collect_round with β = 1, i.e. pure expert rollouts),
-  a fresh policy is trained with train_bc on their 200·n labelled steps.
-- DAgger: train_dagger with one episode per round and the exponential schedule β_i = 0.5^(i-1):
+  a fresh policy is trained with BC (`BehaviouralCloning`, run to its end) on their 200·n labelled steps.
+- DAgger: the `DAgger` learner with one episode per round and the exponential schedule β_i = 0.5^(i-1):
   round 1 is a pure expert rollout (the seed set), later rounds mostly follow the learner. After
   each round it records the cumulative expert labels and the learner's return.
 - Both use the same policy (64×64 tanh MLP, normalised observations) and the same BCConfig.
   Neither holds out a validation episode, because with one or two episodes that would discard
   half the labels; early stopping therefore watches the training loss. BC trains from scratch at
-  each budget; DAgger warm-starts each round from the previous learner, as train_dagger does.
+  each budget; DAgger warm-starts each round from the previous learner, as the `DAgger` learner does.
 - Every policy, the expert and a uniform-random policy are evaluated deterministically on the
   same 10 episodes (reset seeds 10_000 …). Normalised return = (R - R_random) / (R_expert - R_random).
 
@@ -47,13 +47,14 @@ import torch
 BENCH = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH.parent))  # run from a checkout without installing the package
 
-from imitation.algorithms.bc import BCConfig, policy_options, train_bc  # noqa: E402
-from imitation.algorithms.dagger import DAggerConfig, collect_round, train_dagger  # noqa: E402
+from imitation.algorithms.bc import BCConfig, BehaviouralCloning, fit, policy_options  # noqa: E402
+from imitation.algorithms.dagger import DAgger, DAggerConfig, collect_round  # noqa: E402
 from imitation.data.loader import transitions_to_torch  # noqa: E402
 from imitation.data.types import episodes_to_transitions  # noqa: E402
 from imitation.envs.make import make_env  # noqa: E402
 from imitation.evaluation.policy import evaluate_policy  # noqa: E402
 from imitation.experts.scripted import scripted_expert  # noqa: E402
+from imitation.jobs.loop import run as run_learner  # noqa: E402
 from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy  # noqa: E402
 
 ENV_ID = "Pendulum-v1"
@@ -90,7 +91,7 @@ def mean_return(policy: Callable[[Any], Any], env: Any) -> float:
 def bc_curve(env: Any, expert: Callable[[Any], Any], seed: int, budgets: tuple[int, ...]) -> Curve:
     """BC from scratch on the first n of one set of expert episodes, for each n in `budgets`."""
     rng = np.random.default_rng(seed)
-    # Reset seeds 50_000 + 100_000·seed … stay clear of train_dagger's (100_000·seed + 1_000·round)
+    # Reset seeds 50_000 + 100_000·seed … stay clear of DAgger's (100_000·seed + 1_000·round)
     # and of the evaluation seeds.
     episodes = collect_round(
         env, None, expert, beta=1.0, episodes=max(budgets), seed=seed * 100_000 + 50_000, rng=rng, metadata={"source": "expert"}
@@ -100,21 +101,23 @@ def bc_curve(env: Any, expert: Callable[[Any], Any], seed: int, budgets: tuple[i
         config = bc_config(seed)
         policy = make_policy(env.observation_space, env.action_space, **policy_options(config))
         train = transitions_to_torch(episodes_to_transitions(episodes[:n], next_observations=False))
-        result = train_bc(policy, train, None, config, progress=False)
-        curve.append((len(train), mean_return(SingleObservationPolicy(result.policy), env)))
+        learner = BehaviouralCloning(policy, train, None, config)
+        fit(learner)
+        curve.append((len(train), mean_return(SingleObservationPolicy(learner.policy), env)))
     return curve
 
 
 def dagger_curve(env: Any, expert: Callable[[Any], Any], seed: int, rounds: int) -> Curve:
-    """train_dagger, one episode a round; the learner's return after each round."""
+    """DAgger, one episode a round; the learner's return after each round."""
     config = DAggerConfig(rounds=rounds, episodes_per_round=1, beta_schedule="exponential", beta_decay=0.5, seed=seed, bc=bc_config(seed))
     policy: ActorCritic = make_policy(env.observation_space, env.action_space, **policy_options(config.bc))
     with tempfile.TemporaryDirectory(prefix="dagger-rounds-") as round_dir:
-        result = train_dagger(
+        dagger = DAgger(
             env, expert, policy, config, round_dir=round_dir, env_id=ENV_ID,
             evaluate=lambda learner: mean_return(SingleObservationPolicy(learner), env),
         )
-    return [(int(row["expert_labels"]), row["return"]) for row in result.history]
+        rows = run_learner(dagger)
+    return [(int(row["expert_labels"]), row["return"]) for row in rows]
 
 
 def first_reaching(labels: list[int], normalised: np.ndarray) -> int | None:

@@ -17,7 +17,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from imitation.data.store import DemoWriter
+from imitation.data.mcap.writer import DemoWriter
 from imitation.data.types import Episode
 
 MODES = {"1 MiB chunks": {}, "flush per episode": {"flush_episodes": True}, "fsync per episode": {"durable": True}}

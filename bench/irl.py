@@ -40,17 +40,18 @@ import numpy as np
 import torch
 
 from bc import BENCH, ROOT, _peer_env, ensure_imitation_venv
-from imitation.algorithms.gcl import GCLConfig, default_steps
-from imitation.algorithms.maxent_irl import Dynamics, MaxEntIRLConfig, state_visitation, train_maxent_irl
-from imitation.algorithms.ppo import PPOConfig, learned_reward_ppo_defaults
-from imitation.data.store import DemoDataset
+from imitation.algorithms.gcl import GCLConfig
+from imitation.algorithms.maxent_irl import MaxEntIRL, MaxEntIRLConfig
+from imitation.data.dataset import DemoDataset
 from imitation.envs.make import make_env
 from imitation.envs.tabular import TabularMDP
-from imitation.evaluation.reward import DEFAULT_RETRAIN_STEPS
+from imitation.envs.tabular_planning import Dynamics, soft_optimal_policy, state_visitation
 from imitation.evaluation.policy import evaluate_policy
-from imitation.experts.tabular import soft_optimal_policy
+from imitation.jobs.irl import gcl_job
+from imitation.jobs.loop import run as run_learner
+from imitation.jobs.ppo import ppo_job
+from imitation.jobs.presets import ppo_config, preset
 from imitation.rewards import make_reward_model
-from imitation.training import gcl_job, ppo_job
 
 CASES = (
     {"width": 7, "height": 4, "horizon": 40, "iterations": 300, "repeats": 5, "convergence_max_iter": 20_000},
@@ -59,7 +60,7 @@ CASES = (
 LEARNING_RATE = 0.1
 # env id → (demo file, GCL steps, retraining steps): the defaults of `train irl --method gcl` and `eval reward`.
 CONTINUOUS = {
-    env_id: (demos, default_steps(env_id), DEFAULT_RETRAIN_STEPS[env_id])
+    env_id: (demos, preset(env_id).gcl_steps, preset(env_id).retrain_steps)
     for env_id, demos in (("imitation/CartPoleFixedHorizon-v0", "CartPoleFixedHorizon-v0.mcap"), ("Pendulum-v1", "Pendulum-v1.mcap"))
 }
 OUR_CONVERGENCE_CAP = 20_000
@@ -94,15 +95,20 @@ def run_ours(mdp: TabularMDP, iterations: int, repeats: int, count_convergence: 
         torch.manual_seed(0)
         return make_reward_model(gym.spaces.Discrete(mdp.n_states), gym.spaces.Discrete(mdp.n_actions), feature_table=mdp.features, hidden_sizes=[])
 
-    train_maxent_irl(mdp, expert, fresh_model(), MaxEntIRLConfig(iterations=3, tolerance=0.0))  # warm-up
+    def train(config: MaxEntIRLConfig) -> list[dict[str, float]]:
+        """The learner built (its Adam too) and run to its end: the rows of its iterations."""
+        return run_learner(MaxEntIRL(mdp, expert, fresh_model(), config))
+
+    train(MaxEntIRLConfig(iterations=3, tolerance=0.0))  # warm-up
     timings = []
     for _ in range(repeats):
+        config = MaxEntIRLConfig(iterations=iterations, tolerance=0.0, learning_rate=LEARNING_RATE)
         started = time.perf_counter()
-        train_maxent_irl(mdp, expert, fresh_model(), MaxEntIRLConfig(iterations=iterations, tolerance=0.0, learning_rate=LEARNING_RATE))
+        train(config)
         timings.append((time.perf_counter() - started) / iterations)
     result = {"seconds_per_iteration": float(np.median(timings)), "iterations_to_1e-3": None, "final_linf": None}
     if count_convergence:
-        history = train_maxent_irl(mdp, expert, fresh_model(), MaxEntIRLConfig(iterations=OUR_CONVERGENCE_CAP, tolerance=1e-3, learning_rate=LEARNING_RATE)).history
+        history = train(MaxEntIRLConfig(iterations=OUR_CONVERGENCE_CAP, tolerance=1e-3, learning_rate=LEARNING_RATE))
         result["final_linf"] = history[-1]["occupancy_error"]
         # Our loop checks the error before each update, as imitation's does: the count is the
         # number of updates taken when the bound is first met.
@@ -114,12 +120,10 @@ def run_continuous(env_id: str, seed: int, workdir: Path) -> dict:
     demos, irl_steps, retrain_steps = CONTINUOUS[env_id]
     demos = str(ROOT / "datasets" / demos)
     started = time.perf_counter()
-    gcl_job([demos], env_id, GCLConfig(seed=seed), PPOConfig(env_id=env_id, total_steps=irl_steps, seed=seed, **learned_reward_ppo_defaults(env_id)),
-            workdir / "gcl", progress=False)
+    gcl_job([demos], env_id, GCLConfig(seed=seed), ppo_config(env_id, learned_reward=True, total_steps=irl_steps, seed=seed), workdir / "gcl", progress=False)
     irl_seconds = time.perf_counter() - started
     retrained = ppo_job(
-        PPOConfig(env_id=env_id, total_steps=retrain_steps, seed=seed, reward_run=str(workdir / "gcl"), **learned_reward_ppo_defaults(env_id)),
-        workdir / "ppo", progress=False,
+        ppo_config(env_id, learned_reward=True, total_steps=retrain_steps, seed=seed), workdir / "ppo", reward_run=str(workdir / "gcl"), progress=False,
     )
     env = make_env(env_id)
     env.action_space.seed(0)

@@ -5,7 +5,7 @@ For each environment, with rl-baselines3-zoo's tuned hyperparameters on both sid
 - wall time until the mean return of the last 20 finished training episodes first reaches the
   target (CartPole-v1: 475, Pendulum-v1: -250), checked after every update on both sides, and
   env-steps/s over the whole fixed-length run (100k steps CartPole, 200k Pendulum);
-- our time per env step split into env stepping, rollout inference and updates (train_ppo's own
+- our time per env step split into env stepping, rollout inference and updates (the PPO learner's own
   timers), each beside its floor: stepping the same vector env with random actions, no-grad
   forward passes of the same actor and critic, and a bare forward/backward/Adam loop of the same
   count and minibatch size.

@@ -2,7 +2,7 @@
 
     python bench/ppo_worker.py {ours,sb3,floors} SPEC.json RESULT.json
 
-`ours` trains with imitation's train_ppo, `sb3` with stable-baselines3's PPO (run it with the
+`ours` trains with imitation's PPO learner (run in the shared loop), `sb3` with stable-baselines3's PPO (run it with the
 interpreter of bench/.venv-sb3), `floors` times the bare loops that our three parts are compared
 with. SPEC holds the rl-baselines3-zoo hyperparameters and the run's settings; both sides
 translate the same zoo values here, so the translation and its gaps are in one place.
@@ -34,7 +34,7 @@ def ours_config_kwargs(zoo: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
     """PPOConfig keyword arguments for the zoo settings, and what PPOConfig cannot express.
 
     Everything the zoo leaves at SB3's default is set to that default explicitly, so that no
-    value of ours (e.g. ppo_defaults' observation normalisation for Pendulum) differs silently."""
+    value of ours (e.g. the presets' observation normalisation for Pendulum) differs silently."""
     learning_rate, anneal_lr = parse_zoo_value(zoo["learning_rate"])
     clip_range, clip_annealed = parse_zoo_value(zoo["clip_range"])
     gaps = []
@@ -105,7 +105,8 @@ def run_ours(spec: dict[str, Any]) -> dict[str, Any]:
     """Train with imitation's PPO; marks from the per-update log rows."""
     import torch._dynamo  # noqa: F401  (see _PREIMPORT)
 
-    from imitation.algorithms.ppo import PPOConfig, train_ppo
+    from imitation.algorithms.ppo import PPO, PPOConfig
+    from imitation.jobs.loop import run
 
     kwargs, _ = ours_config_kwargs(spec["zoo"])
     config = PPOConfig(
@@ -113,13 +114,17 @@ def run_ours(spec: dict[str, Any]) -> dict[str, Any]:
     )
     marks: list[list[float]] = []
     started = time.perf_counter()
-    result = train_ppo(config, log=lambda row: marks.append([time.perf_counter() - started, row["step"], row["return"]]), progress=False)
-    seconds = time.perf_counter() - started
-    last = result.history[-1]
+    ppo = PPO(config)  # builds the vector env and the model: inside the clock, as SB3's side
+    try:
+        rows = run(ppo, log=lambda row: marks.append([time.perf_counter() - started, row["step"], row["return"]]))
+        seconds = time.perf_counter() - started
+    finally:
+        ppo.close()
+    last = rows[-1]
     return {
         "seconds": seconds,
-        "steps": result.steps,
-        "steps_per_second": result.steps / seconds,
+        "steps": ppo.global_step,
+        "steps_per_second": ppo.global_step / seconds,
         "final_return": last["return"],
         "seconds_env": last["seconds_env"],
         "seconds_inference": last["seconds_inference"],

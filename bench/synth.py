@@ -76,7 +76,7 @@ def write_ours(rollouts: Rollouts, path: Path, compression: str = "zstd") -> flo
     """Write with `write_episodes`; returns the seconds it took (Episode objects are views, built inside)."""
     import gymnasium as gym
 
-    from imitation.data.store import write_episodes
+    from imitation.data.mcap.writer import write_episodes
     from imitation.data.types import Episode
 
     def episodes() -> Iterator[Episode]:

@@ -1,33 +1,25 @@
-"""Checkpoints that let an interrupted training run continue: what trainers save, and how Ctrl-C
-stops them at a point where the state is whole.
+"""The pieces learners build their checkpoints from, and restore them with.
 
 A checkpoint is a pair (tensors, state): tensors go to a safetensors file, everything else
-(counters, logs, optimiser settings, random-generator positions) to JSON; nothing is pickled.
-The run directory writes them (`imitation.runs.RunWriter.save_checkpoint`); trainers build and
-restore them with the helpers here:
+(counters, optimiser settings, random-generator positions) to JSON; nothing is pickled. Each
+learner's `state_dict()` assembles one from these helpers and `load_state_dict()` reads it back;
+the training loop (`imitation.jobs.loop`) decides when to save and resume:
 
 - `prefixed` / `unprefixed`: one part's tensors (a network, a pool of samples) among the rest;
 - `optimizer_checkpoint` / `restore_optimizer`: an optimiser's per-parameter tensors and its
   parameter groups;
 - `rng_checkpoint` / `restore_rng`: torch's CPU generator and numpy's global one;
-- `Checkpointing`: what a trainer is handed: where to save, how often, and what to resume from;
-- `StopAtBoundary`: defers Ctrl-C (SIGINT) to the end of the current update or epoch, where the
-  trainer saves a checkpoint and raises `TrainingInterrupted`; a second Ctrl-C stops at once;
-- `Checkpointable`: a hook with state of its own inside a trainer (GCL's reward learner inside
-  PPO), which the trainer saves and restores with its own, in the same checkpoint.
-
-Trainers that checkpoint, and where: PPO after an update (with GCL's reward learner when it is
-the rollout hook), BC after an epoch, DAgger after a round, tabular MaxEnt/MCE IRL after an
-iteration.
+- `restoring`: turns what a checkpoint that does not fit raises into one line;
+- `checked_counter`: a counter read back must lie in the run's range.
 """
 
 from __future__ import annotations
 
 import json
-import signal
-import threading
-from dataclasses import dataclass
-from typing import Any, Callable, Protocol, runtime_checkable
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
 
 import numpy as np
 import torch
@@ -38,56 +30,15 @@ Tensors = dict[str, torch.Tensor]
 CheckpointData = tuple[Tensors, dict[str, Any]]
 
 
-class TrainingInterrupted(KeyboardInterrupt):
-    """Ctrl-C stopped training after a checkpoint was saved; the message says how to resume."""
-
-
-@dataclass
-class Checkpointing:
-    """`save(tensors, state)` every `every` updates or epochs (None: every tenth of the run) and
-    when interrupted; `resume`, when given, is the checkpoint to continue from."""
-
-    save: Callable[[Tensors, dict[str, Any]], None]
-    every: int | None = None
-    resume: CheckpointData | None = None
-
-    def interval(self, total: int) -> int:
-        return self.every if self.every is not None else max(1, total // 10)
-
-
-class StopAtBoundary:
-    """Within the block, Ctrl-C only sets `requested`; the trainer checks it between updates.
-    The first Ctrl-C restores the previous handler, so a second one interrupts immediately.
-    Outside the main thread (where signal handlers cannot be set) it does nothing."""
-
-    def __init__(self, *, enabled: bool = True) -> None:
-        self.requested = False
-        self._enabled = enabled
-        self._previous: Any = None
-        self._active = False
-
-    def _handle(self, signum: int, frame: Any) -> None:
-        self.requested = True
-        signal.signal(signal.SIGINT, self._previous)
-
-    def __enter__(self) -> StopAtBoundary:
-        if self._enabled and threading.current_thread() is threading.main_thread():
-            self._previous = signal.signal(signal.SIGINT, self._handle)
-            self._active = True
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        if self._active:
-            signal.signal(signal.SIGINT, self._previous)
-
-
-@runtime_checkable
-class Checkpointable(Protocol):
-    """State a trainer does not own but must save to resume exactly (see the module docstring)."""
-
-    def checkpoint(self) -> CheckpointData: ...
-
-    def restore(self, checkpoint: CheckpointData) -> None: ...
+@contextmanager
+def restoring(what: str) -> Iterator[None]:
+    """Around a `load_state_dict`: a checkpoint of another run (edited, damaged, another
+    configuration) fails as one line naming `what` kind of run it does not fit."""
+    try:
+        yield
+    except (KeyError, TypeError, ValueError, RuntimeError) as error:
+        detail = (str(error).splitlines() or [""])[0]
+        raise ImitationError(f"the checkpoint does not fit this {what} run ({type(error).__name__}: {detail})") from None
 
 
 def prefixed(prefix: str, tensors: Tensors) -> Tensors:
@@ -119,9 +70,13 @@ def restore_optimizer(optimizer: torch.optim.Optimizer, tensors: Tensors, state:
 
 def rng_checkpoint() -> CheckpointData:
     """The positions of torch's CPU generator and numpy's global generator."""
-    kind, keys, position, has_gauss, cached = np.random.get_state()
+    state = np.random.get_state(legacy=True)  # the default; numpy's stub types the call without it as the dict form
+    assert isinstance(state, tuple)  # the legacy form: the global generator is an MT19937
+    kind, keys, position, has_gauss, cached = state
     tensors = {"rng.torch": torch.get_rng_state(), "rng.numpy": torch.from_numpy(keys.astype(np.int64))}
-    return tensors, {"numpy": {"kind": kind, "position": int(position), "has_gauss": int(has_gauss), "cached_gaussian": float(cached)}}
+    return tensors, {
+        "numpy": {"kind": kind, "position": int(position), "has_gauss": int(has_gauss), "cached_gaussian": float(cached)}
+    }
 
 
 def restore_rng(tensors: Tensors, state: dict[str, Any]) -> None:
@@ -135,7 +90,10 @@ def checked_counter(value: int, name: str, first: int, last: int) -> int:
     """A counter read from a checkpoint (the next epoch, round, update), which must lie in
     [first, last]: a damaged or edited checkpoint must not make a run loop for ever."""
     if not first <= value <= last:
-        raise ImitationError(f"the checkpoint's {name} is {value}, outside {first}..{last} for this run: damaged or edited; start again without --resume")
+        raise ImitationError(
+            f"the checkpoint's {name} is {value}, outside {first}..{last} for this run: damaged or edited; start again "
+            "without --resume"
+        )
     return value
 
 
@@ -147,3 +105,20 @@ def snapshot(tensors: Tensors, state: dict[str, Any]) -> CheckpointData:
 def floats(row: dict[str, Any]) -> dict[str, float]:
     """A logged row back from JSON, where non-finite numbers were written as null."""
     return {key: float("nan") if value is None else float(value) for key, value in row.items()}
+
+
+class TrainingClock:
+    """Seconds of training across resumes: those a checkpoint recorded plus this process's,
+    counted from `start()` (the first step)."""
+
+    def __init__(self) -> None:
+        self.before = 0.0
+        self._started: float | None = None
+
+    def start(self) -> None:
+        if self._started is None:
+            self._started = time.perf_counter()
+
+    @property
+    def seconds(self) -> float:
+        return self.before + (time.perf_counter() - self._started if self._started is not None else 0.0)

@@ -57,7 +57,10 @@ def limits_from_environment() -> None:
 
 def over_limit(what: str, amount: int, name: str) -> ImitationError:
     """The one-line error for `amount` above limit `name`, saying how to raise it."""
-    return ImitationError(f"{what}: {amount} is more than the limit {name}={getattr(LIMITS, name)} (raise it with `imitation --limit {name}=N` if the data is real)")
+    return ImitationError(
+        f"{what}: {amount} is more than the limit {name}={getattr(LIMITS, name)} (raise it with `imitation --limit {name}=N` "
+        "if the data is real)"
+    )
 
 
 def check_zip_member(file: str | os.PathLike, info: zipfile.ZipInfo) -> None:
@@ -65,6 +68,8 @@ def check_zip_member(file: str | os.PathLike, info: zipfile.ZipInfo) -> None:
     small crafted zip (an SB3 model, an npz) must not make the reader allocate gigabytes."""
     allowed = max(FREE_EXPANSION_BYTES, LIMITS.expansion_ratio * max(info.compress_size, 1))
     if info.compress_size > os.path.getsize(file):
-        raise ImitationError(f"{file}: zip member {info.filename[:100]!r} is damaged (it claims more bytes than the archive has)")
+        raise ImitationError(
+            f"{file}: zip member {info.filename[:100]!r} is damaged (it claims more bytes than the archive has)"
+        )
     if info.file_size > allowed:
         raise over_limit(f"{file}: zip member {info.filename[:100]!r}: declared bytes", info.file_size, "expansion_ratio")

@@ -23,9 +23,10 @@ import re
 import shutil
 import stat
 import time
-from contextlib import contextmanager
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
 from pathlib import Path
-from typing import Any, BinaryIO, Iterator
+from typing import Any, BinaryIO
 
 from imitation.errors import ImitationError, WriteError
 
@@ -97,7 +98,10 @@ def check_target(path: str | os.PathLike, *, directory: bool = False, flag: str 
     wanted = stat.S_ISDIR(mode) if directory else stat.S_ISREG(mode)
     if not wanted:
         needed = "a directory" if directory else "a regular file"
-        raise ImitationError(f"{flag} {_printable(path)}: is {_kind(mode)}; it must be {needed} or a new path (remove it, or choose another name)")
+        raise ImitationError(
+            f"{flag} {_printable(path)}: is {_kind(mode)}; it must be {needed} or a new path (remove it, or choose another "
+            "name)"
+        )
 
 
 def create_exclusive(path: str | os.PathLike, *, target: str | os.PathLike | None = None) -> BinaryIO:
@@ -106,7 +110,9 @@ def create_exclusive(path: str | os.PathLike, *, target: str | os.PathLike | Non
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
     except FileExistsError:
-        raise ImitationError(f"{_printable(path)}: exists; it was not made by this run (remove it, or choose another name)") from None
+        raise ImitationError(
+            f"{_printable(path)}: exists; it was not made by this run (remove it, or choose another name)"
+        ) from None
     except OSError as error:
         raise os_error(target if target is not None else path, error) from None
     return os.fdopen(fd, "wb")
@@ -164,10 +170,8 @@ class OutputLock:
     def release(self) -> None:
         if self._fd is None:
             return
-        try:
+        with suppress(FileNotFoundError):
             os.unlink(self.path)
-        except FileNotFoundError:
-            pass
         os.close(self._fd)
         self._fd = None
 

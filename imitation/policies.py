@@ -1,4 +1,5 @@
-"""Actor-critic MLP policies shared by PPO, BC and DAgger, and their save/load.
+"""Actor-critic MLP policies shared by PPO, BC and DAgger, and their save/load (softmax and
+Gaussian policies: docs/THEORY.md §2.3–2.4).
 
 Three policy heads, chosen by the action space:
 
@@ -23,7 +24,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -37,12 +38,18 @@ from imitation.limits import LIMITS, over_limit
 from imitation.runs import read_run
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
+_SCALAR_SHAPE = torch.Size()  # the default sample_shape of Distribution.sample (immutable)
 
 
 class RunningMeanStd(nn.Module):
     """Running mean and variance of a stream of batches (Chan et al.'s parallel update).
 
     Kept as buffers so they are saved with the model and follow it to its device."""
+
+    # Buffers (register_buffer): declared for the type checker, which otherwise sees nn.Module.__getattr__.
+    mean: torch.Tensor
+    var: torch.Tensor
+    count: torch.Tensor
 
     def __init__(self, shape: tuple[int, ...], epsilon: float = 1e-4) -> None:
         super().__init__()
@@ -72,7 +79,9 @@ class RunningMeanStd(nn.Module):
             delta = batch_mean - self.mean
             total = self.count + batch_count
             self.mean += delta * batch_count / total
-            self.var.copy_((self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total)
+            self.var.copy_(
+                (self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total
+            )
             self.count.copy_(total)
 
     def normalize(self, x: torch.Tensor, clip: float = 10.0) -> torch.Tensor:
@@ -102,17 +111,28 @@ class PolicyConfig:
             raise TypeError(f"the policy config is a {type(data).__name__}, not an object")
         config = PolicyConfig(**data)
         check_layer_widths(config.hidden_sizes)
-        if not (isinstance(config.activation, str) and isinstance(config.shared_trunk, bool) and isinstance(config.normalize_observations, bool)):
+        if not (
+            isinstance(config.activation, str)
+            and isinstance(config.shared_trunk, bool)
+            and isinstance(config.normalize_observations, bool)
+        ):
             raise TypeError("activation must be a name, shared_trunk and normalize_observations true or false")
-        if isinstance(config.log_std_init, bool) or not isinstance(config.log_std_init, (int, float)) or not math.isfinite(config.log_std_init):
+        if (
+            isinstance(config.log_std_init, bool)
+            or not isinstance(config.log_std_init, (int, float))
+            or not math.isfinite(config.log_std_init)
+        ):
             raise ValueError(f"log_std_init must be a finite number, got {config.log_std_init!r}")
         return config
 
 
 def check_layer_widths(hidden_sizes: Any) -> None:
     """Hidden-layer widths read from a file: a list of at most 64 widths in [1, 2^20]."""
-    if not (isinstance(hidden_sizes, list) and len(hidden_sizes) <= 64
-            and all(isinstance(h, int) and not isinstance(h, bool) and 1 <= h <= 2**20 for h in hidden_sizes)):
+    if not (
+        isinstance(hidden_sizes, list)
+        and len(hidden_sizes) <= 64
+        and all(isinstance(h, int) and not isinstance(h, bool) and 1 <= h <= 2**20 for h in hidden_sizes)
+    ):
         raise ValueError(f"hidden_sizes must be a list of layer widths in [1, 2^20], got {str(hidden_sizes)[:80]}")
 
 
@@ -127,7 +147,9 @@ def check_weights_cover(path: Any, planned: int, weights: dict[str, torch.Tensor
     parameter must be in the file, so a config asking for more is wrong (or crafted)."""
     held = sum(tensor.numel() for tensor in weights.values())
     if planned > held:
-        raise ImitationError(f"{path}: its config describes a network of at least {planned} weights, but its weights file holds {held} numbers")
+        raise ImitationError(
+            f"{path}: its config describes a network of at least {planned} weights, but its weights file holds {held} numbers"
+        )
 
 
 def _layer(inputs: int, outputs: int, gain: float) -> nn.Linear:
@@ -167,19 +189,20 @@ class MultiCategorical(Distribution):
     def mode(self) -> torch.Tensor:
         return torch.stack([part.probs.argmax(-1) for part in self.parts], -1)
 
-    def sample(self, sample_shape: torch.Size = torch.Size()) -> torch.Tensor:
+    def sample(self, sample_shape: torch.Size | list[int] | tuple[int, ...] = _SCALAR_SHAPE) -> torch.Tensor:
         return torch.stack([part.sample(sample_shape) for part in self.parts], -1)
 
+    # sum() over the (non-empty) parts is a Tensor; typeshed's sum() also allows its start value 0.
     def log_prob(self, value: torch.Tensor) -> torch.Tensor:
-        return sum(part.log_prob(value[..., i]) for i, part in enumerate(self.parts))
+        return cast(torch.Tensor, sum(part.log_prob(value[..., i]) for i, part in enumerate(self.parts)))
 
     def entropy(self) -> torch.Tensor:
-        return sum(part.entropy() for part in self.parts)
+        return cast(torch.Tensor, sum(part.entropy() for part in self.parts))
 
 
 @register_kl(MultiCategorical, MultiCategorical)
 def _multi_categorical_kl(p: MultiCategorical, q: MultiCategorical) -> torch.Tensor:
-    return sum(kl_divergence(a, b) for a, b in zip(p.parts, q.parts))
+    return cast(torch.Tensor, sum(kl_divergence(a, b) for a, b in zip(p.parts, q.parts)))
 
 
 def action_logits_size(space: gym.Space) -> int:
@@ -198,11 +221,18 @@ def _check_size(inputs: int, hidden_sizes: list[int], outputs: int, *, shared: b
     trunk = sum((a + 1) * b for a, b in zip(widths, widths[1:]))
     parameters = trunk * (1 if shared else 2) + (widths[-1] + 1) * (outputs + 1)
     if parameters > LIMITS.policy_parameters:
-        raise over_limit(f"policy parameters ({inputs} inputs, hidden {hidden_sizes}, {outputs} outputs)", parameters, "policy_parameters")
+        raise over_limit(
+            f"policy parameters ({inputs} inputs, hidden {hidden_sizes}, {outputs} outputs)", parameters, "policy_parameters"
+        )
 
 
 class ActorCritic(nn.Module):
     """An MLP actor (categorical, multi-categorical or Gaussian head) and critic, with separate or shared trunks."""
+
+    # Buffers (register_buffer) of MultiDiscrete and Box actions respectively, declared for the type checker.
+    action_start: torch.Tensor
+    action_low: torch.Tensor
+    action_high: torch.Tensor
 
     def __init__(self, config: PolicyConfig) -> None:
         super().__init__()
@@ -213,8 +243,12 @@ class ActorCritic(nn.Module):
         self.action_space = space_from_json(config.action_space)
         obs_size = observation_size(self.observation_space)
         hidden = config.hidden_sizes[-1] if config.hidden_sizes else obs_size
-        known = isinstance(self.action_space, (gym.spaces.Discrete, gym.spaces.MultiDiscrete, gym.spaces.Box))  # others are refused below
-        _check_size(obs_size, config.hidden_sizes, action_logits_size(self.action_space) if known else 0, shared=config.shared_trunk)
+        known = isinstance(
+            self.action_space, (gym.spaces.Discrete, gym.spaces.MultiDiscrete, gym.spaces.Box)
+        )  # others are refused below
+        _check_size(
+            obs_size, config.hidden_sizes, action_logits_size(self.action_space) if known else 0, shared=config.shared_trunk
+        )
         self.obs_rms = RunningMeanStd((obs_size,)) if config.normalize_observations else None
         self.actor_trunk = _mlp(obs_size, config.hidden_sizes, config.activation)
         self.critic_trunk = self.actor_trunk if config.shared_trunk else _mlp(obs_size, config.hidden_sizes, config.activation)
@@ -226,7 +260,9 @@ class ActorCritic(nn.Module):
             self.action_head = _layer(hidden, int(self.action_space.n), 0.01)
         elif isinstance(self.action_space, gym.spaces.MultiDiscrete):
             if self.action_space.nvec.ndim != 1:
-                raise ImitationError(f"policies take MultiDiscrete actions of one dimension, not of shape {self.action_space.nvec.shape}")
+                raise ImitationError(
+                    f"policies take MultiDiscrete actions of one dimension, not of shape {self.action_space.nvec.shape}"
+                )
             self.is_continuous = False
             self.action_sizes = [int(n) for n in self.action_space.nvec]
             self.action_head = _layer(hidden, sum(self.action_sizes), 0.01)
@@ -239,7 +275,9 @@ class ActorCritic(nn.Module):
             self.register_buffer("action_low", torch.as_tensor(self.action_space.low, dtype=torch.float32).reshape(-1))
             self.register_buffer("action_high", torch.as_tensor(self.action_space.high, dtype=torch.float32).reshape(-1))
         else:
-            raise ImitationError(f"policies take Discrete, MultiDiscrete or Box actions, not {type(self.action_space).__name__}")
+            raise ImitationError(
+                f"policies take Discrete, MultiDiscrete or Box actions, not {type(self.action_space).__name__}"
+            )
 
     # -- observations ---------------------------------------------------------------------------
 
@@ -293,7 +331,9 @@ class ActorCritic(nn.Module):
         assert isinstance(distribution, Normal)
         below = torch.special.log_ndtr((self.action_low - distribution.mean) / distribution.stddev)
         above = torch.special.log_ndtr((distribution.mean - self.action_high) / distribution.stddev)
-        log_probs = torch.where(actions <= self.action_low, below, torch.where(actions >= self.action_high, above, distribution.log_prob(actions)))
+        log_probs = torch.where(
+            actions <= self.action_low, below, torch.where(actions >= self.action_high, above, distribution.log_prob(actions))
+        )
         return log_probs.sum(-1)
 
     def entropy(self, distribution: Distribution) -> torch.Tensor:
@@ -320,7 +360,9 @@ class ActorCritic(nn.Module):
             if self.action_sizes is not None:
                 parts = [torch.log_softmax(part, -1) for part in torch.split(out, self.action_sizes, dim=-1)]
                 action = torch.cat([torch.multinomial(part.exp(), 1) for part in parts], -1)
-                log_prob = sum(part.gather(-1, action[:, i : i + 1]).squeeze(-1) for i, part in enumerate(parts))
+                log_prob = cast(
+                    torch.Tensor, sum(part.gather(-1, action[:, i : i + 1]).squeeze(-1) for i, part in enumerate(parts))
+                )
                 return action, log_prob, torch.cat(parts, -1)
             log_probs = torch.log_softmax(out, -1)
             action = torch.multinomial(log_probs.exp(), 1).squeeze(-1)
@@ -345,15 +387,18 @@ class ActorCritic(nn.Module):
             return actions.float()
         if self.action_sizes is not None:
             return actions.long().reshape(actions.shape[0], -1) - self.action_start
+        assert isinstance(self.action_space, gym.spaces.Discrete)
         return actions.long() - int(self.action_space.start)
 
     def to_env_action(self, actions: torch.Tensor) -> np.ndarray:
         """Policy actions → what env.step takes: Box actions clipped to the bounds and shaped."""
         if self.is_continuous:
+            assert isinstance(self.action_space, gym.spaces.Box)
             clipped = torch.clamp(actions, self.action_low, self.action_high)
             return clipped.cpu().numpy().astype(self.action_space.dtype).reshape(-1, *self.action_space.shape)
         if self.action_sizes is not None:
             return (actions.long() + self.action_start).cpu().numpy().astype(self.action_space.dtype)
+        assert isinstance(self.action_space, gym.spaces.Discrete)
         return actions.cpu().numpy().astype(np.int64) + int(self.action_space.start)
 
     def predict(self, observations: Any, *, deterministic: bool = True) -> np.ndarray:
@@ -365,7 +410,9 @@ class ActorCritic(nn.Module):
 
 
 def make_policy(observation_space: gym.Space, action_space: gym.Space, **options: Any) -> ActorCritic:
-    config = PolicyConfig(observation_space=space_to_json(observation_space), action_space=space_to_json(action_space), **options)
+    config = PolicyConfig(
+        observation_space=space_to_json(observation_space), action_space=space_to_json(action_space), **options
+    )
     return ActorCritic(config)
 
 
@@ -400,14 +447,18 @@ def load_policy(path: str | os.PathLike) -> ActorCritic:
         observations, actions = space_from_json(policy_config.observation_space), space_from_json(policy_config.action_space)
         outputs = action_logits_size(actions)
         trunks = 1 if policy_config.shared_trunk else 2
-        planned = trunks * mlp_weight_count(observation_size(observations), policy_config.hidden_sizes, 0) + (policy_config.hidden_sizes or [observation_size(observations)])[-1] * (outputs + 1)
+        planned = trunks * mlp_weight_count(observation_size(observations), policy_config.hidden_sizes, 0) + (
+            policy_config.hidden_sizes or [observation_size(observations)]
+        )[-1] * (outputs + 1)
         check_weights_cover(path, planned, state)
         policy = ActorCritic(policy_config)
         policy.load_state_dict(state)
     except SpaceError as error:
         raise ImitationError(f"{path}: the policy's {error}") from None
     except (TypeError, KeyError, RuntimeError, ValueError) as error:
-        raise ImitationError(f"{path}: policy weights do not match its config ({(str(error).splitlines() or [''])[0][:200]})") from None
+        raise ImitationError(
+            f"{path}: policy weights do not match its config ({(str(error).splitlines() or [''])[0][:200]})"
+        ) from None
     return policy.eval()
 
 

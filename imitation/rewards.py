@@ -1,33 +1,29 @@
-"""Reward models r_φ(s), r_φ(s, a) or r_φ(s, a, s'): linear or MLP; save/load; the env wrapper.
+"""Reward models r_φ(s), r_φ(s, a) or r_φ(s, a, s'): linear or MLP, and loading them.
 
-A reward run directory (written by the IRL learners) holds config.json with
+A reward run directory (written by the IRL jobs) holds config.json with
 {"kind": "reward", "env_id": ..., "reward": RewardConfig} and model.safetensors with the
 weights under "reward." (with a tabular reward's per-state feature table and the fixed
-observation statistics, so evaluation sees what training saw). PPO optimises a learned reward by
-relabelling each rollout in one batched call (`relabel_rollout`); `LearnedReward` is the
-per-step gymnasium wrapper for any other use: it swaps an env's reward for the model's and keeps
-the true one in info["true_reward"].
+observation statistics, so evaluation sees what training saw). PPO optimises a learned reward
+by handing it each rollout to relabel in one batched call (`RewardNet.relabel`): that is the
+one way a learned reward enters training.
 """
 
 from __future__ import annotations
 
 import os
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, SupportsFloat
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch
 from torch import nn
 
-from imitation.data.spaces import check_spaces_fit, space_from_json, space_to_json
+from imitation.data.spaces import space_from_json, space_to_json
+from imitation.envs.rollout import Rollout
 from imitation.errors import ImitationError, SpaceError
 from imitation.policies import ACTIVATIONS, check_layer_widths, check_weights_cover, mlp_weight_count, observation_size
 from imitation.runs import read_run
-
-if TYPE_CHECKING:
-    from imitation.algorithms.ppo import Rollout
 
 REWARD_INPUTS = ("s", "sa", "sas")
 REWARD_PREFIX = "reward."
@@ -57,10 +53,16 @@ class RewardConfig:
             raise TypeError(f"the reward config is a {type(data).__name__}, not an object")
         config = RewardConfig(**data)
         check_layer_widths(config.hidden_sizes)
-        if not isinstance(config.inputs, str) or not isinstance(config.activation, str) or not isinstance(config.normalize_observations, bool):
+        if (
+            not isinstance(config.inputs, str)
+            or not isinstance(config.activation, str)
+            or not isinstance(config.normalize_observations, bool)
+        ):
             raise TypeError("inputs and activation must be names, normalize_observations true or false")
         features = config.state_features
-        if features is not None and (isinstance(features, bool) or not isinstance(features, int) or not 1 <= features <= 2**20):
+        if features is not None and (
+            isinstance(features, bool) or not isinstance(features, int) or not 1 <= features <= 2**20
+        ):
             raise ValueError(f"state_features must be a width in [1, 2^20] or null, got {str(features)[:40]}")
         return config
 
@@ -72,7 +74,9 @@ def _planned_weights(config: RewardConfig) -> int:
     table = 0
     if config.state_features is not None and isinstance(observations, gym.spaces.Discrete):
         table, size = int(observations.n) * config.state_features, config.state_features
-    size += (observation_size(actions) if "a" in config.inputs else 0) + (observation_size(observations) if config.inputs == "sas" else 0)
+    size += (observation_size(actions) if "a" in config.inputs else 0) + (
+        observation_size(observations) if config.inputs == "sas" else 0
+    )
     return table + mlp_weight_count(size, config.hidden_sizes, 1)
 
 
@@ -84,6 +88,12 @@ def _one_hot_or_flat(values: torch.Tensor, space: gym.Space) -> torch.Tensor:
 
 class RewardNet(nn.Module):
     """r_φ on the chosen inputs; `hidden_sizes=[]` makes it linear in the features."""
+
+    # Buffers (register_buffer), present with `state_features` or `normalize_observations`; declared
+    # for the type checker, which otherwise sees nn.Module.__getattr__.
+    state_features: torch.Tensor
+    observation_mean: torch.Tensor
+    observation_std: torch.Tensor
 
     def __init__(self, config: RewardConfig) -> None:
         super().__init__()
@@ -120,11 +130,13 @@ class RewardNet(nn.Module):
         observation space's range where it is finite, else by the largest std of `observations`
         and `others` (floored at 1e-3). Scaled by the demos alone, which span a sliver of the
         space, every state they never visit would sit far out, where a network extrapolates."""
+
         def flat(tensor: torch.Tensor) -> torch.Tensor:
             return tensor.reshape(tensor.shape[0], -1).float()
 
         self.observation_mean.copy_(flat(observations).mean(0))
         spreads = torch.stack([flat(t).std(0) for t in (observations, *others)]).max(0).values.clamp_min(1e-3)
+        assert isinstance(self.observation_space, gym.spaces.Box)  # normalize_observations requires it (__init__)
         low = torch.as_tensor(self.observation_space.low, dtype=torch.float32).reshape(-1)
         high = torch.as_tensor(self.observation_space.high, dtype=torch.float32).reshape(-1)
         half_range = (high - low) / 2
@@ -139,6 +151,7 @@ class RewardNet(nn.Module):
     def inputs(self, observations: torch.Tensor, actions: torch.Tensor, next_observations: torch.Tensor) -> torch.Tensor:
         """The network's input vector: encoded (normalised, one-hot) s, and a and s' if used."""
         if self.config.state_features is not None:
+            assert isinstance(self.observation_space, gym.spaces.Discrete)  # a feature table requires it (__init__)
             return self.state_features[observations.long().reshape(-1) - int(self.observation_space.start)]
         parts = [self._encode_observations(observations)]
         if "a" in self.config.inputs:
@@ -150,20 +163,27 @@ class RewardNet(nn.Module):
     def forward(self, observations: torch.Tensor, actions: torch.Tensor, next_observations: torch.Tensor) -> torch.Tensor:
         return self.net(self.inputs(observations, actions, next_observations)).squeeze(-1)
 
+    def relabel(self, rollout: Rollout) -> torch.Tensor:
+        """r_φ(s_t, a_t, s_{t+1}) for every step of a rollout, shape (T, n_envs), where the rollout is."""
+        steps, n_envs = rollout.env_rewards.shape
+        device = next(self.parameters()).device
+        inputs = (
+            flat_batch(getattr(rollout, name), 2).to(device) for name in ("observations", "env_actions", "next_observations")
+        )
+        with torch.no_grad():
+            rewards = self(*inputs)
+        return rewards.reshape(steps, n_envs).to(rollout.env_rewards.device)
+
 
 def flat_batch(tensor: torch.Tensor, leading_dims: int) -> torch.Tensor:
     """The first `leading_dims` dimensions (e.g. time × envs) merged into one batch dimension."""
     return tensor.reshape(-1, *tensor.shape[leading_dims:])
 
 
-def relabel_rollout(model: RewardNet, rollout: Rollout) -> torch.Tensor:
-    """r_φ(s_t, a_t, s_{t+1}) for every step of a PPO rollout, shape (T, n_envs)."""
-    steps, n_envs = rollout.env_rewards.shape
-    device = next(model.parameters()).device
-    inputs = (flat_batch(getattr(rollout, name), 2).to(device) for name in ("observations", "env_actions", "next_observations"))
-    with torch.no_grad():
-        rewards = model(*inputs)
-    return rewards.reshape(steps, n_envs).to(rollout.env_rewards.device)
+def all_state_rewards(model: RewardNet, n_states: int) -> torch.Tensor:
+    """r_θ(s) for every state s (the model maps a state index to its features itself)."""
+    states = torch.arange(n_states)
+    return model(states, states, states)
 
 
 def reward_tensors(model: RewardNet) -> dict[str, torch.Tensor]:
@@ -174,7 +194,10 @@ def load_reward(path: str | os.PathLike) -> RewardNet:
     """The reward model of a run directory, on the CPU, in eval mode."""
     config, weights = read_run(path)
     if config.get("kind") != "reward" and "reward" not in config:
-        raise ImitationError(f"{path}: not a reward model (a {str(config.get('kind', 'unknown'))[:40]!r} run); pass the run directory of `train irl`")
+        raise ImitationError(
+            f"{path}: not a reward model (a {str(config.get('kind', 'unknown'))[:40]!r} run); pass the run directory of "
+            "`train irl`"
+        )
     state = {name[len(REWARD_PREFIX) :]: t for name, t in weights.items() if name.startswith(REWARD_PREFIX)}
     try:
         reward_config = RewardConfig.from_json(config["reward"])
@@ -184,33 +207,10 @@ def load_reward(path: str | os.PathLike) -> RewardNet:
     except SpaceError as error:
         raise ImitationError(f"{path}: the reward model's {error}") from None
     except (TypeError, KeyError, RuntimeError, ValueError) as error:
-        raise ImitationError(f"{path}: reward weights do not match its config ({(str(error).splitlines() or [''])[0][:200]})") from None
+        raise ImitationError(
+            f"{path}: reward weights do not match its config ({(str(error).splitlines() or [''])[0][:200]})"
+        ) from None
     return model.eval()
-
-
-class LearnedReward(gym.Wrapper):
-    """Replaces the env's reward by r_φ(s, a, s') and keeps the true reward in info["true_reward"]."""
-
-    def __init__(self, env: gym.Env, model: RewardNet, *, where: str = "--reward") -> None:
-        super().__init__(env)
-        check_spaces_fit("reward model's", model.observation_space, model.action_space, env, where=where)
-        self.model = model
-        self._observation: Any = None
-
-    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
-        self._observation, info = self.env.reset(**kwargs)
-        return self._observation, info
-
-    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
-        next_observation, true_reward, terminated, truncated, info = self.env.step(action)
-        with torch.no_grad():
-            learned = self.model(
-                torch.as_tensor(np.asarray(self._observation)[None]),
-                torch.as_tensor(np.asarray(action)[None]),
-                torch.as_tensor(np.asarray(next_observation)[None]),
-            ).item()
-        self._observation = next_observation
-        return next_observation, learned, terminated, truncated, {**info, "true_reward": float(true_reward)}
 
 
 def make_reward_model(
@@ -219,7 +219,9 @@ def make_reward_model(
     """A fresh reward model; `feature_table` (states × d) makes r a function of x(s)."""
     if feature_table is not None:
         options["state_features"] = int(feature_table.shape[1])
-    model = RewardNet(RewardConfig(observation_space=space_to_json(observation_space), action_space=space_to_json(action_space), **options))
+    model = RewardNet(
+        RewardConfig(observation_space=space_to_json(observation_space), action_space=space_to_json(action_space), **options)
+    )
     if feature_table is not None:
         model.state_features.copy_(torch.as_tensor(feature_table, dtype=torch.float32))
     return model
@@ -229,7 +231,9 @@ def _fresh_like(model: RewardNet) -> RewardNet:
     """A new network of `model`'s configuration with its fixed buffers (feature table,
     observation statistics) and freshly initialised weights."""
     fresh = RewardNet(model.config)
-    fresh.load_state_dict({name: tensor for name, tensor in model.state_dict().items() if not name.startswith("net.")}, strict=False)
+    fresh.load_state_dict(
+        {name: tensor for name, tensor in model.state_dict().items() if not name.startswith("net.")}, strict=False
+    )
     return fresh.eval()
 
 
@@ -244,18 +248,8 @@ def constant_reward_like(model: RewardNet, value: float = 1.0) -> RewardNet:
     """A control: `model`'s architecture paying `value` everywhere (last layer zero, bias `value`)."""
     constant = _fresh_like(model)
     last = constant.net[-1]
+    assert isinstance(last, nn.Linear)
     with torch.no_grad():
         last.weight.zero_()
         last.bias.fill_(value)
     return constant
-
-
-def save_reward_run(model: RewardNet, path: str | os.PathLike, *, env_id: str, source: str) -> Path:
-    """A reward run directory holding only `model`: what `train ppo --reward` and `eval reward` read."""
-    from imitation import __version__
-    from imitation.runs import RunWriter
-
-    with RunWriter(path, config={"kind": "reward", "env_id": env_id, "creator": f"imitation-mcap {__version__}", "source": source,
-                                 "reward": model.config.to_json()}, tensorboard=False) as run:
-        run.save_weights(reward_tensors(model))
-        return run.finish({"env_id": env_id, "source": source})

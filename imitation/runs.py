@@ -30,6 +30,7 @@ import json
 import math
 import os
 import shutil
+from contextlib import suppress
 from pathlib import Path
 from typing import Any
 
@@ -183,7 +184,8 @@ class RunWriter:
         self.config = config
         with writing(self.partial / CONFIG_FILE):
             write_json(self.partial / CONFIG_FILE, config)
-            self._csv_file = open(self.partial / PROGRESS_FILE, "w", newline="")
+            # Kept open for the run's life: log() appends rows; closed by _close_logs().
+            self._csv_file = open(self.partial / PROGRESS_FILE, "w", newline="")  # noqa: SIM115
         self._csv: csv.DictWriter | None = None
         self._history: list[dict[str, float]] = []
         self._tensorboard = None
@@ -202,7 +204,9 @@ class RunWriter:
         from imitation.checkpoints import floats
 
         if not self.partial.is_dir():
-            raise ImitationError(f"--resume: {self.partial} does not exist, so there is no interrupted run to continue; start without --resume")
+            raise ImitationError(
+                f"--resume: {self.partial} does not exist, so there is no interrupted run to continue; start without --resume"
+            )
         tensors, state = read_checkpoint(self.partial)
         try:
             saved = json.loads((self.partial / CONFIG_FILE).read_text())
@@ -251,7 +255,10 @@ class RunWriter:
 
     def save_weights(self, tensors: dict[str, torch.Tensor]) -> None:
         with writing(self.partial / WEIGHTS_FILE):
-            save_file({name: tensor.detach().cpu().contiguous() for name, tensor in tensors.items()}, str(self.partial / WEIGHTS_FILE))
+            save_file(
+                {name: tensor.detach().cpu().contiguous() for name, tensor in tensors.items()},
+                str(self.partial / WEIGHTS_FILE),
+            )
 
     def save_checkpoint(self, tensors: dict[str, torch.Tensor], state: dict[str, Any]) -> None:
         """Save a trainer's checkpoint with the rows logged so far (see `save_checkpoint`)."""
@@ -273,10 +280,8 @@ class RunWriter:
     def abort(self, *, keep_checkpoint: bool = False) -> bool:
         """Stop after a failure. The partial run is removed, unless `keep_checkpoint` and it holds
         a checkpoint to resume from; whether it was kept."""
-        try:
+        with suppress(OSError):
             self._close_logs()
-        except OSError:
-            pass
         kept = keep_checkpoint and has_checkpoint(self.partial)
         if not kept:
             shutil.rmtree(self.partial, ignore_errors=True)
@@ -298,7 +303,9 @@ class RunWriter:
             return
         kept = self.abort(keep_checkpoint=issubclass(exc_type, (KeyboardInterrupt, WriteError)))
         if kept and isinstance(exc, WriteError):
-            exc.args = (f"{exc}; {self.partial} keeps the run's last checkpoint: make room, then run the same command with --resume",)
+            exc.args = (
+                f"{exc}; {self.partial} keeps the run's last checkpoint: make room, then run the same command with --resume",
+            )
 
     def _close_logs(self) -> None:
         if self._csv_file.closed:
@@ -338,24 +345,3 @@ def read_run(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, torch.T
     except Exception as error:
         raise ImitationError(f"{weights_path}: unreadable safetensors file ({str(error)[:200]})") from None
     return config, weights
-
-
-def plot_curve(path: Path, history: list[dict[str, float]], *, x: str, ys: list[str], title: str) -> None:
-    """A learning-curve PNG of columns `ys` against `x`."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    figure, axis = plt.subplots(figsize=(7, 4))
-    for y in ys:
-        points = [(row[x], row[y]) for row in history if y in row and row[y] is not None and math.isfinite(row[y])]
-        if points:
-            axis.plot(*zip(*points), label=y)
-    axis.set_xlabel(x)
-    axis.set_title(title)
-    axis.grid(alpha=0.3)
-    axis.legend()
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)

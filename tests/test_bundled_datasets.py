@@ -7,7 +7,7 @@ import json
 import pytest
 from support import DATASETS, run_cli
 
-from imitation.data.store import DemoFile
+from imitation.data.mcap.reader import DemoFile
 
 # (episodes, minimum mean return) as documented in datasets/README.md
 BUNDLED = {

@@ -118,7 +118,7 @@ def test_bc_on_demos_a_policy_cannot_take_names_the_file(tmp_path) -> None:
     import gymnasium as gym
     import numpy as np
 
-    from imitation.data.store import write_episodes
+    from imitation.data.mcap.writer import write_episodes
     from imitation.data.types import Episode
 
     space = gym.spaces.Dict({"a": gym.spaces.Box(-1, 1, (2,), np.float32)})

@@ -10,7 +10,7 @@ import pytest
 from support import DATASETS, TURTLE_MAP, run_cli, write_map
 from test_cli import assert_one_line_error, last_json
 
-from imitation.data.store import DemoFile
+from imitation.data.mcap.reader import DemoFile
 
 
 

@@ -8,7 +8,8 @@ import gymnasium as gym
 from support import DATASETS, run_cli
 from test_cli import assert_one_line_error, last_json
 
-from imitation.data.store import DemoFile, DemoWriter
+from imitation.data.mcap.reader import DemoFile
+from imitation.data.mcap.writer import DemoWriter
 
 
 def test_train_bc_then_eval_and_record(tmp_path) -> None:

@@ -25,7 +25,7 @@ from test_cli import assert_one_line_error, last_json
 
 from imitation.checkpoints import unprefixed
 from imitation.data.convert.npz import npz_to_episodes
-from imitation.data.store import DemoFile
+from imitation.data.mcap.reader import DemoFile
 from imitation.policies import ActorCritic, PolicyConfig
 from imitation.rewards import RewardConfig, RewardNet, load_reward
 from imitation.runs import read_checkpoint
@@ -84,7 +84,7 @@ def test_ctrl_c_during_train_ppo_keeps_a_checkpoint_that_resume_finishes(tmp_pat
     trainer = state["trainer"]
     stopped_at = int(message.split("after update ")[1].split("/")[0])
     assert trainer["update"] == stopped_at and trainer["global_step"] == 256 * stopped_at < 51200
-    assert len(state["history"]) == len(trainer["history"]) == stopped_at
+    assert len(state["history"]) == stopped_at  # the rows are the run directory's, saved beside the trainer's state
     policy = ActorCritic(PolicyConfig.from_json(trainer["policy"]))
     policy.load_state_dict({name.removeprefix("policy."): t for name, t in tensors.items() if name.startswith("policy.")})
     assert torch.isfinite(policy.value(policy.encode(torch.zeros(1, 4)))).all()
@@ -119,11 +119,12 @@ def test_ctrl_c_during_train_bc_keeps_a_checkpoint_that_resume_finishes(tmp_path
 
 
 def test_resume_refuses_what_it_cannot_continue(tmp_path: Path) -> None:
-    from imitation.algorithms.ppo import PPOConfig, ppo_defaults
+    from imitation.algorithms.ppo import PPOConfig
+    from imitation.jobs.presets import ppo_settings
     from imitation.runs import RunWriter
 
     # An interrupted 4096-step run with a checkpoint, and one stopped before its first checkpoint.
-    config = PPOConfig(env_id="CartPole-v1", total_steps=4096, **ppo_defaults("CartPole-v1"))
+    config = PPOConfig(env_id="CartPole-v1", total_steps=4096, **ppo_settings("CartPole-v1"))
     for name, checkpoint in (("checkpointed", True), ("early", False)):
         with pytest.raises(KeyboardInterrupt):
             with RunWriter(tmp_path / name, config={"kind": "ppo", "env_id": "CartPole-v1", "creator": "x", "ppo": vars(config)}, tensorboard=False) as run:
@@ -216,7 +217,7 @@ def test_ctrl_c_during_train_irl_gcl_keeps_a_checkpoint_with_the_reward_learner_
     # PPO's checkpoint holds the reward learner: r_θ, its optimiser, every rollout in the pool, its rows.
     tensors, state = read_checkpoint(partial)
     trainer = state["trainer"]
-    assert trainer["update"] == stopped_at and len(trainer["learner"]["history"]) == stopped_at
+    assert trainer["update"] == stopped_at and trainer["learner"]["learned"] == stopped_at
     learner = unprefixed("learner", tensors)
     assert learner["pool.log_mass"].shape == (256 * stopped_at,) and "sampler.0.action_head.weight" in learner and "generator" in learner
     assert any(name.startswith("optimizer.") for name in learner)

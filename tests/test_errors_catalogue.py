@@ -1,8 +1,9 @@
 """docs/ERRORS.md is complete and true: every `raise ImitationError(...)` in the package has its
 message there; every entry marked CLI is triggered here through the command line (one case per
-entry, table-driven, all run in one process with run_cli_many), which must exit 1 with one line on
-stderr that matches the entry's message; every other entry says which test triggers it or why the
-command line cannot."""
+entry at least, table-driven, all run in one process with run_cli_many), which must exit 1 with one
+line on stderr that matches the entry's message (and, where the entry's `{flag}` stands for the flag
+the command line names, starts with that flag); every other entry says which test triggers it or
+why the command line cannot."""
 
 from __future__ import annotations
 
@@ -78,6 +79,12 @@ def test_every_entry_says_how_it_is_tested() -> None:
         else:
             assert re.match(r"not from the CLI: \S.{10,}", entry.test), f"{entry.id}: '{entry.test}' gives no reason"
     assert set(CASES) <= set(ENTRIES), set(CASES) - set(ENTRIES)
+    assert len({c.name for c in CASE_LIST}) == len(CASE_LIST), "two cases of one name: give one a variant"
+    for c in CASE_LIST:
+        for entry_id in c.ids:
+            if ENTRIES[entry_id].template.startswith("{flag}"):
+                # The placeholder matches any field name: the case says which flag the CLI must put there.
+                assert c.expect.startswith("--"), f"{c.name}: {entry_id}'s message names a flag; say which in expect"
 
 
 # ------------------------------------------------------------------------------------------------
@@ -114,7 +121,7 @@ class Inputs:
         from mcap.stream_reader import StreamReader
         from mcap.writer import Writer
 
-        from imitation.data.store import DATASET_METADATA, EPISODES_METADATA, metadata_crc
+        from imitation.data.mcap.format import DATASET_METADATA, EPISODES_METADATA, metadata_crc
 
         records = [r for r in StreamReader(io.BytesIO((DATASETS / source).read_bytes()), emit_chunks=False).records]
         header = next(r for r in records if isinstance(r, Header))
@@ -154,7 +161,8 @@ class Inputs:
         return path
 
     def episodes_file(self, name: str, episodes: list, source: str, **options) -> Path:
-        from imitation.data.store import DemoFile, write_episodes
+        from imitation.data.mcap.reader import DemoFile
+        from imitation.data.mcap.writer import write_episodes
 
         demo = DemoFile(DATASETS / source)
         return write_episodes(self.path(name), episodes, env_id=demo.env_id, observation_space=demo.observation_space,
@@ -210,7 +218,7 @@ class Inputs:
 
     def flipped_chunk(self, name: str) -> Path:
         """Uncompressed demos with one bit flipped in the middle of the data: a CRC mismatch."""
-        from imitation.data.store import DemoFile
+        from imitation.data.mcap.reader import DemoFile
 
         source = self.episodes_file(name + ".src.mcap", DemoFile(DATASETS / "CartPole-v1.mcap").read_episodes(), "CartPole-v1.mcap", compression="none")
         data = bytearray(source.read_bytes())
@@ -252,10 +260,10 @@ class Inputs:
 
     def interrupted_ppo(self, name: str, steps: int = 4096, *, tensors: dict | None = None, state: dict | None = None) -> Path:
         """RUN_DIR.partial of a `train ppo --env CartPole-v1 --steps STEPS` stopped after a checkpoint."""
-        from imitation.algorithms.ppo import PPOConfig, ppo_defaults
+        from imitation.jobs.presets import ppo_config
         from imitation.runs import RunWriter
 
-        config = PPOConfig(env_id="CartPole-v1", total_steps=steps, **ppo_defaults("CartPole-v1"))
+        config = ppo_config("CartPole-v1", total_steps=steps)
         with pytest.raises(KeyboardInterrupt):
             with RunWriter(self.root / name, config={"kind": "ppo", "env_id": "CartPole-v1", "creator": "x", "ppo": vars(config)}, tensorboard=False) as run:
                 run.save_checkpoint(tensors if tensors is not None else {"x": torch.zeros(1)}, state if state is not None else {"update": 1})
@@ -332,14 +340,14 @@ TURTLE = TESTDATA / "ros1" / "plotjuggler_example.bag"
 
 
 def _cartpole_episodes():
-    from imitation.data.store import DemoFile
+    from imitation.data.mcap.reader import DemoFile
 
     return DemoFile(DATASETS / "CartPole-v1.mcap").read_episodes([0, 1])
 
 
 def _grid(edit: Callable) -> Callable[[Inputs], list]:
     def build(i: Inputs) -> list:
-        from imitation.data.store import DemoFile
+        from imitation.data.mcap.reader import DemoFile
 
         episodes = DemoFile(DATASETS / "GridWorld8x8-v0.mcap").read_episodes([0, 1, 2])
         path = i.episodes_file(f"grid-{edit.__name__}.mcap", edit(episodes), "GridWorld8x8-v0.mcap")
@@ -478,22 +486,30 @@ PREPARE_IRL = ["train", "irl", "--method", "mce", "--env", "imitation/GridWorld8
                "--iterations", "2", "--quiet", "--out"]
 
 
-# Each case: the entries it triggers (the first is its name), a function building the argv, and
-# whether it needs ../shared/testdata. The message must match every listed entry.
+# Each case: the entries it triggers (the first, with its variant, is its name), a function
+# building the argv, whether it needs ../shared/testdata, a variant (another way to the same entry),
+# and text the message must contain besides (what the entry's placeholder is here: the flag the
+# command line names for a config field, the trainer). The message must match every listed entry.
 @dataclass(frozen=True)
 class Case:
     ids: tuple[str, ...]
     argv: Callable[[Inputs], list]
     testdata: bool = False
+    variant: str = ""
+    expect: str = ""
+
+    @property
+    def name(self) -> str:
+        return f"{self.ids[0]} ({self.variant})" if self.variant else self.ids[0]
 
 
-def case(ids: str, argv: Callable[[Inputs], list], testdata: bool = False) -> Case:
-    return Case(tuple(ids.split()), argv, testdata)
+def case(ids: str, argv: Callable[[Inputs], list], testdata: bool = False, *, variant: str = "", expect: str = "") -> Case:
+    return Case(tuple(ids.split()), argv, testdata, variant, expect)
 
 
 CASE_LIST = [
     # command line, environments, experts
-    case("cli-1", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "0", "--out", i.path("e.mcap")]),
+    case("cli-1", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "0", "--out", i.path("e.mcap")], expect="--episodes must"),
     case("cli-2", lambda i: ["export", DATASETS / "CartPole-v1.mcap", "--to", "hdf5", i.path("x")]),
     case("cli-4 demo-d13", lambda i: ["info", i.cut_at_record("cut-header.mcap", 4)]),
     case("env-1", lambda i: ["record", "--env", "NoSuchEnv-v0", "--out", i.path("n.mcap")]),
@@ -533,7 +549,7 @@ CASE_LIST = [
     case("limit-5", lambda i: _convert(TURTLE, "--map", i.text("long-int.yaml", "rate_hz: 1" + "0" * 500 + "\n")), testdata=True),
     case("train-mem", lambda i: ["train", "bc", "--demos", i.demo_with("wide.mcap", dataset=lambda d: d | {"observation_space": WIDE_BOX}), "--hidden", "linear",
                                  "--epochs", "1", "--quiet", "--out", i.root / "wide-run"]),
-    case("out-2", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--quiet", "--out", "/dev/null"]),
+    case("out-2", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--quiet", "--out", "/dev/null"], expect="--out /dev/null: "),
     case("out-5", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--quiet", "--out", _planted_link(i, "planted.mcap")]),
     case("out-6", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--quiet", "--out", _left_partial(i, "held.mcap")]),
     case("out-7", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "4096", "--quiet", "--out", i.interrupted_ppo("again")]),
@@ -556,14 +572,26 @@ CASE_LIST = [
     case("space-10", lambda i: _bc(i.demo_with("s10.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Box", "dtype": "U8", "shape": [4], "low": 0, "high": 1}'}))),
     case("space-14", lambda i: ["eval", "policy", i.policy_run("cp-run"), "--env", "Pendulum-v1", "--episodes", "1"]),
     # training
-    case("train-1", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--patience", "0", "--out", i.root / "t1")),
-    case("train-2", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--lr", "0", "--out", i.root / "t2")),
-    case("train-5", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--loss", "mse", "--out", i.root / "t5")),
-    case("train-7", _checkpoint_mismatch(PREPARE_BC, "bc", {"epoch": 2})),
-    case("train-11", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "10", "--out", i.root / "t11"]),
+    case("train-1", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--patience", "0", "--out", i.root / "t1"), expect="--patience must"),
+    case("train-1", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--n-envs", "0", "--out", i.root / "t1-ppo"], variant="ppo", expect="--n-envs must"),
+    case("train-1", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--epochs", "0", "--out", i.root / "t1-dagger"],
+         variant="dagger", expect="--epochs must"),
+    case("train-2", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--lr", "0", "--out", i.root / "t2"), expect="--lr must"),
+    case("train-2", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--lr", "0",
+                               "--out", i.root / "t2-irl"], variant="irl", expect="--lr must"),
+    case("train-2", lambda i: ["train", "irl", "--method", "gcl", "--env", "CartPole-v1", "--demos", DATASETS / "CartPole-v1.mcap", "--lr", "0",
+                               "--out", i.root / "t2-gcl"], variant="gcl", expect="--lr must"),
+    case("train-5", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--loss", "mse", "--out", i.root / "t5"), expect="--loss mse"),
+    case("train-7", _checkpoint_mismatch(PREPARE_BC, "bc", {"epoch": 2}), expect="this BC run"),
+    case("train-7", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "4096", "--quiet", "--resume", "--out", i.interrupted_ppo("bad-ckpt")],
+         variant="ppo", expect="this PPO run"),
+    case("train-7", _checkpoint_mismatch(PREPARE_DAGGER, "dagger", {"round": 2}), variant="dagger", expect="this DAgger run"),
+    case("train-7", _checkpoint_mismatch(PREPARE_IRL, "irl", {"iteration": 2}), variant="irl", expect="this tabular IRL run"),
+    case("train-11", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "10", "--out", i.root / "t11"], expect="--steps 10 is less"),
+    case("train-11", lambda i: ["train", "irl", "--method", "gcl", "--env", "CartPole-v1", "--demos", DATASETS / "CartPole-v1.mcap", "--steps", "10",
+                                "--out", i.root / "t11-gcl"], variant="gcl", expect="--steps 10 is less"),
     case("train-13", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "2048", "--quiet", "--out", i.root / "t13",
                                 "--reward", i.reward_run("nan-reward", weights=_nan_weights)]),
-    case("train-16", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "4096", "--quiet", "--resume", "--out", i.interrupted_ppo("bad-ckpt")]),
     case("train-17", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--quiet", "--resume", "--out", i.root / "never"]),
     case("train-18", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--quiet", "--resume", "--out", i.folder("early.partial").parent / "early"]),
     case("train-19", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "8192", "--quiet", "--resume", "--out", i.interrupted_ppo("other-steps")]),
@@ -572,19 +600,21 @@ CASE_LIST = [
     case("train-22", _checkpoint_case("ckpt-list", **{"checkpoint__state.json": "[]"})),
     case("train-23", _checkpoint_case("ckpt-rows", **{"checkpoint__state.json": '{"history": 5}'})),
     case("train-25", lambda i: ["demo", "--quick", "--quiet", "--out", i.text("plain-file", "x") / "run"]),
-    case("train-26", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--device", "toaster", "--out", i.root / "t26")),
-    case("train-27", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--device", "cuda", "--out", i.root / "t27")),
+    case("train-26", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--device", "toaster", "--out", i.root / "t26"), expect="--device 'toaster': "),
+    case("train-27", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--device", "cuda", "--out", i.root / "t27"), expect="--device cuda: "),
     case("train-28", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--validation", "1", "--out", i.root / "t28")),
-    case("dagger-2", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--rounds", "0", "--out", i.root / "d2"]),
-    case("dagger-3", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--beta-decay", "2", "--out", i.root / "d3"]),
-    case("dagger-5", _checkpoint_mismatch(PREPARE_DAGGER, "dagger", {"round": 2})),
-    case("irl-1", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--discount", "0", "--out", i.root / "i1"]),
-    case("irl-6", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--iterations", "0", "--out", i.root / "i6"]),
+    case("dagger-2", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--rounds", "0", "--out", i.root / "d2"], expect="--rounds must"),
+    case("dagger-2", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--episodes-per-round", "0", "--out", i.root / "d2-episodes"],
+         variant="episodes", expect="--episodes-per-round must"),
+    case("dagger-3", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--beta-decay", "2", "--out", i.root / "d3"], expect="--beta-decay must"),
+    case("irl-1", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--discount", "0", "--out", i.root / "i1"],
+         expect="--discount must"),
+    case("irl-6", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--iterations", "0", "--out", i.root / "i6"],
+         expect="--iterations must"),
     case("irl-11", _grid(_state_99)),
     case("irl-13", lambda i: ["train", "irl", "--method", "maxent", "--env", "imitation/GridWorld8x8Slippery-v0", "--demos", DATASETS / "GridWorld8x8Slippery-v0.mcap",
-                              "--out", i.root / "i13"]),
+                              "--out", i.root / "i13"], expect="--method maxent"),
     case("irl-14", _grid(_too_long)),
-    case("irl-21", _checkpoint_mismatch(PREPARE_IRL, "irl", {"iteration": 2})),
     # run directories
     case("run-1", lambda i: ["eval", "policy", i.root / "no-run", "--env", "CartPole-v1"]),
     case("run-2", lambda i: ["eval", "policy", i.folder("empty-run"), "--env", "CartPole-v1"]),
@@ -711,9 +741,9 @@ CASE_LIST = [
     case("export-5", lambda i: ["export", DATASETS / "CartPole-v1.mcap", "--to", "foxglove", DATASETS / "CartPole-v1.mcap"]),
     # evaluation and the demo
     case("eval-1", lambda i: ["eval", "reward", i.reward_run("no-demos", demos=False), "--env", "CartPole-v1", "--retrain-steps", "0", "--quiet"]),
-    case("eval-2", lambda i: ["eval", "reward", i.root / "any", "--env", "CartPole-v1", "--seeds", "0"]),
-    case("eval-3", lambda i: ["eval", "reward", i.root / "any", "--env", "CartPole-v1", "--retrain-steps", "-1"]),
-    case("eval-4", lambda i: ["eval", "reward", i.root / "any", "--env", "CartPole-v1", "--jobs", "0"]),
+    case("eval-2", lambda i: ["eval", "reward", i.root / "any", "--env", "CartPole-v1", "--seeds", "0"], expect="--seeds must"),
+    case("eval-3", lambda i: ["eval", "reward", i.root / "any", "--env", "CartPole-v1", "--retrain-steps", "-1"], expect="--retrain-steps must"),
+    case("eval-4", lambda i: ["eval", "reward", i.root / "any", "--env", "CartPole-v1", "--jobs", "0"], expect="--jobs must"),
     case("eval-5", lambda i: ["eval", "policy", i.policy_run("e5"), "--env", "CartPole-v1", "--episodes", "1", "--video", i.root / "v.avi"]),
     case("eval-6", lambda i: ["eval", "policy", i.policy_run("e6"), "--env", "CartPole-v1", "--episodes", "1", "--video", i.root / "no-folder" / "v.gif"]),
     case("demo-cmd-1", lambda i: ["demo", "--datasets", i.folder("no-datasets"), "--out", i.root / "demo-out", "--quick"]),
@@ -794,7 +824,7 @@ def _weights_as_folder(run: Path) -> Path:
 
 
 def _dict_demos(i: Inputs) -> Path:
-    from imitation.data.store import write_episodes
+    from imitation.data.mcap.writer import write_episodes
     from imitation.data.types import Episode
 
     space = gym.spaces.Dict({"a": gym.spaces.Box(-1, 1, (2,), np.float32), "b": gym.spaces.Box(-1, 1, (1,), np.float32)})
@@ -815,10 +845,10 @@ def results(tmp_path_factory) -> dict[str, object]:
         runnable = [c for c in runnable if "train-27" not in c.ids]
     argvs = [[str(a) for a in c.argv(inputs)] for c in runnable]
     outcomes = run_cli_many(argvs, env={"PYTHONPATH": f"{REPO}:{REPO / 'tests'}"}, timeout=900)
-    return {c.ids[0]: (c, outcome) for c, outcome in zip(runnable, outcomes)}
+    return {c.name: (c, outcome) for c, outcome in zip(runnable, outcomes)}
 
 
-@pytest.mark.parametrize("name", [c.ids[0] for c in CASE_LIST])
+@pytest.mark.parametrize("name", [c.name for c in CASE_LIST])
 def test_each_message_through_the_cli(results, name: str) -> None:
     if name not in results:
         pytest.skip("needs ../shared/testdata (or runs only without CUDA)")
@@ -830,3 +860,4 @@ def test_each_message_through_the_cli(results, name: str) -> None:
     for entry_id in case_.ids:
         template = ENTRIES[entry_id].template
         assert pattern_regex(template).search(message), f"{entry_id}: {message!r} does not match {template!r}"
+    assert case_.expect in message, f"{name}: {message!r} does not say {case_.expect!r}"

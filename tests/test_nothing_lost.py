@@ -23,7 +23,7 @@ import pytest
 from support import DATASETS, REPO, run_cli
 from test_crash_safety import interrupt_after_first_checkpoint, start, wait_for
 
-from imitation.data.store import DemoFile
+from imitation.data.mcap.reader import DemoFile
 from imitation.errors import ImitationError
 from imitation.output import OutputLock, create_exclusive, replace_directory
 

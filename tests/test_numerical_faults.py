@@ -13,7 +13,8 @@ import torch
 from support import DATASETS, run_cli_many
 from test_cli import assert_one_line_error
 
-from imitation.data.store import DemoFile, write_episodes
+from imitation.data.mcap.reader import DemoFile
+from imitation.data.mcap.writer import write_episodes
 from imitation.errors import ImitationError
 
 
@@ -88,32 +89,43 @@ def test_bc_names_the_epoch_of_a_nan_loss(tmp_path: Path) -> None:
 
 
 def test_ppo_names_the_update_and_epoch_of_a_nan_loss() -> None:
-    from imitation.algorithms.ppo import PPOConfig, train_ppo
+    from imitation.algorithms.ppo import PPO, PPOConfig
+    from imitation.jobs.loop import run
 
     config = PPOConfig(env_id="CartPole-v1", total_steps=2048, n_envs=2, n_steps=64, learning_rate=1e20, anneal_lr=False, max_grad_norm=1e20)
-    with pytest.raises(ImitationError, match=r"^PPO update \d+/16, epoch \d+: the loss is (nan|inf|-inf) \(diverged"):
-        train_ppo(config, progress=False)
+    learner = PPO(config)
+    try:
+        with pytest.raises(ImitationError, match=r"^PPO update \d+/16, epoch \d+: the loss is (nan|inf|-inf) \(diverged"):
+            run(learner)
+    finally:
+        learner.close()
 
 
 def test_gcl_names_the_update_and_step_of_a_nan_reward_loss() -> None:
     from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning
-    from imitation.algorithms.ppo import PPOConfig, train_ppo
+    from imitation.algorithms.ppo import PPO, PPOConfig
     from imitation.data.loader import load_transitions, transitions_to_torch
     from imitation.envs.make import make_env
+    from imitation.jobs.loop import run
     from imitation.rewards import make_reward_model
 
     env = make_env("CartPole-v1")
     reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[16])
     demos = transitions_to_torch(load_transitions(DATASETS / "CartPole-v1.mcap"))
-    learner = GuidedCostLearning(reward, demos, GCLConfig(learning_rate=1e20, warmup_steps=5, gradient_penalty=0.0), updates=4)
-    with pytest.raises(ImitationError, match=r"^GCL reward update 1, step \d+/13: the loss is (nan|inf|-inf) \(diverged; try a lower --lr\)"):
-        train_ppo(PPOConfig(env_id="CartPole-v1", total_steps=512, n_envs=2, n_steps=64), rollout_rewards=learner, progress=False)
+    ppo = PPO(PPOConfig(env_id="CartPole-v1", total_steps=512, n_envs=2, n_steps=64))  # 4 updates
+    learner = GuidedCostLearning(ppo, reward, demos, GCLConfig(learning_rate=1e20, warmup_steps=5, gradient_penalty=0.0))
+    try:
+        with pytest.raises(ImitationError, match=r"^GCL reward update 1, step \d+/13: the loss is (nan|inf|-inf) \(diverged; try a lower learning rate\)"):
+            run(learner)
+    finally:
+        ppo.close()
 
 
 def test_maxent_irl_names_the_iteration_of_a_non_finite_reward() -> None:
-    from imitation.algorithms.maxent_irl import MaxEntIRLConfig, demo_visitation, train_maxent_irl
+    from imitation.algorithms.maxent_irl import MaxEntIRL, MaxEntIRLConfig, demo_visitation
     from imitation.envs.make import make_env
     from imitation.envs.tabular import tabular_mdp_of
+    from imitation.jobs.loop import run
     from imitation.rewards import make_reward_model
 
     env = make_env("imitation/GridWorld8x8-v0")
@@ -122,5 +134,5 @@ def test_maxent_irl_names_the_iteration_of_a_non_finite_reward() -> None:
     model = make_reward_model(env.observation_space, env.action_space, feature_table=mdp.features, hidden_sizes=[])
     with torch.no_grad():
         next(model.parameters()).fill_(float("nan"))  # what a diverged step leaves behind
-    with pytest.raises(ImitationError, match=r"^mce IRL iteration 1: the learned reward is not finite \(diverged; try a lower --lr\)"):
-        train_maxent_irl(mdp, target, model, MaxEntIRLConfig(iterations=5))
+    with pytest.raises(ImitationError, match=r"^mce IRL iteration 1: the learned reward is not finite \(diverged; try a lower learning rate\)"):
+        run(MaxEntIRL(mdp, target, model, MaxEntIRLConfig(iterations=5)))

@@ -266,7 +266,7 @@ def rewrite_mcap(data: bytes, rng: random.Random) -> bytes:
     from mcap.stream_reader import StreamReader
     from mcap.writer import CompressionType, Writer
 
-    from imitation.data.store import DATASET_METADATA, EPISODES_METADATA, metadata_crc
+    from imitation.data.mcap.format import DATASET_METADATA, EPISODES_METADATA, metadata_crc
 
     records = [r for r in StreamReader(io.BytesIO(data), emit_chunks=False).records if isinstance(r, (Header, Metadata, Schema, Channel, Message))]
     header = next((r for r in records if isinstance(r, Header)), Header(profile="", library=""))
@@ -511,7 +511,7 @@ def demo_seeds(work: Path) -> list[Files]:
     import gymnasium as gym
     import numpy as np
 
-    from imitation.data.store import write_episodes
+    from imitation.data.mcap.writer import write_episodes
     from imitation.data.types import Episode
 
     seeds = [{"demo.mcap": path.read_bytes()} for path in sorted((REPO / "datasets").glob("*.mcap"))]
@@ -548,7 +548,8 @@ def demo_mutate(files: Files, rng: random.Random, seeds: list[Files]) -> Files:
 
 def demo_run(folder: Path, scratch: Path) -> str:
     from imitation.data.loader import load_transitions
-    from imitation.data.store import DemoDataset, DemoFile
+    from imitation.data.dataset import DemoDataset
+    from imitation.data.mcap.reader import DemoFile
     from imitation.data.summary import format_summary, summarize
     from imitation.errors import DemoFileError
 
@@ -649,7 +650,7 @@ def _convert(path: Path, scratch: Path, **options: Any) -> str:
 def npz_seeds(work: Path) -> list[Files]:
     import numpy as np
 
-    from imitation.data.store import DemoFile
+    from imitation.data.mcap.reader import DemoFile
 
     seeds = []
     for name in ("expert_cartpole.npz", "expert_pendulum.npz"):

@@ -94,7 +94,7 @@ def _rewrite(path: Path, record_name: str, edit: Callable[[dict], dict]) -> Path
     from mcap.stream_reader import StreamReader
     from mcap.writer import Writer
 
-    from imitation.data.store import metadata_crc
+    from imitation.data.mcap.format import metadata_crc
 
     records = list(StreamReader(io.BytesIO(CARTPOLE.read_bytes()), emit_chunks=False).records)
     out = io.BytesIO()
@@ -132,7 +132,7 @@ def _zeros_file(folder: Path) -> Path:
     import gymnasium as gym
     import numpy as np
 
-    from imitation.data.store import write_episodes
+    from imitation.data.mcap.writer import write_episodes
     from imitation.data.types import Episode
 
     space = gym.spaces.Box(-1, 1, (4096,), np.float32)

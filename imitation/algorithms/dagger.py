@@ -1,4 +1,4 @@
-"""DAgger, dataset aggregation (theory notes §5.1; Ross, Gordon & Bagnell 2011).
+"""DAgger, dataset aggregation (docs/THEORY.md §5.2; Ross, Gordon & Bagnell 2011).
 
     D ← expert demos (optional);  π̂_1 ← BC(D)  (or, without demos, round 1 runs the expert: β_1 = 1)
     for i = 1 … R:
@@ -14,9 +14,9 @@ Each round's labelled rollouts are written as an MCAP demo file (round-NN.mcap) 
 are the expert's labels, so the aggregate dataset stays on disk and can be reloaded; the
 episodes' metadata record the round, β and which steps the expert actually drove.
 
-With checkpoints, the learner, the β-mixture's generator, the label count, the logged rows and
-the finished rounds' file names are saved after a round; a resumed run goes on with the next
-round and trains on the finished rounds' files as they are. Each round's BC starts afresh from
+The state saved after a round is the learner, the β-mixture's generator, the label count and
+the finished rounds' file names; a resumed run goes on with the next round and trains on the
+finished rounds' files as they are. Each round's BC starts afresh from
 its seed (a new optimiser, the normaliser refitted), and rollouts are reset with seeds fixed by
 the round, so the resumed run ends exactly where an uninterrupted one does, as long as the
 expert is deterministic (`random` and tabular soft-optimal experts restart their generators).
@@ -25,30 +25,22 @@ expert is deterministic (`random` and tabular soft-optimal experts restart their
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from imitation.algorithms.bc import BCConfig, train_bc
-from imitation.checkpoints import (
-    CheckpointData,
-    Checkpointing,
-    StopAtBoundary,
-    TrainingInterrupted,
-    checked_counter,
-    floats,
-    prefixed,
-    snapshot,
-    unprefixed,
-)
+from imitation.algorithms.bc import BCConfig, BehaviouralCloning, fit
+from imitation.checkpoints import CheckpointData, checked_counter, prefixed, restoring, unprefixed
+from imitation.data.dataset import DemoDataset
 from imitation.data.loader import load_transitions, split_episodes, transitions_to_torch
-from imitation.data.store import DemoDataset, DemoWriter
+from imitation.data.mcap.writer import DemoWriter
 from imitation.data.types import Episode, stack_samples
 from imitation.envs.make import control_period
-from imitation.errors import ImitationError
+from imitation.errors import ConfigError
 from imitation.policies import ActorCritic, SingleObservationPolicy
 
 SCHEDULES = ("linear", "exponential")
@@ -67,11 +59,14 @@ class DAggerConfig:
 
     def validate(self) -> None:
         if self.beta_schedule not in SCHEDULES:
-            raise ImitationError(f"--beta-schedule must be one of {', '.join(SCHEDULES)}, got {self.beta_schedule!r}")
-        if self.rounds < 1 or self.episodes_per_round < 1:
-            raise ImitationError("--rounds and --episodes-per-round must be at least 1")
+            raise ConfigError(
+                "beta_schedule", f"must be one of {', '.join(SCHEDULES)}, got {self.beta_schedule!r}", owner="DAggerConfig"
+            )
+        for name in ("rounds", "episodes_per_round"):
+            if getattr(self, name) < 1:
+                raise ConfigError(name, f"must be at least 1, got {getattr(self, name)}", owner="DAggerConfig")
         if not 0.0 <= self.beta_decay <= 1.0:
-            raise ImitationError(f"--beta-decay must be in [0, 1], got {self.beta_decay}")
+            raise ConfigError("beta_decay", f"must be in [0, 1], got {self.beta_decay}", owner="DAggerConfig")
 
 
 def beta_for_round(round_index: int, config: DAggerConfig) -> float:
@@ -101,7 +96,7 @@ def collect_round(
         while not (terminated or truncated):
             label = expert(observation)
             use_expert = learner is None or rng.random() < beta
-            action = label if use_expert else learner(observation)
+            action = label if use_expert or learner is None else learner(observation)
             observation, reward, terminated, truncated, _ = env.step(action)
             observations.append(observation)
             labels.append(label)
@@ -120,119 +115,128 @@ def collect_round(
     return collected
 
 
-@dataclass
-class DAggerResult:
-    policy: ActorCritic
-    history: list[dict[str, float]]
-    round_files: list[Path]
+class DAgger:
+    """The learner: one round per step (roll out the β-mixture, write the round's labelled
+    episodes to `round_dir`, retrain BC on the demos and every round so far)."""
 
+    name = "DAgger"
+    unit = "round"
 
-def train_dagger(
-    env: gym.Env,
-    expert: Policy,
-    policy: ActorCritic,
-    config: DAggerConfig,
-    *,
-    round_dir: str | os.PathLike,
-    env_id: str,
-    demos: Sequence[str | os.PathLike] = (),
-    evaluate: Callable[[ActorCritic], float] | None = None,
-    log: Callable[[dict[str, float]], None] | None = None,
-    checkpoints: Checkpointing | None = None,
-) -> DAggerResult:
-    """Run DAgger; round files go to `round_dir`, and the aggregate (demos + rounds) trains BC.
+    def __init__(
+        self,
+        env: gym.Env,
+        expert: Policy,
+        policy: ActorCritic,
+        config: DAggerConfig,
+        *,
+        round_dir: str | os.PathLike,
+        env_id: str,
+        demos: Sequence[str | os.PathLike] = (),
+        evaluate: Callable[[ActorCritic], float] | None = None,
+    ) -> None:
+        config.validate()
+        self.env, self.expert, self.policy, self.config = env, expert, policy, config
+        self.env_id, self.demos, self.evaluate = env_id, list(demos), evaluate
+        self.total = config.rounds
+        self.rng = np.random.default_rng(config.seed)
+        self.round_dir = Path(round_dir)
+        self.round_dir.mkdir(parents=True, exist_ok=True)
+        self.files: list[Path] = []
+        self.rounds = 0
+        self.labels = 0
+        self.learner: Policy | None = None
 
-    With `checkpoints`, a checkpoint is saved every tenth of the rounds (by default), Ctrl-C
-    stops after the current round with a checkpoint saved (TrainingInterrupted), and a run given
-    `checkpoints.resume` continues with the round after it."""
-    config.validate()
-    rng = np.random.default_rng(config.seed)
-    round_dir = Path(round_dir)
-    round_dir.mkdir(parents=True, exist_ok=True)
-    files: list[Path] = []
-    history: list[dict[str, float]] = []
-    learner: Policy | None = None
-    labels = 0
-    first_round = 1
-    with StopAtBoundary(enabled=checkpoints is not None) as stop:
-        if checkpoints is not None and checkpoints.resume is not None:
-            first_round, labels = restore_dagger_checkpoint(checkpoints.resume, policy=policy, rng=rng, round_dir=round_dir, files=files, history=history)
-            first_round = checked_counter(first_round, "next round", 1, config.rounds + 1)
-            learner = SingleObservationPolicy(policy, deterministic=True)
-        elif demos:
-            policy, _ = _fit(policy, list(demos), config)
-            learner = SingleObservationPolicy(policy, deterministic=True)
-        for round_index in range(first_round, config.rounds + 1):
-            beta = beta_for_round(round_index, config)
-            episodes = collect_round(
-                env, learner, expert, beta=beta, episodes=config.episodes_per_round,
-                seed=config.seed * 100_000 + round_index * 1_000, rng=rng, metadata={"round": round_index, "beta": beta},
-            )
-            path = round_dir / f"round-{round_index:02d}.mcap"
-            with DemoWriter(
-                path, env_id=env_id, observation_space=env.observation_space, action_space=env.action_space,
-                dt=control_period(env), source=f"dagger round {round_index}", metadata={"round": round_index, "beta": beta},
-            ) as writer:
-                for episode in episodes:
-                    writer.write(episode)
-            files.append(path)
-            labels += sum(len(episode) for episode in episodes)
-            policy, validation_loss = _fit(policy, list(demos) + files, config)
-            learner = SingleObservationPolicy(policy, deterministic=True)
-            row = {
-                "round": float(round_index),
-                "beta": beta,
-                "expert_labels": float(labels),
-                "rollout_return": float(np.mean([episode.episode_return for episode in episodes])),
-                "validation_loss": validation_loss,
-                "return": evaluate(policy) if evaluate is not None else float("nan"),
-            }
-            history.append(row)
-            if log is not None:
-                log(row)
-            # A checkpoint every tenth of the rounds; Ctrl-C stops here (a finished run just finishes).
-            interrupted = stop.requested and round_index < config.rounds
-            if checkpoints is not None and (interrupted or (round_index % checkpoints.interval(config.rounds) == 0 and round_index < config.rounds)):
-                checkpoints.save(*dagger_checkpoint(round_index + 1, labels, policy=policy, rng=rng, files=files, history=history))
-            if interrupted:
-                raise TrainingInterrupted(f"DAgger stopped after round {round_index} of {config.rounds}")
-    return DAggerResult(policy=policy, history=history, round_files=files)
+    @property
+    def completed(self) -> int:
+        return self.rounds
 
+    @property
+    def done(self) -> bool:
+        return self.rounds >= self.total
 
-def dagger_checkpoint(
-    next_round: int, labels: int, *, policy: ActorCritic, rng: np.random.Generator, files: list[Path], history: list[dict[str, float]]
-) -> CheckpointData:
-    """Everything `restore_dagger_checkpoint` needs to go on with `next_round`: the learner, the
-    mixture's generator, the label count, the rows and the finished rounds' files (by name: the
-    run directory is renamed when it finishes)."""
-    state = {
-        "round": next_round, "labels": labels, "rng": rng.bit_generator.state, "round_files": [path.name for path in files], "history": history,
-    }
-    return snapshot(prefixed("policy", policy.state_dict()), state)
+    def position(self) -> str:
+        return f"round {self.rounds} of {self.total}"
 
+    def progress(self, row: dict[str, float]) -> dict[str, str]:
+        return {"beta": f"{row['beta']:.2f}", "labels": str(int(row["expert_labels"])), "ret": f"{row['return']:.1f}"}
 
-def restore_dagger_checkpoint(
-    checkpoint: CheckpointData, *, policy: ActorCritic, rng: np.random.Generator, round_dir: Path, files: list[Path],
-    history: list[dict[str, float]],
-) -> tuple[int, int]:
-    """Load a `dagger_checkpoint` (files and history are filled in place); returns (next round, labels so far)."""
-    tensors, state = checkpoint
-    try:
-        policy.load_state_dict(unprefixed("policy", tensors))
-        rng.bit_generator.state = state["rng"]
-        files += [round_dir / name for name in state["round_files"]]
-        history += [floats(row) for row in state["history"]]
-        return int(state["round"]), int(state["labels"])
-    except (KeyError, TypeError, ValueError, RuntimeError) as error:
-        raise ImitationError(f"the checkpoint does not fit this DAgger run ({type(error).__name__}: {str(error).splitlines()[0]})") from None
+    def step(self) -> dict[str, float]:
+        """Round i: π_i = β_i π* + (1 - β_i) π̂_i rolled out and labelled by π*, D ← D ∪ D_i, π̂_{i+1} ← BC(D)."""
+        if self.learner is None and self.demos:
+            self.policy, _ = self._fit(self.demos)  # π̂_1 ← BC(demos)
+            self.learner = SingleObservationPolicy(self.policy, deterministic=True)
+        round_index = self.rounds + 1
+        beta = beta_for_round(round_index, self.config)
+        episodes = collect_round(
+            self.env,
+            self.learner,
+            self.expert,
+            beta=beta,
+            episodes=self.config.episodes_per_round,
+            seed=self.config.seed * 100_000 + round_index * 1_000,
+            rng=self.rng,
+            metadata={"round": round_index, "beta": beta},
+        )
+        path = self.round_dir / f"round-{round_index:02d}.mcap"
+        with DemoWriter(
+            path,
+            env_id=self.env_id,
+            observation_space=self.env.observation_space,
+            action_space=self.env.action_space,
+            dt=control_period(self.env),
+            source=f"dagger round {round_index}",
+            metadata={"round": round_index, "beta": beta},
+        ) as writer:
+            for episode in episodes:
+                writer.write(episode)
+        self.files.append(path)
+        self.labels += sum(len(episode) for episode in episodes)
+        self.policy, validation_loss = self._fit([*self.demos, *self.files])
+        self.learner = SingleObservationPolicy(self.policy, deterministic=True)
+        self.rounds = round_index
+        return {
+            "round": float(round_index),
+            "beta": beta,
+            "expert_labels": float(self.labels),
+            "rollout_return": float(np.mean([episode.episode_return for episode in episodes])),
+            "validation_loss": validation_loss,
+            "return": self.evaluate(self.policy) if self.evaluate is not None else float("nan"),
+        }
 
+    def _fit(self, paths: Sequence[str | os.PathLike]) -> tuple[ActorCritic, float]:
+        """BC on the aggregate dataset, warm-started from the current policy; the best validation loss."""
+        dataset = DemoDataset(paths)
+        bc = self.config.bc
+        train_ids, validation_ids = split_episodes(
+            len(dataset), validation_fraction=bc.validation_fraction, seed=self.config.seed
+        )
+        train = transitions_to_torch(load_transitions(dataset, episodes=train_ids, next_observations=False))
+        validation = (
+            transitions_to_torch(load_transitions(dataset, episodes=validation_ids, next_observations=False))
+            if validation_ids
+            else None
+        )
+        cloning = BehaviouralCloning(self.policy, train, validation, bc)
+        losses = [row["validation_loss"] for row in fit(cloning) if np.isfinite(row["validation_loss"])]
+        return cloning.policy, min(losses) if losses else float("nan")
 
-def _fit(policy: ActorCritic, paths: list[str | os.PathLike], config: DAggerConfig) -> tuple[ActorCritic, float]:
-    """BC on the aggregate dataset, warm-started from `policy`; the best validation loss."""
-    dataset = DemoDataset(paths)
-    train_ids, validation_ids = split_episodes(len(dataset), validation_fraction=config.bc.validation_fraction, seed=config.seed)
-    train = transitions_to_torch(load_transitions(dataset, episodes=train_ids, next_observations=False))
-    validation = transitions_to_torch(load_transitions(dataset, episodes=validation_ids, next_observations=False)) if validation_ids else None
-    result = train_bc(policy, train, validation, config.bc, progress=False)
-    losses = [row["validation_loss"] for row in result.history if np.isfinite(row["validation_loss"])]
-    return result.policy, min(losses) if losses else float("nan")
+    def state_dict(self) -> CheckpointData:
+        """The learner, the mixture's generator, the label count and the finished rounds' files
+        (by name: the run directory is renamed when it finishes)."""
+        state = {
+            "round": self.rounds + 1,
+            "labels": self.labels,
+            "rng": self.rng.bit_generator.state,
+            "round_files": [path.name for path in self.files],
+        }
+        return prefixed("policy", self.policy.state_dict()), state
+
+    def load_state_dict(self, checkpoint: CheckpointData) -> None:
+        tensors, state = checkpoint
+        with restoring("DAgger"):
+            self.policy.load_state_dict(unprefixed("policy", tensors))
+            self.rng.bit_generator.state = state["rng"]
+            self.files = [self.round_dir / name for name in state["round_files"]]
+            self.labels = int(state["labels"])
+            self.rounds = checked_counter(int(state["round"]), "next round", 1, self.total + 1) - 1
+        self.learner = SingleObservationPolicy(self.policy, deterministic=True)

@@ -1,6 +1,7 @@
-"""Sample-based maximum-entropy IRL for continuous states: guided cost learning (Finn et al. 2016).
+"""Sample-based maximum-entropy IRL for continuous states: guided cost learning (Finn et al. 2016;
+docs/THEORY.md §8).
 
-The MaxEnt model of notes §5.3 is kept, p_θ(τ) ∝ p(τ | dynamics) exp R_θ(τ), but the partition
+The MaxEnt model of docs/THEORY.md §7 is kept, p_θ(τ) ∝ p(τ | dynamics) exp R_θ(τ), but the partition
 function Z = Σ_τ exp R_θ(τ) can no longer be summed over a tabular MDP. It is estimated from
 samples of a density q, drawn by the policies π_k that PPO keeps close to the soft-optimal
 policy of the current reward, with importance weights exp R_θ(τ) / q(τ) (the dynamics cancel):
@@ -32,24 +33,29 @@ The model holds only if π_k is the soft-optimal policy of r_θ, so PPO alongsid
 maximum-entropy objective, the reward r_θ(s) - α log π_k(a|s) with α = 1 (`policy_entropy`),
 AIRL's log D_θ - log(1 - D_θ) with q = π_k, up to log Z (Fu et al. 2018). With PPO on r_θ alone,
 its policy grew sharper than the (near-deterministic) demos' actions allow, D_θ told them apart
-by log π_k alone, and r_θ stayed flat (measured on Pendulum-v1: bench/RESULTS.md, issue 5).
+by log π_k alone, and r_θ stayed flat (bench/RESULTS.md).
 Box actions are clipped to the bounds, so log π_k is that of the clipped (censored) Gaussian,
 demos and samples alike (`ActorCritic.env_action_log_prob`): a demo's full torque is then as
 likely to the policy as its own saturated actions.
 
-Each PPO rollout of the bundled trainer (1) joins the pool of samples and its policy π_K the
-mixture (the pool keeps every rollout, so states the policy has stopped visiting stay rated):
-log Σ_k π_k(a|s) is brought up to date for every pooled and demo step, one pass of π_K over
-the old steps and of π_1 … π_K over the new ones; (2) `reward_steps` minibatch steps of the
-loss are taken (`warmup_steps` more on the first rollout, the learning rate annealed to 0 so
-that PPO ends on a settled reward); and (3) r_θ is shifted to mean 0 over the demos (log Z with
-it) and relabels the rollout, on which PPO then updates. A gradient penalty on r_θ's inputs keeps
-it smooth. The recovered r_θ is what `train ppo --reward` later optimises from scratch; the
-policy trained alongside is the soft-optimal one, deliberately random, and is not meant for use.
+The outer loop (`GuidedCostLearning.step`), once per PPO update:
 
-The learner is `Checkpointable`: PPO's checkpoints hold r_θ, log Z, their Adam state, the pool,
-the samplers π_1 … π_K, the minibatch generator's position and the logged rows, so an
-interrupted run resumes with them.
+    τ ← rollout of π_k                                     (PPO.collect_rollout)
+    (1) pool ← pool ∪ τ;  q ← the mixture with π_k         (RewardLearner.add_rollout)
+    (2) `reward_steps` minibatch steps on the loss, then    (RewardLearner.learn)
+        r_θ shifted to mean 0 over the demos (log Z with it)
+    (3) PPO update on r_θ(s) - α log π_k(a|s) over τ       (PPO.update)
+
+The pool keeps every rollout, so states the policy has stopped visiting stay rated; log Σ_k
+π_k(a|s) is brought up to date for every pooled and demo step by one pass of π_k over the old
+steps and of π_1 … π_k over the new ones. The first rollout takes `warmup_steps` more reward
+steps, and the reward's learning rate is annealed to 0 so that PPO ends on a settled reward. A
+gradient penalty on r_θ's inputs keeps it smooth. The recovered r_θ is what `train ppo --reward`
+later optimises from scratch; the policy trained alongside is the soft-optimal one,
+deliberately random, and is not meant for use.
+
+The state saved with PPO's is r_θ, log Z, their Adam state, the pool, the samplers π_1 … π_K
+and the minibatch generator's position, so an interrupted run resumes exactly.
 """
 
 from __future__ import annotations
@@ -61,25 +67,15 @@ import numpy as np
 import torch
 from torch import nn
 
-from imitation.algorithms.ppo import Rollout
-from imitation.checkpoints import CheckpointData, floats, optimizer_checkpoint, prefixed, restore_optimizer, unprefixed
+from imitation.algorithms.ppo import PPO
+from imitation.checkpoints import CheckpointData, optimizer_checkpoint, prefixed, restore_optimizer, restoring, unprefixed
 from imitation.data.loader import TransitionTensors
-from imitation.errors import ImitationError
+from imitation.envs.rollout import Rollout
+from imitation.errors import ConfigError, ImitationError
 from imitation.policies import ActorCritic, PolicyConfig
-from imitation.rewards import RewardNet, flat_batch, relabel_rollout
-
+from imitation.rewards import RewardNet, flat_batch
 
 OBJECTIVES = ("discriminator", "importance")
-# PPO steps that learn a reward well on each env (measured: bench/RESULTS.md, issue 5): with them,
-# retraining from scratch on the reward reached normalised 1.04, 1.05, 1.05 on Pendulum-v1 and
-# 1.00 thrice on fixed-horizon CartPole (seeds 0-2).
-DEFAULT_STEPS = {"imitation/CartPoleFixedHorizon-v0": 200_000, "Pendulum-v1": 500_000}
-FALLBACK_STEPS = 200_000
-
-
-def default_steps(env_id: str) -> int:
-    """Total PPO steps of `train irl --method gcl` when --steps is not given."""
-    return DEFAULT_STEPS.get(env_id, FALLBACK_STEPS)
 
 
 @dataclass(kw_only=True)
@@ -99,11 +95,17 @@ class GCLConfig:
 
     def validate(self) -> None:
         if self.objective not in OBJECTIVES:
-            raise ImitationError(f"GCL objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
+            raise ConfigError(
+                "objective", f"must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}", owner="GCLConfig"
+            )
         if not 0 < self.learning_rate < 1e30:  # NaN fails too; from ~1e37 Adam's step overflows float32
-            raise ImitationError(f"--lr must be a positive number below 1e30, got {self.learning_rate}")
+            raise ConfigError(
+                "learning_rate", f"must be a positive number below 1e30, got {self.learning_rate}", owner="GCLConfig"
+            )
         if not 0 <= self.policy_entropy < float("inf"):
-            raise ImitationError(f"GCL's policy_entropy (α) must be a finite number ≥ 0, got {self.policy_entropy}")
+            raise ConfigError(
+                "policy_entropy", f"(α) must be a finite number ≥ 0, got {self.policy_entropy}", owner="GCLConfig"
+            )
 
 
 @dataclass
@@ -115,9 +117,9 @@ class _Samples:
     log_mass: torch.Tensor
 
 
-class GuidedCostLearning:
-    """The reward side of GCL, as PPO's `rollout_rewards` hook: learns r_θ from each rollout,
-    then returns the rollout's rewards under the updated r_θ."""
+class RewardLearner:
+    """The reward side of GCL: r_θ and log Z, the pool of samples with the mixture q of their
+    samplers, and the minibatch steps on the loss."""
 
     def __init__(self, reward: RewardNet, demos: TransitionTensors, config: GCLConfig, *, updates: int) -> None:
         config.validate()
@@ -126,7 +128,7 @@ class GuidedCostLearning:
         self.reward = reward
         self.demos = demos
         self.config = config
-        self.updates = updates
+        self.updates = updates  # of PPO, over which the learning rate is annealed
         # log Z, the discriminator's offset, kept apart from r_θ so that centring r_θ on the demos
         # leaves the classifier where its loss put it.
         self.log_partition = nn.Parameter(torch.zeros(()))
@@ -136,56 +138,83 @@ class GuidedCostLearning:
         self.samplers: list[ActorCritic] = []
         self.demo_log_mass = torch.full((len(demos),), -float("inf"))
         self.generator = torch.Generator().manual_seed(config.seed)
-        self.history: list[dict[str, float]] = []
+        self.learned = 0  # reward updates so far, one per pooled rollout
 
-    def __call__(self, rollout: Rollout, policy: ActorCritic) -> torch.Tensor:
+    def add_rollout(self, rollout: Rollout, policy: ActorCritic) -> torch.Tensor:
+        """Pool the rollout's steps and add its sampler π_k to the mixture; log π_k(a|s) of its
+        steps, shaped as the rollout, on the CPU."""
         # A CPU copy: PPO refills its rollout buffers in place (on its own device), and the pool
         # outlives this rollout.
         rollout = Rollout(**{name: getattr(rollout, name).to("cpu", copy=True) for name in Rollout.__dataclass_fields__})
         if self.reward.config.normalize_observations and self.pool is None:
             # Where the space is unbounded, the first policy's states widen the demos' spread.
-            self.reward.set_observation_statistics(self.demos.observations, flat_batch(rollout.observations, 2))
+            self.reward.set_observation_statistics(self._demo_steps()[0], flat_batch(rollout.observations, 2))
         observations, env_actions = flat_batch(rollout.observations, 2), flat_batch(rollout.env_actions, 2)
         sampler = copy.deepcopy(policy).to("cpu").eval()
         own_log_probs = _env_action_log_probs(sampler, observations, env_actions)
         earlier = [_env_action_log_probs(old, observations, env_actions) for old in self.samplers]
         new = _Samples(
-            observations=observations, env_actions=env_actions, next_observations=flat_batch(rollout.next_observations, 2),
+            observations=observations,
+            env_actions=env_actions,
+            next_observations=flat_batch(rollout.next_observations, 2),
             log_mass=torch.logsumexp(torch.stack([own_log_probs, *earlier]), 0),
         )
-        self.demo_log_mass = torch.logaddexp(self.demo_log_mass, _env_action_log_probs(sampler, self.demos.observations, self.demos.actions))
+        demo_observations, demo_actions, _ = self._demo_steps()
+        self.demo_log_mass = torch.logaddexp(
+            self.demo_log_mass, _env_action_log_probs(sampler, demo_observations, demo_actions)
+        )
         if self.pool is None:
             self.pool = new
         else:
-            self.pool.log_mass = torch.logaddexp(self.pool.log_mass, _env_action_log_probs(sampler, self.pool.observations, self.pool.env_actions))
-            self.pool = _Samples(**{name: torch.cat([getattr(self.pool, name), getattr(new, name)]) for name in _Samples.__dataclass_fields__})
+            self.pool.log_mass = torch.logaddexp(
+                self.pool.log_mass, _env_action_log_probs(sampler, self.pool.observations, self.pool.env_actions)
+            )
+            self.pool = _Samples(
+                **{name: torch.cat([getattr(self.pool, name), getattr(new, name)]) for name in _Samples.__dataclass_fields__}
+            )
         self.samplers.append(sampler)
+        return own_log_probs.reshape(rollout.env_rewards.shape)
+
+    def learn(self) -> dict[str, float]:
+        """`reward_steps` minibatch steps on the loss (`warmup_steps` more the first time), then
+        r_θ centred on the demos; the steps' mean loss and accuracies."""
         self.reward.train()
         if self.config.anneal_lr:
-            self.optimizer.param_groups[0]["lr"] = self.config.learning_rate * max(0.0, 1.0 - len(self.history) / self.updates)
-        steps = self.config.reward_steps + (self.config.warmup_steps if len(self.history) == 0 else 0)
+            self.optimizer.param_groups[0]["lr"] = self.config.learning_rate * max(0.0, 1.0 - self.learned / self.updates)
+        steps = self.config.reward_steps + (self.config.warmup_steps if self.learned == 0 else 0)
         statistics = [self._step(step, steps) for step in range(1, steps + 1)]
         self.reward.eval()
         self._center_on_demos()
+        self.learned += 1
         loss, demo_accuracy, sample_accuracy = np.mean(statistics, axis=0)
-        self.history.append({"reward_loss": float(loss), "demo_accuracy": float(demo_accuracy), "sample_accuracy": float(sample_accuracy)})
-        return relabel_rollout(self.reward, rollout) - self.config.policy_entropy * own_log_probs.reshape(rollout.env_rewards.shape)
+        return {"reward_loss": float(loss), "demo_accuracy": float(demo_accuracy), "sample_accuracy": float(sample_accuracy)}
 
-    def checkpoint(self) -> CheckpointData:
-        """Everything `restore` needs to go on as if never stopped (live tensors: PPO snapshots them)."""
+    def state_dict(self) -> CheckpointData:
+        """Everything to go on as if never stopped (live tensors: the loop copies them)."""
         optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")
-        tensors = prefixed("reward", self.reward.state_dict()) | optimizer_tensors | {
-            "generator": self.generator.get_state(), "log_partition": self.log_partition.detach(), "demo_log_mass": self.demo_log_mass,
-        }
+        tensors = (
+            prefixed("reward", self.reward.state_dict())
+            | optimizer_tensors
+            | {
+                "generator": self.generator.get_state(),
+                "log_partition": self.log_partition.detach(),
+                "demo_log_mass": self.demo_log_mass,
+            }
+        )
         if self.pool is not None:
             tensors |= prefixed("pool", vars(self.pool))
         for k, sampler in enumerate(self.samplers):
             tensors |= prefixed(f"sampler.{k}", sampler.state_dict())
         samplers = self.samplers[0].config.to_json() if self.samplers else None
-        return tensors, {"optimizer": optimizer_state, "history": self.history, "samplers": len(self.samplers), "sampler_policy": samplers}
+        return tensors, {
+            "optimizer": optimizer_state,
+            "learned": self.learned,
+            "samplers": len(self.samplers),
+            "sampler_policy": samplers,
+        }
 
-    def restore(self, checkpoint: CheckpointData) -> None:
-        """Continue from a `checkpoint()` (KeyError or RuntimeError when it is not one)."""
+    def load_state_dict(self, checkpoint: CheckpointData) -> None:
+        """Continue from a `state_dict()` (KeyError or RuntimeError when it is not one)."""
         tensors, state = checkpoint
         self.reward.load_state_dict(unprefixed("reward", tensors))
         with torch.no_grad():
@@ -200,16 +229,17 @@ class GuidedCostLearning:
             sampler = ActorCritic(PolicyConfig.from_json(state["sampler_policy"]))
             sampler.load_state_dict(unprefixed(f"sampler.{k}", tensors))
             self.samplers.append(sampler.eval())
-        self.history = [floats(row) for row in state["history"]]
+        self.learned = int(state["learned"])
 
     def _step(self, step: int, steps: int) -> tuple[float, float, float]:
         size = self.config.batch_size
         demo_index = torch.randint(len(self.demos), (size,), generator=self.generator)
         samples = self._sample_batch(size)
+        demo_observations, demo_actions, demo_next_observations = self._demo_steps()
         inputs = self.reward.inputs(
-            torch.cat([self.demos.observations[demo_index], samples.observations]),
-            torch.cat([self.demos.actions[demo_index], samples.env_actions]),
-            torch.cat([self.demos.next_observations[demo_index], samples.next_observations]),
+            torch.cat([demo_observations[demo_index], samples.observations]),
+            torch.cat([demo_actions[demo_index], samples.env_actions]),
+            torch.cat([demo_next_observations[demo_index], samples.next_observations]),
         ).requires_grad_(self.config.gradient_penalty > 0)
         rewards = self.reward.net(inputs).squeeze(-1)
         log_q = torch.cat([self.demo_log_mass[demo_index], samples.log_mass]) - np.log(len(self.samplers))
@@ -227,7 +257,8 @@ class GuidedCostLearning:
             loss = loss + self.config.gradient_penalty * gradient.pow(2).sum(-1).mean()
         if not torch.isfinite(loss):
             raise ImitationError(
-                f"GCL reward update {len(self.history) + 1}, step {step}/{steps}: the loss is {loss.item()} (diverged; try a lower --lr)"
+                f"GCL reward update {self.learned + 1}, step {step}/{steps}: the loss is {loss.item()} (diverged; try a "
+                "lower learning rate)"
             )
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -247,12 +278,20 @@ class GuidedCostLearning:
         """Shift r_θ so that its mean over the demos' steps is 0: the constant is arbitrary (log Z
         is absorbed into it), and PPO's critic learns far faster when the expert's behaviour is
         worth about 0 and everything else costs, than when every value sits at some large
-        offset (measured on fixed-horizon CartPole: 477 vs 8 after retraining)."""
+        offset (bench/RESULTS.md)."""
         with torch.no_grad():
             demos = self.demos
             offset = self.reward(demos.observations, demos.actions, demos.next_observations).mean()
             self.reward.net[-1].bias -= offset
-            self.log_partition -= offset
+            self.log_partition.sub_(offset)  # in place, as `-=` did (without re-registering the parameter)
+
+    def _demo_steps(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The demos' s, a and s' (tensors: a reward model takes Box or Discrete spaces, never Dict;
+        s' is checked present in __init__)."""
+        demos = self.demos
+        assert isinstance(demos.observations, torch.Tensor) and isinstance(demos.actions, torch.Tensor)
+        assert isinstance(demos.next_observations, torch.Tensor)
+        return demos.observations, demos.actions, demos.next_observations
 
     def _sample_batch(self, size: int) -> _Samples:
         """`size` pooled steps drawn uniformly."""
@@ -276,3 +315,49 @@ def _env_action_log_probs(policy: ActorCritic, observations: torch.Tensor, env_a
             distribution = policy.distribution(policy.encode(observations[chunk].to(device)))
             parts.append(policy.env_action_log_prob(distribution, env_actions[chunk].to(device)).cpu())
         return torch.cat(parts)
+
+
+class GuidedCostLearning:
+    """The learner: PPO and the reward learner, one PPO update per step (the outer loop of the
+    module docstring). Its checkpoint is PPO's, with the reward learner's state under "learner"."""
+
+    name = PPO.name  # its steps are PPO's updates, and an interruption is reported as PPO's
+    unit = PPO.unit
+
+    def __init__(self, ppo: PPO, reward: RewardNet, demos: TransitionTensors, config: GCLConfig) -> None:
+        self.ppo = ppo
+        self.rewards = RewardLearner(reward, demos, config, updates=ppo.total)
+        self.policy_entropy = config.policy_entropy
+        self.total = ppo.total
+
+    @property
+    def completed(self) -> int:
+        return self.ppo.completed
+
+    @property
+    def done(self) -> bool:
+        return self.ppo.done
+
+    def position(self) -> str:
+        return self.ppo.position()
+
+    def progress(self, row: dict[str, float]) -> dict[str, str]:
+        return self.ppo.progress(row) | {"demo_acc": f"{row['demo_accuracy']:.2f}"}
+
+    def step(self) -> dict[str, float]:
+        rollout = self.ppo.collect_rollout()  # τ ~ π_k
+        log_pi = self.rewards.add_rollout(rollout, self.ppo.policy)  # (1)
+        statistics = self.rewards.learn()  # (2)
+        optimised = self.rewards.reward.relabel(rollout) - self.policy_entropy * log_pi.to(rollout.env_rewards.device)
+        return self.ppo.update(rollout, optimised) | statistics  # (3)
+
+    def state_dict(self) -> CheckpointData:
+        tensors, state = self.ppo.state_dict()
+        learner_tensors, state["learner"] = self.rewards.state_dict()
+        return tensors | prefixed("learner", learner_tensors), state
+
+    def load_state_dict(self, checkpoint: CheckpointData) -> None:
+        tensors, state = checkpoint
+        self.ppo.load_state_dict(checkpoint)
+        with restoring("PPO"):
+            self.rewards.load_state_dict((unprefixed("learner", tensors), state["learner"]))

@@ -1,7 +1,8 @@
-"""Proximal policy optimisation (theory notes §3–4), readable top to bottom like CleanRL's ppo.py.
+"""Proximal policy optimisation (docs/THEORY.md §4), readable top to bottom like CleanRL's ppo.py.
 
-Each update collects n_steps × n_envs transitions with the current policy π_k, then takes
-n_epochs passes of minibatch gradient steps on one of the notes' two objectives:
+Each update collects n_steps × n_envs transitions with the current policy π_k
+(`PPO.collect_rollout`), then takes n_epochs passes of minibatch gradient steps on one of two
+objectives (`PPO.update`, `ppo_update`):
 
 - clipped surrogate:  L^CLIP(θ) = E[ min( r_t(θ) Â_t, clip(r_t(θ), 1-ε, 1+ε) Â_t ) ],
   r_t(θ) = π_θ(a_t|s_t) / π_k(a_t|s_t)
@@ -21,6 +22,10 @@ The implementation details (CleanRL's "37 details") each appear as a visible lin
 envs, orthogonal init (in imitation.policies), Adam eps 1e-5, learning-rate annealing,
 minibatch advantage normalisation, optional value clipping, entropy bonus, global gradient
 clipping, optional KL early stop, running observation normalisation and reward scaling.
+
+The rewards optimised are the environment's, or a learned reward's (`reward`, any object with
+`relabel(rollout)`, such as `imitation.rewards.RewardNet`); an outer loop that learns a reward
+(guided cost learning) calls `collect_rollout` and `update` itself.
 """
 
 from __future__ import annotations
@@ -28,33 +33,29 @@ from __future__ import annotations
 import time
 from collections import deque
 from dataclasses import dataclass, field, fields
-from typing import Any, Callable
+from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
 import torch
 from torch.distributions import Distribution, kl_divergence
-from tqdm import tqdm
 
 from imitation.checkpoints import (
     CheckpointData,
-    Checkpointable,
-    Checkpointing,
-    StopAtBoundary,
-    TrainingInterrupted,
+    TrainingClock,
     checked_counter,
-    floats,
     optimizer_checkpoint,
     prefixed,
     restore_optimizer,
     restore_rng,
+    restoring,
     rng_checkpoint,
-    snapshot,
     unprefixed,
 )
 from imitation.data.loader import resolve_device
 from imitation.envs.make import make_env
-from imitation.errors import ImitationError
+from imitation.envs.rollout import Rollout
+from imitation.errors import ConfigError, ImitationError
 from imitation.policies import ActorCritic, RunningMeanStd, make_policy
 
 OBJECTIVES = ("clip", "kl")
@@ -62,7 +63,7 @@ OBJECTIVES = ("clip", "kl")
 
 @dataclass(kw_only=True)
 class PPOConfig:
-    """Hyperparameters; `ppo_defaults(env_id)` gives tuned values for known environments."""
+    """Hyperparameters; per-environment presets are in `imitation.jobs.presets`."""
 
     env_id: str
     total_steps: int = 100_000
@@ -94,58 +95,30 @@ class PPOConfig:
     seed: int = 0
     device: str = "auto"
     threads: int = 1
-    reward_run: str | None = None
 
     def validate(self) -> None:
         if self.objective not in OBJECTIVES:
-            raise ImitationError(f"--objective must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}")
+            raise ConfigError(
+                "objective", f"must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}", owner="PPOConfig"
+            )
         for name in ("total_steps", "n_envs", "n_steps", "batch_size", "n_epochs"):
             if getattr(self, name) < 1:
-                raise ImitationError(f"{name} must be at least 1, got {getattr(self, name)}")
+                raise ConfigError(name, f"must be at least 1, got {getattr(self, name)}", owner="PPOConfig")
         if self.total_steps < self.n_envs * self.n_steps:
-            raise ImitationError(f"--steps {self.total_steps} is less than one rollout ({self.n_envs} envs × {self.n_steps} steps)")
+            raise ConfigError(
+                "total_steps",
+                f"{self.total_steps} is less than one rollout ({self.n_envs} envs × {self.n_steps} steps)",
+                owner="PPOConfig",
+            )
         if not 0 < self.learning_rate < 1e30:  # NaN fails too; from ~1e37 Adam's step overflows float32
-            raise ImitationError(f"learning_rate must be a positive number below 1e30, got {self.learning_rate}")
+            raise ConfigError(
+                "learning_rate", f"must be a positive number below 1e30, got {self.learning_rate}", owner="PPOConfig"
+            )
 
     @staticmethod
     def from_json(data: dict[str, Any]) -> PPOConfig:
         known = {f.name for f in fields(PPOConfig)}
         return PPOConfig(**{key: value for key, value in data.items() if key in known})
-
-
-# rl-baselines3-zoo's tuned settings where we have them (Pendulum departs from them, see there);
-# CleanRL's defaults otherwise.
-_ENV_DEFAULTS: dict[str, dict[str, Any]] = {
-    "CartPole-v1": dict(n_envs=8, n_steps=32, batch_size=256, gamma=0.98, gae_lambda=0.8, n_epochs=20, learning_rate=1e-3),
-    # The zoo reaches Pendulum with gSDE; with a state-independent log-std, an entropy bonus keeps
-    # σ from collapsing before the swing-up is found (measured: -177, -186, -163 at 200k steps,
-    # seeds 0-2; without it about -530).
-    "Pendulum-v1": dict(
-        n_envs=4, n_steps=1024, batch_size=64, gamma=0.9, gae_lambda=0.95, n_epochs=10, learning_rate=1e-3,
-        normalize_observations=True, log_std_init=-0.5, entropy_coef=0.01,
-    ),
-    "MountainCarContinuous-v0": dict(n_envs=1, n_steps=2048, batch_size=64, n_epochs=10, learning_rate=3e-4, normalize_observations=True),
-}
-# Without termination, most early steps are spent after the fall, where nothing can be learnt;
-# the policy turned near-deterministic by 13k steps and recovered slowly (100k steps: 52 and
-# 188). An entropy bonus keeps it exploring: 500, 500, 475 at 200k steps, seeds 0-2.
-_ENV_DEFAULTS["imitation/CartPoleFixedHorizon-v0"] = _ENV_DEFAULTS["CartPole-v1"] | {"entropy_coef": 0.01}
-_CONTINUOUS_DEFAULTS = dict(n_envs=1, n_steps=2048, batch_size=64, n_epochs=10, learning_rate=3e-4, normalize_observations=True, normalize_rewards=True)
-
-
-def ppo_defaults(env_id: str, action_space: gym.Space | None = None) -> dict[str, Any]:
-    """Settings that make `train ppo --env ID` work without flags."""
-    if env_id in _ENV_DEFAULTS:
-        return dict(_ENV_DEFAULTS[env_id])
-    if isinstance(action_space, gym.spaces.Box):
-        return dict(_CONTINUOUS_DEFAULTS)
-    return {}
-
-
-def learned_reward_ppo_defaults(env_id: str, action_space: gym.Space | None = None) -> dict[str, Any]:
-    """`ppo_defaults` for optimising a learned reward: rewards scaled by their running return
-    std, since a learned reward's scale is arbitrary (and drifts while it is being learned)."""
-    return ppo_defaults(env_id, action_space) | {"normalize_rewards": True}
 
 
 # ------------------------------------------------------------------------------------------------
@@ -188,7 +161,9 @@ def policy_kl(old: Distribution, new: Distribution) -> torch.Tensor:
     return kl.reshape(len(kl), -1).sum(-1)
 
 
-def kl_penalty_objective(ratio: torch.Tensor, advantages: torch.Tensor, old: Distribution, new: Distribution, beta: float) -> torch.Tensor:
+def kl_penalty_objective(
+    ratio: torch.Tensor, advantages: torch.Tensor, old: Distribution, new: Distribution, beta: float
+) -> torch.Tensor:
     """r Â - β D_KL(π_k || π_θ) per sample (to be maximised)."""
     return ratio * advantages - beta * policy_kl(old, new)
 
@@ -222,25 +197,20 @@ class RewardScaler:
         return np.clip(rewards / np.sqrt(self.stats.var.item() + 1e-8), -10.0, 10.0)
 
 
-def make_vector_env(
-    env_id: str,
-    n_envs: int,
-    *,
-    asynchronous: bool = False,
-    wrap: Callable[[gym.Env], gym.Env] | None = None,
-) -> gym.vector.VectorEnv:
+def make_vector_env(env_id: str, n_envs: int, *, asynchronous: bool = False) -> gym.vector.VectorEnv:
     """n copies of env_id with same-step autoreset (the final observation comes in
-    info["final_obs"], so truncated episodes can be bootstrapped from their true last state).
-    Episode statistics are recorded inside `wrap`, so they are of the environment's own reward."""
+    info["final_obs"], so truncated episodes can be bootstrapped from their true last state),
+    recording each episode's return of the environment's own reward."""
     make_env(env_id).close()  # fail here, with one line, on an unknown id
 
     def factory() -> gym.Env:
-        env = gym.wrappers.RecordEpisodeStatistics(make_env(env_id))
-        return wrap(env) if wrap is not None else env
+        return gym.wrappers.RecordEpisodeStatistics(make_env(env_id))
 
     if asynchronous:
         # spawn, not fork: forking a process that already runs torch threads can deadlock.
-        return gym.vector.AsyncVectorEnv([factory] * n_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP, context="spawn")
+        return gym.vector.AsyncVectorEnv(
+            [factory] * n_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP, context="spawn"
+        )
     return gym.vector.SyncVectorEnv([factory] * n_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
 
 
@@ -266,41 +236,6 @@ def finished_episode_returns(info: dict[str, Any]) -> list[float]:
         return []
     episode = final["episode"]
     return [float(r) for r in episode["r"][episode["_r"]]]
-
-
-# ------------------------------------------------------------------------------------------------
-# Training
-
-
-@dataclass
-class Rollout:
-    """One rollout as the environment saw it, (T, n_envs) leading dims: what a learned reward
-    needs to relabel it (`next_observations` holds the true final state where an episode ended)
-    and what importance weights need (`log_probs`, log π_k(a_t|s_t) of the sampled actions)."""
-
-    observations: torch.Tensor
-    actions: torch.Tensor
-    env_actions: torch.Tensor
-    next_observations: torch.Tensor
-    log_probs: torch.Tensor
-    env_rewards: torch.Tensor
-    terminated: torch.Tensor
-    truncated: torch.Tensor
-
-
-# Given each rollout and the current policy, returns the (T, n_envs) rewards PPO optimises in
-# place of the env's: a learned reward relabelling the rollout (and, for IRL, learning from it).
-# A hook that learns (GCL) is also `Checkpointable`, so that its state is in PPO's checkpoints.
-RolloutRewards = Callable[[Rollout, ActorCritic], torch.Tensor]
-
-
-@dataclass
-class PPOResult:
-    policy: ActorCritic
-    history: list[dict[str, float]]
-    reward_scaler: RewardScaler | None
-    steps: int
-    seconds: float
 
 
 @dataclass
@@ -331,7 +266,14 @@ class UpdateStatistics:
 
 
 def ppo_update(
-    policy: ActorCritic, optimizer: torch.optim.Optimizer, batch: UpdateBatch, config: PPOConfig, beta: float, *, update: int = 1, n_updates: int = 1
+    policy: ActorCritic,
+    optimizer: torch.optim.Optimizer,
+    batch: UpdateBatch,
+    config: PPOConfig,
+    beta: float,
+    *,
+    update: int = 1,
+    n_updates: int = 1,
 ) -> UpdateStatistics:
     """n_epochs passes over the rollout in shuffled minibatches, each a gradient step on
 
@@ -396,268 +338,298 @@ def ppo_update(
     return UpdateStatistics(policy_loss_mean, value_loss_mean, kl_mean, clip_fraction_mean, entropy, stopped_early)
 
 
-def train_ppo(
-    config: PPOConfig,
-    *,
-    wrap_env: Callable[[gym.Env], gym.Env] | None = None,
-    rollout_rewards: RolloutRewards | None = None,
-    log: Callable[[dict[str, float]], None] | None = None,
-    progress: bool = True,
-    checkpoints: Checkpointing | None = None,
-) -> PPOResult:
-    """Train an actor-critic on config.env_id; `log` receives one row of metrics per update.
-    With `rollout_rewards`, each rollout's rewards are replaced by what it returns before the
-    advantages are computed; the logged "return" stays the env's own.
+class RolloutReward(Protocol):
+    """A learned reward PPO optimises in place of the environment's: r(s_t, a_t, s_{t+1}) for
+    every step of a rollout, shape (T, n_envs)."""
 
-    With `checkpoints`, a checkpoint is saved every tenth of the run (by default), Ctrl-C stops
-    after the current update with a checkpoint saved (TrainingInterrupted), and a run given
-    `checkpoints.resume` continues from one (see "Checkpoints" at the end of this module); a
-    `Checkpointable` `rollout_rewards` is saved and restored with the rest."""
-    config.validate()
-    # Measured on 2 cores: one thread runs these small MLPs ~10× faster than two, which
-    # spend their time synchronising.
-    torch.set_num_threads(config.threads)
-    torch.manual_seed(config.seed)
-    np.random.seed(config.seed)
-    device = resolve_device(config.device)
-    envs = make_vector_env(config.env_id, config.n_envs, asynchronous=config.async_envs, wrap=wrap_env)
-    try:
-        with StopAtBoundary(enabled=checkpoints is not None) as stop:
-            return _train(config, envs, device, rollout_rewards, log, progress, checkpoints, stop)
-    finally:
-        envs.close()
+    def relabel(self, rollout: Rollout) -> torch.Tensor: ...
 
 
-def _train(
-    config: PPOConfig, envs: gym.vector.VectorEnv, device: torch.device, rollout_rewards: RolloutRewards | None, log: Callable | None, progress: bool,
-    checkpoints: Checkpointing | None, stop: StopAtBoundary,
-) -> PPOResult:
-    policy = make_policy(
-        envs.single_observation_space,
-        envs.single_action_space,
-        hidden_sizes=list(config.hidden_sizes),
-        activation=config.activation,
-        shared_trunk=config.shared_trunk,
-        normalize_observations=config.normalize_observations,
-        log_std_init=config.log_std_init,
-    ).to(device)
-    optimizer = torch.optim.Adam(policy.parameters(), lr=config.learning_rate, eps=1e-5)
-    reward_scaler = RewardScaler(config.n_envs, config.gamma) if config.normalize_rewards else None
+@dataclass
+class _Buffers:
+    """What a rollout leaves for its update besides the `Rollout` itself: the encoded states,
+    V(s_t), V of truncated episodes' true final states, π_k's distribution parameters, and the
+    rewards after scaling. Allocated once and refilled in place."""
 
-    n_steps, n_envs = config.n_steps, config.n_envs
-    rollout_size = n_steps * n_envs
-    n_updates = -(-config.total_steps // rollout_size)  # at least total_steps
-    feature_size = policy.encode(torch.as_tensor(envs.single_observation_space.sample()[None], device=device)).shape[-1]
-    action_shape = envs.single_action_space.shape
-    observation_space = envs.single_observation_space
-    observation_dtype = torch.int64 if isinstance(observation_space, gym.spaces.Discrete) else torch.float32
-    raw_observations = torch.zeros((n_steps, n_envs, *observation_space.shape), dtype=observation_dtype, device=device)
-    next_observations = torch.zeros_like(raw_observations)
-    env_actions = torch.zeros((n_steps, n_envs, *action_shape), device=device)
-    env_rewards = torch.zeros((n_steps, n_envs), device=device)
-    features = torch.zeros((n_steps, n_envs, feature_size), device=device)
-    actions = torch.zeros((n_steps, n_envs, *action_shape), device=device)
-    log_probs = torch.zeros((n_steps, n_envs), device=device)
-    rewards = torch.zeros((n_steps, n_envs), device=device)
-    terminated = torch.zeros((n_steps, n_envs), dtype=torch.bool, device=device)
-    truncated = torch.zeros((n_steps, n_envs), dtype=torch.bool, device=device)
-    values = torch.zeros((n_steps, n_envs), device=device)
-    truncated_values = torch.zeros((n_steps, n_envs), device=device)
-    distribution_parameters = torch.zeros((n_steps, n_envs, policy.action_head.out_features), device=device)
+    features: torch.Tensor
+    values: torch.Tensor
+    truncated_values: torch.Tensor
+    parameters: torch.Tensor
+    rewards: torch.Tensor
 
-    recent_returns: deque[float] = deque(maxlen=20)
-    recent_optimised_returns: deque[float] = deque(maxlen=20)
-    optimised_return_accumulator = np.zeros(n_envs)
-    history: list[dict[str, float]] = []
-    beta = config.kl_beta_init
-    # Where the time goes (seconds, cumulative): stepping envs, the rollout's forward passes, updates.
-    timers = {"env": 0.0, "inference": 0.0, "update": 0.0}
-    started = time.perf_counter()
-    global_step = 0
-    first_update = 0
-    learner = rollout_rewards if isinstance(rollout_rewards, Checkpointable) else None
-    if checkpoints is not None and checkpoints.resume is not None:
-        # Continue an interrupted run: networks, optimiser, normalisers, counters and logs as at
-        # its checkpoint. The environments' state is not saved: they start new episodes.
-        first_update, global_step, beta, elapsed = restore_ppo_checkpoint(
-            checkpoints.resume, policy=policy, optimizer=optimizer, reward_scaler=reward_scaler, history=history,
-            recent_returns=recent_returns, recent_optimised_returns=recent_optimised_returns, timers=timers, learner=learner,
+
+class PPO:
+    """The learner's state (π_θ and V_θ, Adam, the normalisers, β, counters, recent returns)
+    and its step: one rollout with π_k, then one update. The environments are part of it but
+    not of its checkpoint: a resumed run starts new episodes."""
+
+    name = "PPO"
+    unit = "update"
+
+    def __init__(self, config: PPOConfig, *, reward: RolloutReward | None = None) -> None:
+        config.validate()
+        # Measured on 2 cores: one thread runs these small MLPs ~10× faster than two, which
+        # spend their time synchronising.
+        torch.set_num_threads(config.threads)
+        torch.manual_seed(config.seed)
+        np.random.seed(config.seed)
+        self.config = config
+        self.reward = reward
+        self.device = device = resolve_device(config.device)
+        self.envs = make_vector_env(config.env_id, config.n_envs, asynchronous=config.async_envs)
+        self.policy = make_policy(
+            self.envs.single_observation_space,
+            self.envs.single_action_space,
+            hidden_sizes=list(config.hidden_sizes),
+            activation=config.activation,
+            shared_trunk=config.shared_trunk,
+            normalize_observations=config.normalize_observations,
+            log_std_init=config.log_std_init,
+        ).to(device)
+        self.optimizer = torch.optim.Adam(self.policy.parameters(), lr=config.learning_rate, eps=1e-5)
+        self.reward_scaler = RewardScaler(config.n_envs, config.gamma) if config.normalize_rewards else None
+        self.rollout_size = config.n_steps * config.n_envs
+        self.total = -(-config.total_steps // self.rollout_size)  # updates: at least total_steps
+        self.updates = 0
+        self.global_step = 0
+        self.beta = config.kl_beta_init
+        self.recent_returns: deque[float] = deque(maxlen=20)
+        self.recent_optimised_returns: deque[float] = deque(maxlen=20)
+        self._optimised_return_accumulator = np.zeros(config.n_envs)
+        # Where the time goes (seconds, cumulative): stepping envs, the rollout's forward passes, updates.
+        self.timers = {"env": 0.0, "inference": 0.0, "update": 0.0}
+        self.clock = TrainingClock()
+        self._observations: np.ndarray | None = None  # reset at the first rollout, by the update it starts
+        self._rollout, self._buffers = self._allocate()
+
+    def _allocate(self) -> tuple[Rollout, _Buffers]:
+        shape, device = (self.config.n_steps, self.config.n_envs), self.device
+        observation_space, action_shape = self.envs.single_observation_space, self.envs.single_action_space.shape
+        assert observation_space.shape is not None and action_shape is not None  # None only for non-array spaces (Graph, Text)
+        observation_dtype = torch.int64 if isinstance(observation_space, gym.spaces.Discrete) else torch.float32
+        sample = torch.as_tensor(observation_space.sample()[None], device=device)
+        feature_size = self.policy.encode(sample).shape[-1]
+        rollout = Rollout(
+            observations=torch.zeros((*shape, *observation_space.shape), dtype=observation_dtype, device=device),
+            actions=torch.zeros((*shape, *action_shape), device=device),
+            env_actions=torch.zeros((*shape, *action_shape), device=device),
+            next_observations=torch.zeros((*shape, *observation_space.shape), dtype=observation_dtype, device=device),
+            log_probs=torch.zeros(shape, device=device),
+            env_rewards=torch.zeros(shape, device=device),
+            terminated=torch.zeros(shape, dtype=torch.bool, device=device),
+            truncated=torch.zeros(shape, dtype=torch.bool, device=device),
         )
-        first_update = checked_counter(first_update, "next update", 0, n_updates)
-        started -= elapsed
+        buffers = _Buffers(
+            features=torch.zeros((*shape, feature_size), device=device),
+            values=torch.zeros(shape, device=device),
+            truncated_values=torch.zeros(shape, device=device),
+            parameters=torch.zeros((*shape, self.policy.action_head.out_features), device=device),
+            rewards=torch.zeros(shape, device=device),
+        )
+        return rollout, buffers
 
-    observations, _ = envs.reset(seed=config.seed + first_update * config.n_envs)
-    check_finite_step(config.env_id, -1, observation=observations)
-    bar = tqdm(total=n_updates * rollout_size, initial=global_step, desc=f"ppo {config.env_id}", unit="step", disable=None if progress else True, dynamic_ncols=True)
-    for update in range(first_update, n_updates):
-        if config.anneal_lr:
-            optimizer.param_groups[0]["lr"] = (1.0 - update / n_updates) * config.learning_rate
+    @property
+    def completed(self) -> int:
+        return self.updates
 
-        # -- rollout with π_k ---------------------------------------------------------------
-        for t in range(n_steps):
+    @property
+    def done(self) -> bool:
+        return self.updates >= self.total
+
+    def position(self) -> str:
+        return f"update {self.updates}/{self.total}, at step {self.global_step} of {self.total * self.rollout_size}"
+
+    def progress(self, row: dict[str, float]) -> dict[str, str]:
+        return {"ret": f"{row['return']:.1f}", "sps": f"{row['steps_per_second']:.0f}"}
+
+    def step(self) -> dict[str, float]:
+        """One rollout with π_k, then one update on the env's reward or the learned one."""
+        rollout = self.collect_rollout()
+        return self.update(rollout, self.reward.relabel(rollout) if self.reward is not None else rollout.env_rewards)
+
+    def collect_rollout(self) -> Rollout:
+        """n_steps steps of every env with π_k, sampling a_t ~ π_k(·|s_t) and keeping log π_k(a_t|s_t),
+        V(s_t) and π_k's parameters for the update. The returned tensors are refilled by the next
+        rollout: copy what must outlive it."""
+        config, policy, device, timers = self.config, self.policy, self.device, self.timers
+        rollout, buffers = self._rollout, self._buffers
+        if self._observations is None:
+            self._observations, _ = self.envs.reset(seed=config.seed + self.updates * config.n_envs)
+            check_finite_step(config.env_id, -1, observation=self._observations)
+        self.clock.start()  # wall-clock time from here on, reward learning between updates included
+        for t in range(config.n_steps):
             tick = time.perf_counter()
-            observation_tensor = torch.as_tensor(observations, device=device)
-            raw_observations[t] = observation_tensor
-            policy.update_normalizer(observation_tensor)
+            observation = torch.as_tensor(self._observations, device=device)
+            rollout.observations[t] = observation
+            policy.update_normalizer(observation)
             with torch.no_grad():
-                features[t] = policy.encode(observation_tensor)
+                buffers.features[t] = policy.encode(observation)
                 # The parameters are kept so the KL objective can compare π_θ with π_k exactly.
-                action, log_probs[t], distribution_parameters[t] = policy.sample(features[t])
-                values[t] = policy.value(features[t])
-            actions[t] = action.reshape(actions[t].shape)
+                action, rollout.log_probs[t], buffers.parameters[t] = policy.sample(buffers.features[t])
+                buffers.values[t] = policy.value(buffers.features[t])
+            rollout.actions[t] = action.reshape(rollout.actions[t].shape)
             env_action = policy.to_env_action(action)
-            env_actions[t] = torch.as_tensor(env_action, device=device).reshape(env_actions[t].shape)
+            rollout.env_actions[t] = torch.as_tensor(env_action, device=device).reshape(rollout.env_actions[t].shape)
             tock = time.perf_counter()
             timers["inference"] += tock - tick
-            observations, reward, term, trunc, info = envs.step(env_action)
+            self._observations, reward, terminated, truncated, info = self.envs.step(env_action)
             tick = time.perf_counter()
             timers["env"] += tick - tock
-            check_finite_step(config.env_id, global_step + t * n_envs, observation=observations, reward=np.asarray(reward))
-            recent_returns.extend(finished_episode_returns(info))
-            env_rewards[t] = torch.as_tensor(reward, dtype=torch.float32, device=device)
-            terminated[t] = torch.as_tensor(term, device=device)
-            truncated[t] = torch.as_tensor(trunc, device=device)
-            next_observations[t] = torch.as_tensor(observations, device=device)
-            ended = np.flatnonzero(term | trunc)
+            env_step = self.global_step + t * config.n_envs
+            check_finite_step(config.env_id, env_step, observation=self._observations, reward=np.asarray(reward))
+            self.recent_returns.extend(finished_episode_returns(info))
+            rollout.env_rewards[t] = torch.as_tensor(reward, dtype=torch.float32, device=device)
+            rollout.terminated[t] = torch.as_tensor(terminated, device=device)
+            rollout.truncated[t] = torch.as_tensor(truncated, device=device)
+            rollout.next_observations[t] = torch.as_tensor(self._observations, device=device)
+            ended = np.flatnonzero(terminated | truncated)
             if ended.size:
                 # The episode's true final state (the env has already reset to a new one).
                 final = np.stack([info["final_obs"][i] for i in ended])
-                check_finite_step(config.env_id, global_step + t * n_envs, ended, final_observation=final)
-                next_observations[t, torch.as_tensor(ended, device=device)] = torch.as_tensor(final, device=device).to(observation_dtype)
-            if trunc.any():
+                check_finite_step(config.env_id, env_step, ended, final_observation=final)
+                rollout.next_observations[t, torch.as_tensor(ended, device=device)] = torch.as_tensor(final, device=device).to(
+                    rollout.observations.dtype
+                )
+            if truncated.any():
                 # Bootstrap truncated episodes from their true final state, not the reset state.
                 with torch.no_grad():
-                    truncated_values[t] = policy.value(policy.encode(next_observations[t]))
+                    buffers.truncated_values[t] = policy.value(policy.encode(rollout.next_observations[t]))
             timers["inference"] += time.perf_counter() - tick
-        global_step += rollout_size
-        update_started = time.perf_counter()
-        if rollout_rewards is not None:
-            rollout = Rollout(
-                observations=raw_observations, actions=actions, env_actions=env_actions, next_observations=next_observations,
-                log_probs=log_probs, env_rewards=env_rewards, terminated=terminated, truncated=truncated,
-            )
-            optimised = rollout_rewards(rollout, policy).detach().to(device=device, dtype=torch.float32).reshape(n_steps, n_envs)
-            if not torch.isfinite(optimised).all():
-                raise ImitationError(f"PPO update {update + 1}/{n_updates}: the learned reward is NaN or infinite on this rollout")
-        else:
-            optimised = env_rewards
-        dones = (terminated | truncated).cpu().numpy()
-        for t, step_rewards in enumerate(optimised.cpu().numpy()):
-            optimised_return_accumulator += step_rewards
-            for i in np.flatnonzero(dones[t]):
-                recent_optimised_returns.append(float(optimised_return_accumulator[i]))
-                optimised_return_accumulator[i] = 0.0
-            rewards[t] = torch.as_tensor(reward_scaler(step_rewards, dones[t]) if reward_scaler is not None else step_rewards, device=device)
+        self.global_step += self.rollout_size
+        return rollout
 
+    def update(self, rollout: Rollout, rewards: torch.Tensor) -> dict[str, float]:
+        """One update on the rollout just collected, optimising `rewards` (T, n_envs): GAE, then
+        `ppo_update`'s epochs, then β's adaptation; the row of metrics to log."""
+        config, policy, buffers = self.config, self.policy, self._buffers
+        started = time.perf_counter()
+        if config.anneal_lr:
+            self.optimizer.param_groups[0]["lr"] = (1.0 - self.updates / self.total) * config.learning_rate
+        self._store_rewards(rewards, rollout)
         with torch.no_grad():
-            last_values = policy.value(policy.encode(torch.as_tensor(observations, device=device)))
-        following = torch.cat([values[1:], last_values[None]])
-        next_values = torch.where(truncated, truncated_values, following)
+            last_values = policy.value(policy.encode(torch.as_tensor(self._observations, device=self.device)))
+        terminated, truncated = rollout.terminated, rollout.truncated
+        next_values = torch.where(truncated, buffers.truncated_values, torch.cat([buffers.values[1:], last_values[None]]))
         advantages, returns = compute_gae(
-            rewards, values, next_values, terminated, truncated, gamma=config.gamma, gae_lambda=config.gae_lambda
+            buffers.rewards,
+            buffers.values,
+            next_values,
+            terminated,
+            truncated,
+            gamma=config.gamma,
+            gae_lambda=config.gae_lambda,
         )
-
-        # -- n_epochs of minibatch updates ---------------------------------------------------
+        size = self.rollout_size
         batch = UpdateBatch(
-            features=features.reshape(rollout_size, -1), actions=actions.reshape(rollout_size, *action_shape), log_probs=log_probs.reshape(-1),
-            advantages=advantages.reshape(-1), returns=returns.reshape(-1), values=values.reshape(-1),
-            parameters=distribution_parameters.reshape(rollout_size, -1), old_log_std=policy.log_std.detach().clone() if policy.is_continuous else None,
+            features=buffers.features.reshape(size, -1),
+            actions=rollout.actions.reshape(size, *rollout.actions.shape[2:]),
+            log_probs=rollout.log_probs.reshape(-1),
+            advantages=advantages.reshape(-1),
+            returns=returns.reshape(-1),
+            values=buffers.values.reshape(-1),
+            parameters=buffers.parameters.reshape(size, -1),
+            old_log_std=policy.log_std.detach().clone() if policy.is_continuous else None,
         )
-        measured = ppo_update(policy, optimizer, batch, config, beta, update=update + 1, n_updates=n_updates)
+        measured = ppo_update(policy, self.optimizer, batch, config, self.beta, update=self.updates + 1, n_updates=self.total)
         mean_kl = measured.approx_kl
         if config.objective == "kl":
             with torch.no_grad():
-                mean_kl = policy_kl(policy.distribution_from(batch.parameters, batch.old_log_std), policy.distribution(batch.features)).mean().item()
-            beta = update_kl_penalty(beta, mean_kl, config.kl_target)
+                old = policy.distribution_from(batch.parameters, batch.old_log_std)
+                mean_kl = policy_kl(old, policy.distribution(batch.features)).mean().item()
+            self.beta = update_kl_penalty(self.beta, mean_kl, config.kl_target)
+        self.updates += 1
+        self.timers["update"] += time.perf_counter() - started
+        return self._row(measured, mean_kl, batch)
 
-        timers["update"] += time.perf_counter() - update_started
+    def _row(self, measured: UpdateStatistics, mean_kl: float, batch: UpdateBatch) -> dict[str, float]:
+        """The update's row of metrics: returns (the env's and the one optimised), losses, KL, speed."""
         explained_variance = 1.0 - float(torch.var(batch.returns - batch.values) / (torch.var(batch.returns) + 1e-8))
-        elapsed = time.perf_counter() - started
-        row = {
-            "step": float(global_step),
-            "return": float(np.mean(recent_returns)) if recent_returns else float("nan"),
-            "optimised_return": float(np.mean(recent_optimised_returns)) if recent_optimised_returns else float("nan"),
+        return {
+            "step": float(self.global_step),
+            "return": float(np.mean(self.recent_returns)) if self.recent_returns else float("nan"),
+            "optimised_return": float(np.mean(self.recent_optimised_returns))
+            if self.recent_optimised_returns
+            else float("nan"),
             "policy_loss": measured.policy_loss,
             "value_loss": measured.value_loss,
             "entropy": measured.entropy,
             "kl": mean_kl,
-            "kl_beta": beta if config.objective == "kl" else float("nan"),
+            "kl_beta": self.beta if self.config.objective == "kl" else float("nan"),
             "clip_fraction": measured.clip_fraction,
             "explained_variance": explained_variance,
-            "learning_rate": optimizer.param_groups[0]["lr"],
+            "learning_rate": self.optimizer.param_groups[0]["lr"],
             "early_stop": float(measured.stopped_early),
-            "steps_per_second": global_step / elapsed,
-            "seconds_env": timers["env"],
-            "seconds_inference": timers["inference"],
-            "seconds_update": timers["update"],
+            "steps_per_second": self.global_step / self.clock.seconds,
+            "seconds_env": self.timers["env"],
+            "seconds_inference": self.timers["inference"],
+            "seconds_update": self.timers["update"],
         }
-        history.append(row)
-        if log is not None:
-            log(row)
-        bar.update(rollout_size)
-        bar.set_postfix(ret=f"{row['return']:.1f}", sps=f"{row['steps_per_second']:.0f}")
 
-        # -- checkpoint every tenth of the run; stop here if Ctrl-C was pressed (unless done) ----
-        interrupted = stop.requested and update + 1 < n_updates
-        if checkpoints is not None and (interrupted or ((update + 1) % checkpoints.interval(n_updates) == 0 and update + 1 < n_updates)):
-            checkpoints.save(*ppo_checkpoint(
-                update + 1, global_step, beta, time.perf_counter() - started, policy=policy, optimizer=optimizer, reward_scaler=reward_scaler,
-                history=history, recent_returns=recent_returns, recent_optimised_returns=recent_optimised_returns, timers=timers, learner=learner,
-            ))
-        if interrupted:
-            bar.close()
-            raise TrainingInterrupted(f"PPO stopped after update {update + 1}/{n_updates}, at step {global_step} of {n_updates * rollout_size}")
-    bar.close()
-    return PPOResult(policy=policy, history=history, reward_scaler=reward_scaler, steps=global_step, seconds=time.perf_counter() - started)
+    def _store_rewards(self, rewards: torch.Tensor, rollout: Rollout) -> None:
+        """The rewards optimised, scaled by the running return std when configured, into the
+        update's buffer; their undiscounted episode returns into `recent_optimised_returns`."""
+        optimised = rewards.detach().to(device=self.device, dtype=torch.float32).reshape(self._buffers.rewards.shape)
+        self._check_learned_reward(optimised)
+        dones = (rollout.terminated | rollout.truncated).cpu().numpy()
+        for t, step_rewards in enumerate(optimised.cpu().numpy()):
+            self._optimised_return_accumulator += step_rewards
+            for i in np.flatnonzero(dones[t]):
+                self.recent_optimised_returns.append(float(self._optimised_return_accumulator[i]))
+                self._optimised_return_accumulator[i] = 0.0
+            scaled = self.reward_scaler(step_rewards, dones[t]) if self.reward_scaler is not None else step_rewards
+            self._buffers.rewards[t] = torch.as_tensor(scaled, device=self.device)
 
+    def _check_learned_reward(self, rewards: torch.Tensor) -> None:
+        """A learned reward gone NaN or infinite stops training naming the env step it entered at."""
+        finite = torch.isfinite(rewards)
+        if bool(finite.all()):
+            return
+        t, copy = (int(i) for i in torch.nonzero(~finite)[0])
+        step = self.global_step - self.rollout_size + t * self.config.n_envs + copy + 1
+        raise ImitationError(
+            f"{self.config.env_id}: the learned reward is not finite at env step {step} (env copy {copy}), "
+            f"in PPO update {self.updates + 1}/{self.total}"
+        )
 
-# ------------------------------------------------------------------------------------------------
-# Checkpoints (imitation.checkpoints): tensors to safetensors, the rest to JSON, nothing pickled.
+    def close(self) -> None:
+        self.envs.close()
 
+    def state_dict(self) -> CheckpointData:
+        """Everything to continue after this update: networks, Adam, the normalisers, β, the
+        counters, the recent returns and the random generators (live tensors: the loop copies them)."""
+        optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")
+        rng_tensors, rng_state = rng_checkpoint()
+        tensors = prefixed("policy", self.policy.state_dict()) | optimizer_tensors | rng_tensors
+        if self.reward_scaler is not None:
+            tensors |= prefixed("reward_scaler", self.reward_scaler.stats.state_dict())
+        state = {
+            "update": self.updates,
+            "global_step": self.global_step,
+            "beta": self.beta,
+            "seconds": self.clock.seconds,
+            "policy": self.policy.config.to_json(),
+            "optimizer": optimizer_state,
+            "rng": rng_state,
+            "recent_returns": list(self.recent_returns),
+            "recent_optimised_returns": list(self.recent_optimised_returns),
+            "timers": self.timers,
+        }
+        return tensors, state
 
-def ppo_checkpoint(
-    next_update: int, global_step: int, beta: float, seconds: float, *, policy: ActorCritic, optimizer: torch.optim.Optimizer,
-    reward_scaler: RewardScaler | None, history: list[dict[str, float]], recent_returns: deque[float],
-    recent_optimised_returns: deque[float], timers: dict[str, float], learner: Checkpointable | None = None,
-) -> CheckpointData:
-    """Everything `restore_ppo_checkpoint` needs to continue training after update `next_update`,
-    the reward `learner`'s state included."""
-    optimizer_tensors, optimizer_state = optimizer_checkpoint(optimizer, "optimizer")
-    rng_tensors, rng_state = rng_checkpoint()
-    tensors = prefixed("policy", policy.state_dict()) | optimizer_tensors | rng_tensors
-    if reward_scaler is not None:
-        tensors |= prefixed("reward_scaler", reward_scaler.stats.state_dict())
-    state = {
-        "update": next_update, "global_step": global_step, "beta": beta, "seconds": seconds, "policy": policy.config.to_json(),
-        "optimizer": optimizer_state, "rng": rng_state, "history": history, "recent_returns": list(recent_returns),
-        "recent_optimised_returns": list(recent_optimised_returns), "timers": timers,
-    }
-    if learner is not None:
-        learner_tensors, state["learner"] = learner.checkpoint()
-        tensors |= prefixed("learner", learner_tensors)
-    return snapshot(tensors, state)
-
-
-def restore_ppo_checkpoint(
-    checkpoint: CheckpointData, *, policy: ActorCritic, optimizer: torch.optim.Optimizer, reward_scaler: RewardScaler | None,
-    history: list[dict[str, float]], recent_returns: deque[float], recent_optimised_returns: deque[float], timers: dict[str, float],
-    learner: Checkpointable | None = None,
-) -> tuple[int, int, float, float]:
-    """Load a `ppo_checkpoint` into fresh objects (the containers are filled in place); returns
-    (next update, global step, β, seconds trained so far)."""
-    tensors, state = checkpoint
-    try:
-        policy.load_state_dict(unprefixed("policy", tensors))
-        restore_optimizer(optimizer, tensors, state["optimizer"], "optimizer")
-        if reward_scaler is not None:
-            reward_scaler.stats.load_state_dict(unprefixed("reward_scaler", tensors))
-        restore_rng(tensors, state["rng"])
-        history += [floats(row) for row in state["history"]]
-        recent_returns.extend(state["recent_returns"])
-        recent_optimised_returns.extend(state["recent_optimised_returns"])
-        timers.update(state["timers"])
-        if learner is not None:
-            learner.restore((unprefixed("learner", tensors), state["learner"]))
-        return int(state["update"]), int(state["global_step"]), float(state["beta"]), float(state["seconds"])
-    except (KeyError, TypeError, ValueError, RuntimeError) as error:
-        raise ImitationError(f"the checkpoint does not fit this PPO run ({type(error).__name__}: {str(error).splitlines()[0]})") from None
+    def load_state_dict(self, checkpoint: CheckpointData) -> None:
+        tensors, state = checkpoint
+        with restoring("PPO"):
+            self.policy.load_state_dict(unprefixed("policy", tensors))
+            restore_optimizer(self.optimizer, tensors, state["optimizer"], "optimizer")
+            if self.reward_scaler is not None:
+                self.reward_scaler.stats.load_state_dict(unprefixed("reward_scaler", tensors))
+            restore_rng(tensors, state["rng"])
+            self.recent_returns.extend(state["recent_returns"])
+            self.recent_optimised_returns.extend(state["recent_optimised_returns"])
+            self.timers.update(state["timers"])
+            self.global_step, self.beta, self.clock.before = (
+                int(state["global_step"]),
+                float(state["beta"]),
+                float(state["seconds"]),
+            )
+            self.updates = checked_counter(int(state["update"]), "next update", 0, self.total)

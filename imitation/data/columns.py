@@ -21,29 +21,20 @@ import os
 import struct
 import threading
 from collections import defaultdict
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from imitation.data.store import (
-    _REWARD_FIELD,
-    _TIME_FIELD,
-    EPISODE_TOPIC,
-    DemoFile,
-    _ChunkRef,
-    _Damage,
-    _Field,
-    _chunk_header,
-    _chunk_records,
-    _decode_chunk,
-    _fields_for,
-)
+from imitation.data.mcap.format import EPISODE_TOPIC, REWARD_FIELD, TIME_FIELD, Field, fields_for
+from imitation.data.mcap.reader import DemoFile
+from imitation.data.mcap.records import ChunkRef, Damage, chunk_header, chunk_records, decode_chunk
 from imitation.data.types import Transitions, tree_from_leaves
 
 if TYPE_CHECKING:
-    from imitation.data.store import DemoDataset
+    from imitation.data.dataset import DemoDataset
 
 
 class _NotTiled(Exception):
@@ -67,7 +58,7 @@ class _ContentBuffers(threading.local):
 class _Column:
     """One output array and, for observations, the episodes' final rows (which have no transition)."""
 
-    field: _Field
+    field: Field
     out: np.ndarray  # (N, *shape)
     final: np.ndarray | None  # (E, *shape), observations only
 
@@ -96,13 +87,13 @@ class _FilePlan:
 
     file: DemoFile
     ordinal_of: dict[int, int]  # file episode index → output episode ordinal
-    chunks: list[_ChunkRef]
+    chunks: list[ChunkRef]
 
 
 def read_transitions(dataset: DemoDataset, indices: Sequence[int], *, next_observations: bool) -> Transitions | None:
     """Episodes `indices` (dataset-wide, ascending) as one Transitions batch, or None when the
     files need the general path (own timestamps, blocks not placeable by log time, damage)."""
-    fields = _fields_for(dataset.observation_space, dataset.action_space)
+    fields = fields_for(dataset.observation_space, dataset.action_space)
     observation_fields = [f for f in fields if f.kind == "observation"]
     action_fields = [f for f in fields if f.kind == "action"]
     plans = _plan(dataset, indices)
@@ -114,23 +105,26 @@ def read_transitions(dataset: DemoDataset, indices: Sequence[int], *, next_obser
     if 8 * total > sum(c.uncompressed_size for plan in plans for c in plan.chunks):
         return None  # more steps than the chunks hold 8-byte rewards for: a damaged index, for the general path to report
     starts = np.cumsum(lengths) - lengths
-    columns = {f.topic: _Column(f, np.empty((total, *f.shape), f.native_dtype), np.empty((len(facts), *f.shape), f.native_dtype)) for f in observation_fields}
+    columns = {
+        f.topic: _Column(f, np.empty((total, *f.shape), f.native_dtype), np.empty((len(facts), *f.shape), f.native_dtype))
+        for f in observation_fields
+    }
     columns |= {f.topic: _Column(f, np.empty((total, *f.shape), f.native_dtype), None) for f in action_fields}
-    columns[_REWARD_FIELD.topic] = _Column(_REWARD_FIELD, np.empty(total, _REWARD_FIELD.native_dtype), None)
+    columns[REWARD_FIELD.topic] = _Column(REWARD_FIELD, np.empty(total, REWARD_FIELD.native_dtype), None)
     pieces: dict[tuple[str, int], list[tuple[int, int]]] = defaultdict(list)
     try:
         for plan in plans:
             for placed in _fill_file(plan, columns, starts, lengths):
                 for topic, ordinal, first_row, rows in placed:
                     pieces[topic, ordinal].append((first_row, rows))
-    except (_NotTiled, _Damage, ValueError, struct.error):
+    except (_NotTiled, Damage, ValueError, struct.error):
         return None
     for column in columns.values():
         expected = lengths + (column.final is not None)
         if not all(_tiles(pieces.get((column.field.topic, j), []), int(expected[j])) for j in range(len(facts))):
             return None
 
-    def tree(fields: list[_Field]) -> Any:
+    def tree(fields: list[Field]) -> Any:
         return tree_from_leaves({f.path: columns[f.topic].out for f in fields})
 
     ends = starts + lengths
@@ -142,7 +136,7 @@ def read_transitions(dataset: DemoDataset, indices: Sequence[int], *, next_obser
     return Transitions(
         observations=tree(observation_fields),
         actions=tree(action_fields),
-        rewards=columns[_REWARD_FIELD.topic].out,
+        rewards=columns[REWARD_FIELD.topic].out,
         next_observations=_next_observations(observation_fields, columns, ends, nonempty) if next_observations else None,
         terminated=terminated,
         truncated=truncated,
@@ -156,7 +150,7 @@ def _plan(dataset: DemoDataset, indices: Sequence[int]) -> list[_FilePlan] | Non
     chosen = list(indices)
     ordinal = 0
     for file in dataset.files:
-        if _TIME_FIELD.topic in file.channels:
+        if TIME_FIELD.topic in file.channels:
             return None
         local = [k - offset for k in chosen if offset <= k < offset + len(file)]
         offset += len(file)
@@ -164,24 +158,26 @@ def _plan(dataset: DemoDataset, indices: Sequence[int]) -> list[_FilePlan] | Non
             continue
         ordinal_of = {k: ordinal + i for i, k in enumerate(local)}
         ordinal += len(local)
-        needed = {chunk.offset: chunk for k in local for chunk in file._chunks_of(file.episodes[k])}
+        needed = {chunk.offset: chunk for k in local for chunk in file.chunks_of(file.episodes[k])}
         plans.append(_FilePlan(file, ordinal_of, sorted(needed.values(), key=lambda c: (c.start_time, c.offset))))
     return plans
 
 
-def _fill_file(plan: _FilePlan, columns: dict[str, _Column], starts: np.ndarray, lengths: np.ndarray) -> list[list[tuple[str, int, int, int]]]:
+def _fill_file(
+    plan: _FilePlan, columns: dict[str, _Column], starts: np.ndarray, lengths: np.ndarray
+) -> list[list[tuple[str, int, int, int]]]:
     file = plan.file
     dt_ns = round(file.dt * 1e9)
     if dt_ns <= 0:
         raise _NotTiled("no time step")
-    topic_of = {channel_id: (f.topic if f is not None else EPISODE_TOPIC) for channel_id, f in file._index.channels.items()}
+    topic_of = {channel_id: (f.topic if f is not None else EPISODE_TOPIC) for channel_id, f in file.channel_fields.items()}
     t_starts = [facts.t_start_ns for facts in file.episodes]
 
-    def fill_chunk(fd: int, chunk: _ChunkRef) -> list[tuple[str, int, int, int]]:
+    def fill_chunk(fd: int, chunk: ChunkRef) -> list[tuple[str, int, int, int]]:
         record = memoryview(os.pread(fd, chunk.length, chunk.offset))
-        content = _decode_chunk(record, buffers.get(_chunk_header(record).uncompressed_size))
+        content = decode_chunk(record, buffers.get(chunk_header(record).uncompressed_size))
         placed: list[tuple[str, int, int, int]] = []
-        for channel_id, log_time, data in _chunk_records(content, lambda channel: None):
+        for channel_id, log_time, data in chunk_records(content, lambda channel: None):
             if channel_id not in topic_of:
                 raise _NotTiled(f"message on unknown channel id {channel_id}")
             column = columns.get(topic_of[channel_id])
@@ -198,7 +194,10 @@ def _fill_file(plan: _FilePlan, columns: dict[str, _Column], starts: np.ndarray,
         return placed
 
     buffers = _ContentBuffers()
-    with open(file.path, "rb") as handle, ThreadPoolExecutor(max_workers=min(len(plan.chunks), os.cpu_count() or 1, 8) or 1) as pool:
+    with (
+        open(file.path, "rb") as handle,
+        ThreadPoolExecutor(max_workers=min(len(plan.chunks), os.cpu_count() or 1, 8) or 1) as pool,
+    ):
         return list(pool.map(lambda chunk: fill_chunk(handle.fileno(), chunk), plan.chunks))
 
 
@@ -212,7 +211,7 @@ def _tiles(pieces: list[tuple[int, int]], expected: int) -> bool:
     return position == expected
 
 
-def _next_observations(fields: list[_Field], columns: dict[str, _Column], ends: np.ndarray, nonempty: np.ndarray) -> Any:
+def _next_observations(fields: list[Field], columns: dict[str, _Column], ends: np.ndarray, nonempty: np.ndarray) -> Any:
     """s' of every transition: the next row, except at an episode's end, where it is the final observation."""
     leaves = {}
     for f in fields:

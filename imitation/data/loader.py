@@ -14,17 +14,18 @@ from __future__ import annotations
 import math
 import os
 import resource
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, fields
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 import torch
 
 from imitation.data.columns import read_transitions
+from imitation.data.dataset import DemoDataset
 from imitation.data.spaces import space_leaves
-from imitation.data.store import DemoDataset
 from imitation.data.types import Episode, Transitions, episodes_to_transitions, first_nonfinite
-from imitation.errors import ImitationError
+from imitation.errors import ConfigError, ImitationError
 
 TensorTree = torch.Tensor | dict[str, Any]
 
@@ -38,9 +39,9 @@ def resolve_device(device: str | torch.device = "auto") -> torch.device:
     try:
         resolved = torch.device(device)
     except RuntimeError as error:
-        raise ImitationError(f"--device {device!r}: {error}") from None
+        raise ConfigError("device", f"{device!r}: {error}") from None
     if resolved.type == "cuda" and not torch.cuda.is_available():
-        raise ImitationError(f"--device {device}: CUDA is not available on this machine")
+        raise ConfigError("device", f"{device}: CUDA is not available on this machine")
     return resolved
 
 
@@ -143,12 +144,17 @@ def _check_memory(dataset: DemoDataset, steps: int, episodes: int, *, next_obser
     observation_row = sum(dtype.itemsize * math.prod(shape) for _, dtype, shape in space_leaves(dataset.observation_space))
     action_row = sum(dtype.itemsize * math.prod(shape) for _, dtype, shape in space_leaves(dataset.action_space))
     # observations and final rows, s' if asked for, actions, rewards, the two flags, episode indices
-    needed = (steps + episodes) * observation_row + (steps * observation_row if next_observations else 0) + steps * (action_row + 8 + 2 + 8)
+    needed = (
+        (steps + episodes) * observation_row
+        + (steps * observation_row if next_observations else 0)
+        + steps * (action_row + 8 + 2 + 8)
+    )
     available = available_memory()
     if available is not None and needed > available:
         raise ImitationError(
-            f"{dataset.files[0].path}: loading {steps} transitions ({len(dataset.files)} file(s)) needs {needed / 2**30:.1f} GiB of memory "
-            f"and {available / 2**30:.1f} GiB is available; train on fewer demo files, or on a machine with more memory"
+            f"{dataset.files[0].path}: loading {steps} transitions ({len(dataset.files)} file(s)) needs {needed / 2**30:.1f} "
+            f"GiB of memory and {available / 2**30:.1f} GiB is available; train on fewer demo files, or on a machine with "
+            "more memory"
         )
 
 
@@ -183,7 +189,9 @@ def check_finite(transitions: Transitions, dataset: DemoDataset) -> None:
         return
     row, shift, name, value = min(candidates)
     episode = int(transitions.episode_index[row])
-    raise _nonfinite_error(dataset, episode, row - int(np.searchsorted(transitions.episode_index, episode)) + shift, name, value)
+    raise _nonfinite_error(
+        dataset, episode, row - int(np.searchsorted(transitions.episode_index, episode)) + shift, name, value
+    )
 
 
 def check_episodes_finite(episodes: Sequence[Episode], dataset: DemoDataset, indices: Sequence[int] | None = None) -> None:
@@ -237,7 +245,9 @@ class MinibatchLoader:
     Indexing happens on the tensors' device, so once the data is on a GPU no batch crosses the bus.
     """
 
-    def __init__(self, data: TransitionTensors, *, batch_size: int, shuffle: bool = True, seed: int = 0, drop_last: bool = False) -> None:
+    def __init__(
+        self, data: TransitionTensors, *, batch_size: int, shuffle: bool = True, seed: int = 0, drop_last: bool = False
+    ) -> None:
         if batch_size < 1:
             raise ImitationError(f"batch size must be positive, got {batch_size}")
         self.data = data

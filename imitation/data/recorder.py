@@ -13,9 +13,10 @@ import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
-from imitation.data.store import DemoWriter
+from imitation.data.mcap.writer import DemoWriter
 from imitation.data.types import Episode, stack_samples
 from imitation.envs.rollout import Policy, play_episode
+
 
 class RecordEpisodes(gym.Wrapper):
     """Buffers the current episode and writes it when it terminates or is truncated.

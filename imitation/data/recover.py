@@ -13,7 +13,8 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
-from imitation.data.store import DemoFile, DemoWriter
+from imitation.data.mcap.reader import DemoFile
+from imitation.data.mcap.writer import DemoWriter
 from imitation.errors import ImitationError
 from imitation.output import OutputLock
 
@@ -22,7 +23,9 @@ PARTIAL_SUFFIX = ".partial"
 _TAIL_ONLY = ("truncated", "an incomplete episode after the last complete one")
 
 
-def recover_partial(partial: str | os.PathLike, out: str | os.PathLike | None = None, *, compression: str = "zstd") -> dict[str, Any]:
+def recover_partial(
+    partial: str | os.PathLike, out: str | os.PathLike | None = None, *, compression: str = "zstd"
+) -> dict[str, Any]:
     """Write the complete episodes of `partial` to `out` (default: its name without
     `.partial`) and describe what was recovered."""
     partial = Path(partial)
@@ -35,7 +38,9 @@ def recover_partial(partial: str | os.PathLike, out: str | os.PathLike | None = 
         raise ImitationError(f"--out {out}: exists; recovering never replaces a file (choose another --out)")
     # The writer that made the partial file held the lock on its target while it ran: a
     # partial file still being written is refused here.
-    writer_target = partial.with_name(partial.name[: -len(PARTIAL_SUFFIX)]) if partial.name.endswith(PARTIAL_SUFFIX) else partial
+    writer_target = (
+        partial.with_name(partial.name[: -len(PARTIAL_SUFFIX)]) if partial.name.endswith(PARTIAL_SUFFIX) else partial
+    )
     with ExitStack() as locks:
         for target in dict.fromkeys([writer_target, out]):
             locks.enter_context(OutputLock(target))

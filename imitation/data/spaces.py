@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -47,7 +48,9 @@ def space_to_json(space: gym.Space) -> dict[str, Any]:
         for key in space.spaces:
             _check_key(key)
         return {"type": "Dict", "spaces": {key: space_to_json(sub) for key, sub in space.spaces.items()}}
-    raise SpaceError(f"unsupported gymnasium space {type(space).__name__}: use Box, Discrete, MultiDiscrete, MultiBinary or Dict")
+    raise SpaceError(
+        f"unsupported gymnasium space {type(space).__name__}: use Box, Discrete, MultiDiscrete, MultiBinary or Dict"
+    )
 
 
 # A space read from a file must fit in memory: at most this many numbers in one sample (a 4K RGB
@@ -72,7 +75,9 @@ def space_from_json(description: dict[str, Any] | str) -> gym.Space:
     except (SpaceError, ImitationError):
         raise
     except (KeyError, TypeError, ValueError, OverflowError, AttributeError, IndexError, RecursionError) as error:
-        raise SpaceError(f"malformed space description {_short(description)}: {type(error).__name__}: {str(error)[:100]}") from None
+        raise SpaceError(
+            f"malformed space description {_short(description)}: {type(error).__name__}: {str(error)[:100]}"
+        ) from None
 
 
 def _declared(description: Any) -> tuple[int, int]:
@@ -80,7 +85,7 @@ def _declared(description: Any) -> tuple[int, int]:
     built; what is malformed counts as nothing here and is refused by `_space_from_json`."""
     if not isinstance(description, dict):
         return 1, 0
-    kind = description.get("type")
+    kind: Any = description.get("type")  # any JSON value: refused later unless a known name
     if kind == "Dict" and isinstance(description.get("spaces"), dict):
         leaves = elements = 0
         for sub in description["spaces"].values():
@@ -92,12 +97,17 @@ def _declared(description: Any) -> tuple[int, int]:
     sizes = {"Box": description.get("shape"), "MultiBinary": description.get("n")}.get(kind, [1])
     if kind == "MultiDiscrete":
         try:
-            sizes = list(np.shape(description.get("nvec")))
+            nvec: Any = description.get("nvec")  # any JSON value (None when missing: shape ())
+            sizes = list(np.shape(nvec))
         except ValueError:  # ragged
             return 1, 0
     if isinstance(sizes, int) and not isinstance(sizes, bool):
         sizes = [sizes]
-    if not isinstance(sizes, list) or len(sizes) > 32 or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in sizes):
+    if (
+        not isinstance(sizes, list)
+        or len(sizes) > 32
+        or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in sizes)
+    ):
         return 1, 0
     return 1, math.prod(sizes)
 
@@ -111,7 +121,11 @@ def _short(value: Any) -> str:
 
 
 def _shape(value: Any) -> tuple[int, ...]:
-    if not isinstance(value, list) or len(value) > 32 or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in value):
+    if (
+        not isinstance(value, list)
+        or len(value) > 32
+        or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in value)
+    ):
         raise SpaceError(f"space shape must be a list of at most 32 sizes ≥ 0, got {_short(value)}")
     if math.prod(value) > LIMITS.sample_elements:
         raise over_limit(f"space shape {value}: numbers per sample", math.prod(value), "sample_elements")
@@ -146,8 +160,8 @@ def _space_from_json(description: Any) -> gym.Space:
         dtype = _dtype(description.get("dtype", "int64"), "iu")
         nvec = np.asarray(description["nvec"], dtype=dtype)
         _shape(list(nvec.shape))
-        start = np.asarray(description.get("start", np.zeros_like(nvec)), dtype=dtype)
-        return gym.spaces.MultiDiscrete(nvec, dtype=dtype, start=start)
+        starts = np.asarray(description.get("start", np.zeros_like(nvec)), dtype=dtype)
+        return gym.spaces.MultiDiscrete(nvec, dtype=dtype, start=starts)
     if kind == "MultiBinary":
         n = description["n"]
         return gym.spaces.MultiBinary(list(_shape(n)) if isinstance(n, list) else _shape([n])[0])
@@ -167,6 +181,7 @@ def space_leaves(space: gym.Space, prefix: LeafPath = ()) -> Iterator[tuple[Leaf
         for key, sub in space.spaces.items():
             yield from space_leaves(sub, prefix + (key,))
     elif isinstance(space, (gym.spaces.Box, gym.spaces.Discrete, gym.spaces.MultiDiscrete, gym.spaces.MultiBinary)):
+        assert space.shape is not None  # set by each of these spaces
         yield prefix, np.dtype(space.dtype), tuple(space.shape)
     else:
         raise SpaceError(f"unsupported gymnasium space {type(space).__name__}")
@@ -180,16 +195,24 @@ def spaces_equal(a: gym.Space, b: gym.Space) -> bool:
 def spaces_compatible(a: gym.Space, b: gym.Space) -> bool:
     """Same kind, dtype, shape and (for discrete spaces) number of values: a model built for `a`
     can take inputs from `b`. Box bounds may differ."""
-    strip = lambda d: {k: (strip(v) if isinstance(v, dict) else v) for k, v in d.items() if k not in ("low", "high")}  # noqa: E731
+
+    def strip(d: dict[str, Any]) -> dict[str, Any]:
+        return {k: (strip(v) if isinstance(v, dict) else v) for k, v in d.items() if k not in ("low", "high")}
+
     return json.dumps(strip(space_to_json(a)), sort_keys=True) == json.dumps(strip(space_to_json(b)), sort_keys=True)
 
 
 def check_spaces_fit(owner: str, observation_space: gym.Space, action_space: gym.Space, env: gym.Env, *, where: str) -> None:
     """One-line SpaceError unless a model's (or demos') spaces are compatible with env's, e.g.
     `<where>: the policy's observation space Box(float32, (3,)) does not match the env's ...`."""
-    for name, mine, theirs in (("observation", observation_space, env.observation_space), ("action", action_space, env.action_space)):
+    for name, mine, theirs in (
+        ("observation", observation_space, env.observation_space),
+        ("action", action_space, env.action_space),
+    ):
         if not spaces_compatible(mine, theirs):
-            raise SpaceError(f"{where}: the {owner} {name} space {describe_space(mine)} does not match the env's {describe_space(theirs)}")
+            raise SpaceError(
+                f"{where}: the {owner} {name} space {describe_space(mine)} does not match the env's {describe_space(theirs)}"
+            )
 
 
 def describe_space(space: gym.Space) -> str:
@@ -228,7 +251,11 @@ def _scalar_to_json(value: Any) -> Any:
 def _bounds_to_json(bounds: np.ndarray) -> Any:
     flat = bounds.reshape(-1)
     # Compare as bytes so that NaN == NaN and -0.0 != 0.0: the scalar form must be exact.
-    if flat.size > 0 and bool(np.all(np.ascontiguousarray(flat).view(np.uint8).reshape(flat.size, -1) == np.ascontiguousarray(flat[:1]).view(np.uint8))):
+    if flat.size > 0 and bool(
+        np.all(
+            np.ascontiguousarray(flat).view(np.uint8).reshape(flat.size, -1) == np.ascontiguousarray(flat[:1]).view(np.uint8)
+        )
+    ):
         return _scalar_to_json(flat[0])
     return _nested_to_json(bounds)
 

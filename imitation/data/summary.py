@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from imitation.data.mcap.reader import DemoFile
 from imitation.data.spaces import describe_space, space_from_json, space_to_json
-from imitation.data.store import DemoFile
 
 
 def _stats(values: list[float]) -> dict[str, float] | None:

@@ -6,8 +6,9 @@ arrays: a "tree". Arrays along the time axis are stacked in the first dimension.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterator, Mapping, Sequence, Union
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -15,7 +16,7 @@ import numpy as np
 from imitation.data.spaces import LeafPath, space_leaves
 from imitation.errors import SpaceError
 
-Tree = Union[np.ndarray, dict[str, "Tree"]]
+Tree = np.ndarray | dict[str, "Tree"]
 
 
 def tree_leaves(tree: Tree, prefix: LeafPath = ()) -> Iterator[tuple[LeafPath, np.ndarray]]:
@@ -40,8 +41,6 @@ def tree_from_leaves(leaves: Mapping[LeafPath, np.ndarray]) -> Tree:
     return root
 
 
-
-
 def tree_rows(tree: Tree) -> int:
     """Length of the first axis, which every leaf must share."""
     lengths = {len(array) for _, array in tree_leaves(tree)}
@@ -54,6 +53,7 @@ def stack_samples(samples: Sequence[Any], space: gym.Space) -> Tree:
     """Stack per-step samples of `space` (arrays, ints or dicts of those) into one tree of arrays."""
     if isinstance(space, gym.spaces.Dict):
         return {key: stack_samples([sample[key] for sample in samples], sub) for key, sub in space.spaces.items()}
+    assert space.shape is not None  # a leaf space (Box, Discrete, MultiDiscrete, MultiBinary) has one
     return np.asarray(samples, dtype=space.dtype).reshape((len(samples), *space.shape))
 
 
@@ -137,8 +137,9 @@ class Transitions:
     """A flat batch of N transitions (s, a, r, s', terminated, truncated) drawn from episodes.
 
     Rewards are float64, as stored: a finite reward is never narrowed to ±inf. `next_observations` is
-    None when it was not asked for (behavioural cloning does not need s'). `terminated[i]` is true only on the last transition of a terminated episode (no bootstrap
-    from `next_observations[i]`), `truncated[i]` only on the last transition of a truncated one.
+    None when it was not asked for (behavioural cloning does not need s'). `terminated[i]` is true only
+    on the last transition of a terminated episode (no bootstrap from `next_observations[i]`),
+    `truncated[i]` only on the last transition of a truncated one.
     `episode_index[i]` is the dataset-wide index of the episode transition i came from.
     """
 

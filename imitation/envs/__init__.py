@@ -1,12 +1,14 @@
 """Environment construction and the project's own environments, registered with gymnasium on
 import (as `imitation/<Name>-v0`) so that `record`, `train` and `eval` can name them."""
 
+from typing import Any
+
 from gymnasium.envs.registration import register, registry
 
 from imitation.envs.fixed_horizon import CARTPOLE_HORIZON
 
 _TABULAR = "imitation.envs.tabular:make_tabular_env"
-_ENVS = {
+_ENVS: dict[str, dict[str, Any]] = {
     "imitation/GridWorld8x8-v0": dict(entry_point=_TABULAR, kwargs={"world": "gridworld"}),
     "imitation/GridWorld8x8Slippery-v0": dict(entry_point=_TABULAR, kwargs={"world": "gridworld", "slip": 0.2}),
     "imitation/CliffWorld-v0": dict(entry_point=_TABULAR, kwargs={"world": "cliff_world"}),

@@ -34,8 +34,11 @@ class CartPoleFixedHorizon(CartPoleEnv):
 
     def __init__(self, render_mode: str | None = None) -> None:
         super().__init__(render_mode=render_mode)
+        assert isinstance(self.observation_space, gym.spaces.Box)  # CartPole's
         low, high = self.observation_space.low, self.observation_space.high
-        self.observation_space = gym.spaces.Box(np.append(low, np.float32(0.0)), np.append(high, np.float32(1.0)), dtype=np.float32)
+        self.observation_space = gym.spaces.Box(
+            np.append(low, np.float32(0.0)), np.append(high, np.float32(1.0)), dtype=np.float32
+        )
         self.failed_observation: np.ndarray | None = None
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:

@@ -16,7 +16,9 @@ def make_env(env_id: str, **kwargs: Any) -> gym.Env:
     except gym.error.Error as error:
         raise ImitationError(f"environment {env_id!r}: {str(error).splitlines()[0]}") from None
     except ModuleNotFoundError as error:
-        raise ImitationError(f"environment {env_id!r} needs the Python package {error.name!r}, which is not installed") from None
+        raise ImitationError(
+            f"environment {env_id!r} needs the Python package {error.name!r}, which is not installed"
+        ) from None
 
 
 def control_period(env: gym.Env) -> float | None:

@@ -1,13 +1,35 @@
-"""Play one episode of a policy in an environment: the loop that recording and evaluation share."""
+"""Rollouts: one episode of a policy (the loop that recording and evaluation share), and the
+batch of vector-env steps that on-policy learners and learned rewards share (`Rollout`)."""
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import torch
 
 Policy = Callable[[Any], Any]
+
+
+@dataclass
+class Rollout:
+    """n_steps steps of n_envs environments, (T, n_envs) leading dims, as the environments saw
+    them: what a learned reward needs to relabel it (`next_observations` holds the true final
+    state where an episode ended) and what importance weights need (`log_probs`, log π_k(a_t|s_t)
+    of the sampled actions). `actions` are the policy's (class indices for categorical heads),
+    `env_actions` what the environments were given."""
+
+    observations: torch.Tensor
+    actions: torch.Tensor
+    env_actions: torch.Tensor
+    next_observations: torch.Tensor
+    log_probs: torch.Tensor
+    env_rewards: torch.Tensor
+    terminated: torch.Tensor
+    truncated: torch.Tensor
 
 
 def play_episode(env: gym.Env, policy: Policy, *, seed: int | None) -> tuple[float, int]:
@@ -22,7 +44,9 @@ def play_episode(env: gym.Env, policy: Policy, *, seed: int | None) -> tuple[flo
     return episode_return, length
 
 
-def collect_transitions(env: gym.Env, policy: Policy, *, episodes: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def collect_transitions(
+    env: gym.Env, policy: Policy, *, episodes: int, seed: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(s, a, s') of every step of `episodes` episodes (episode i reset with seed `seed + i`)."""
     observations, actions, next_observations = [], [], []
     for i in range(episodes):

@@ -21,6 +21,7 @@ Built-in worlds (registered as gymnasium ids in `imitation.envs`):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, SupportsFloat
 
@@ -50,7 +51,9 @@ class TabularMDP:
     def __post_init__(self) -> None:
         n_states, n_actions, n_next = self.transition.shape
         if n_next != n_states or self.initial.shape != (n_states,) or self.reward.shape != (n_states,):
-            raise ImitationError(f"tabular MDP: shapes do not agree (P {self.transition.shape}, ρ₀ {self.initial.shape}, r {self.reward.shape})")
+            raise ImitationError(
+                f"tabular MDP: shapes do not agree (P {self.transition.shape}, ρ₀ {self.initial.shape}, r {self.reward.shape})"
+            )
         if self.features.ndim != 2 or self.features.shape[0] != n_states:
             raise ImitationError(f"tabular MDP: features must be (states, d), got {self.features.shape}")
         if not np.allclose(self.transition.sum(-1), 1.0) or not np.isclose(self.initial.sum(), 1.0):
@@ -91,6 +94,7 @@ class TabularEnv(gym.Env):
         reward = float(self.mdp.reward[self.state])
         self.state = int(self.np_random.choice(self.mdp.n_states, p=self.mdp.transition[self.state, int(action)]))
         self.time_step += 1
+        assert self.mdp.horizon is not None  # checked in __init__
         return self.state, reward, False, self.time_step >= self.mdp.horizon, {}
 
     def render(self) -> np.ndarray | None:
@@ -152,7 +156,7 @@ def gridworld(*, slip: float = 0.0, horizon: int = 30) -> TabularMDP:
         features=features,
         reward=features @ _GRID_WEIGHTS,
         horizon=horizon,
-        grid_shape=layout.shape,
+        grid_shape=(layout.shape[0], layout.shape[1]),
         feature_names=_GRID_KINDS,
     )
 
@@ -177,7 +181,9 @@ def cliff_world(*, rows: int = 4, columns: int = 7, horizon: int = 40) -> Tabula
     )
 
 
-def random_mdp(*, seed: int = 0, n_states: int = 32, n_actions: int = 4, branching: int = 4, n_features: int = 8, horizon: int = 20) -> TabularMDP:
+def random_mdp(
+    *, seed: int = 0, n_states: int = 32, n_actions: int = 4, branching: int = 4, n_features: int = 8, horizon: int = 20
+) -> TabularMDP:
     """A random MDP drawn from `seed`: sparse random dynamics, Gaussian features and weights."""
     rng = np.random.default_rng(seed)
     transition = np.zeros((n_states, n_actions, n_states))
@@ -197,7 +203,11 @@ def random_mdp(*, seed: int = 0, n_states: int = 32, n_actions: int = 4, branchi
 
 def make_tabular_env(world: str, render_mode: str | None = None, **options: Any) -> TabularEnv:
     """The gymnasium entry point for the registered worlds."""
-    builders = {"gridworld": gridworld, "cliff_world": cliff_world, "random_mdp": random_mdp}
+    builders: dict[str, Callable[..., TabularMDP]] = {
+        "gridworld": gridworld,
+        "cliff_world": cliff_world,
+        "random_mdp": random_mdp,
+    }
     return TabularEnv(builders[world](**options), render_mode=render_mode)
 
 
@@ -206,5 +216,7 @@ def tabular_mdp_of(env: gym.Env, *, where: str) -> TabularMDP:
     unwrapped = env.unwrapped
     if not isinstance(unwrapped, TabularEnv):
         name = env.spec.id if env.spec else type(unwrapped).__name__
-        raise ImitationError(f"{where}: {name} is not a tabular MDP with known dynamics (use an imitation/ gridworld, or --method gcl)")
+        raise ImitationError(
+            f"{where}: {name} is not a tabular MDP with known dynamics (use an imitation/ gridworld, or --method gcl)"
+        )
     return unwrapped.mdp

@@ -8,7 +8,7 @@ rollouts. Envs not listed have no known reward function (EPIC is then not comput
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import gymnasium as gym
 import numpy as np

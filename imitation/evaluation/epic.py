@@ -1,5 +1,5 @@
 """EPIC: the Equivalent-Policy Invariant Comparison of two rewards (Gleave et al. 2020,
-"Quantifying Differences in Reward Functions", arXiv 2006.13900).
+"Quantifying Differences in Reward Functions", arXiv 2006.13900; docs/THEORY.md §9).
 
 Two rewards that differ by potential shaping F(s, a, s') = γΦ(s') − Φ(s), or by a positive
 scale, have the same optimal policies in every MDP with the same (S, A, γ); EPIC is a distance
@@ -40,8 +40,9 @@ another such reward.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, NamedTuple, Protocol
+from typing import NamedTuple, Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -151,7 +152,10 @@ def _transition_table(reward: np.ndarray, n_states: int, n_actions: int) -> np.n
     reward = np.asarray(reward, dtype=np.float64)
     shapes = {1: (n_states,), 2: (n_states, n_actions), 3: (n_states, n_actions, n_states)}
     if shapes.get(reward.ndim) != reward.shape:
-        raise ImitationError(f"EPIC: a tabular reward must have shape (S,), (S, A) or (S, A, S') with S = {n_states}, A = {n_actions}; got {reward.shape}")
+        raise ImitationError(
+            f"EPIC: a tabular reward must have shape (S,), (S, A) or (S, A, S') with S = {n_states}, A = {n_actions}; got "
+            f"{reward.shape}"
+        )
     # Trailing axes of length 1 broadcast r(s) or r(s, a) over the missing a and s'.
     return np.broadcast_to(reward.reshape(reward.shape + (1,) * (3 - reward.ndim)), (n_states, n_actions, n_states))
 
@@ -215,7 +219,11 @@ def torch_reward(model: Callable[[torch.Tensor, torch.Tensor, torch.Tensor], tor
 
     def reward(observations: np.ndarray, actions: np.ndarray, next_observations: np.ndarray) -> np.ndarray:
         with torch.no_grad():
-            return model(torch.as_tensor(observations), torch.as_tensor(actions), torch.as_tensor(next_observations)).double().numpy()
+            return (
+                model(torch.as_tensor(observations), torch.as_tensor(actions), torch.as_tensor(next_observations))
+                .double()
+                .numpy()
+            )
 
     return reward
 
@@ -224,7 +232,9 @@ def _evaluate(reward: RewardFn, observations: np.ndarray, actions: np.ndarray, n
     """R on a batch as float64 (means over many float32 values lose digits otherwise)."""
     values = np.asarray(reward(observations, actions, next_observations), dtype=np.float64)
     if values.shape != (len(observations),):
-        raise ImitationError(f"EPIC: a reward on {len(observations)} transitions returned shape {values.shape}, expected ({len(observations)},)")
+        raise ImitationError(
+            f"EPIC: a reward on {len(observations)} transitions returned shape {values.shape}, expected ({len(observations)},)"
+        )
     return values
 
 
@@ -273,7 +283,9 @@ def canonicalize_sampled(
     _check_discount(discount)
     _check_batch(transitions)
     if len(state_samples) != len(action_samples) or len(state_samples) == 0:
-        raise ImitationError(f"EPIC: state and action samples must pair up, got {len(state_samples)} and {len(action_samples)}")
+        raise ImitationError(
+            f"EPIC: state and action samples must pair up, got {len(state_samples)} and {len(action_samples)}"
+        )
     return _canonical_and_raw(reward, transitions, state_samples, action_samples, discount)[0]
 
 
@@ -326,7 +338,10 @@ def _check_discount(discount: float) -> None:
 def _check_batch(transitions: TransitionBatch) -> None:
     lengths = {len(part) for part in transitions}
     if len(transitions) != 3 or len(lengths) != 1 or 0 in lengths:
-        raise ImitationError(f"EPIC: transitions must be (s, a, s') arrays of one non-zero length, got lengths {sorted(len(part) for part in transitions)}")
+        raise ImitationError(
+            "EPIC: transitions must be (s, a, s') arrays of one non-zero length, got lengths "
+            f"{sorted(len(part) for part in transitions)}"
+        )
 
 
 # ------------------------------------------------------------------------------------------------

@@ -9,6 +9,23 @@ import gymnasium as gym
 import numpy as np
 
 
+def plot_curve(path: Path, history: list[dict[str, float]], *, x: str, ys: list[str], title: str) -> None:
+    """A learning-curve PNG of columns `ys` against `x` (non-finite points left out)."""
+    plt = _pyplot()
+    figure, axis = plt.subplots(figsize=(7, 4))
+    for y in ys:
+        points = [(row[x], row[y]) for row in history if y in row and row[y] is not None and np.isfinite(row[y])]
+        if points:
+            axis.plot(*zip(*points), label=y)
+    axis.set_xlabel(x)
+    axis.set_title(title)
+    axis.grid(alpha=0.3)
+    axis.legend()
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
 def plot_grid_maps(path: Path, panels: dict[str, np.ndarray], *, grid_shape: tuple[int, int], title: str) -> None:
     """One heatmap per panel (a per-state vector shown on the grid), side by side, each with
     its own colour scale: learned rewards are only defined up to shift and scale."""
@@ -35,7 +52,9 @@ def _pyplot():
     return plt
 
 
-def plot_reward_scatter(path: Path, true_values: np.ndarray, rewards: dict[str, np.ndarray], *, xlabel: str, title: str) -> None:
+def plot_reward_scatter(
+    path: Path, true_values: np.ndarray, rewards: dict[str, np.ndarray], *, xlabel: str, title: str
+) -> None:
     """Each reward against the true one, one panel each (their scales are arbitrary)."""
     plt = _pyplot()
     figure, axes = plt.subplots(1, len(rewards), figsize=(3.6 * len(rewards), 3.4), squeeze=False)
@@ -62,8 +81,14 @@ def slice_dimensions(observations: np.ndarray, space: gym.spaces.Box) -> tuple[i
 
 
 def plot_state_slices(
-    path: Path, observations: np.ndarray, actions: np.ndarray, rewards: dict[str, Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]],
-    space: gym.spaces.Box, *, title: str, resolution: int = 60,
+    path: Path,
+    observations: np.ndarray,
+    actions: np.ndarray,
+    rewards: dict[str, Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]],
+    space: gym.spaces.Box,
+    *,
+    title: str,
+    resolution: int = 60,
 ) -> None:
     """Each reward R(s, a, s) over a grid of two observation dimensions (`slice_dimensions`),
     the other dimensions and the action held at the demos' mean (mode for discrete actions);
@@ -87,7 +112,13 @@ def plot_state_slices(
     batch_actions = np.repeat(np.asarray(typical_action)[None], len(states), axis=0)
     figure, axes = plt.subplots(1, len(rewards), figsize=(4.2 * len(rewards), 3.6), squeeze=False)
     for axis, (name, reward) in zip(axes[0], rewards.items()):
-        image = axis.pcolormesh(grid_x, grid_y, np.asarray(reward(states, batch_actions, states), dtype=float).reshape(grid_x.shape), cmap="viridis", shading="auto")
+        image = axis.pcolormesh(
+            grid_x,
+            grid_y,
+            np.asarray(reward(states, batch_actions, states), dtype=float).reshape(grid_x.shape),
+            cmap="viridis",
+            shading="auto",
+        )
         axis.scatter(flat[:, first], flat[:, second], s=2, c="white", alpha=0.3)
         axis.set_xlabel(f"observation[{first}]")
         axis.set_ylabel(f"observation[{second}]")
@@ -99,7 +130,9 @@ def plot_state_slices(
     plt.close(figure)
 
 
-def plot_return_distributions(path: Path, returns: dict[str, Sequence[float]], references: dict[str, float], *, title: str) -> None:
+def plot_return_distributions(
+    path: Path, returns: dict[str, Sequence[float]], references: dict[str, float], *, title: str
+) -> None:
     """Each group's returns as points over a box, with reference returns as horizontal lines."""
     plt = _pyplot()
     names = [name for name, values in returns.items() if len(values)]
@@ -107,7 +140,9 @@ def plot_return_distributions(path: Path, returns: dict[str, Sequence[float]], r
     axis.boxplot([returns[name] for name in names], tick_labels=names, showfliers=False)
     for position, name in enumerate(names, start=1):
         values = np.asarray(returns[name], dtype=float)
-        axis.scatter(position + np.linspace(-0.12, 0.12, len(values)) if len(values) > 1 else [position], values, s=16, zorder=3)
+        axis.scatter(
+            position + np.linspace(-0.12, 0.12, len(values)) if len(values) > 1 else [position], values, s=16, zorder=3
+        )
     for (label, value), style in zip(references.items(), ("--", ":", "-.")):
         axis.axhline(value, linestyle=style, color="grey", label=f"{label} {value:.1f}")
     axis.set_ylabel("true return")

@@ -19,7 +19,10 @@ def write_report(path: str | os.PathLike, markdown: str, *, title: str) -> tuple
 
     path = Path(path)
     body = MarkdownIt("commonmark").enable("table").render(markdown)
-    page = f"<!doctype html>\n<html><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title><style>{_STYLE}</style></head>\n<body>\n{body}</body></html>\n"
+    page = (
+        f'<!doctype html>\n<html><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
+        f"<style>{_STYLE}</style></head>\n<body>\n{body}</body></html>\n"
+    )
     written = []
     for target, text in ((path, markdown), (path.with_suffix(".html"), page)):
         temporary = target.with_name(f".{target.name}.partial")

@@ -42,7 +42,9 @@ def key_bindings(env: gym.Env) -> tuple[dict[str, int], int]:
     """(key name → action, no-op action) for env: known bindings, else digit keys 0-9."""
     if not isinstance(env.action_space, gym.spaces.Discrete):
         env_id = env.spec.id if env.spec else "this environment"
-        raise ImitationError(f"--expert keyboard needs a discrete action space; {env_id} has {type(env.action_space).__name__} actions")
+        raise ImitationError(
+            f"--expert keyboard needs a discrete action space; {env_id} has {type(env.action_space).__name__} actions"
+        )
     if env.spec is not None and env.spec.id in _BINDINGS:
         return _BINDINGS[env.spec.id]
     n = int(env.action_space.n)
@@ -72,7 +74,9 @@ class KeyboardExpert:
 
     def __call__(self, observation: Any) -> int:
         self._handle_events()
-        self._show(self.env.render())
+        frame = self.env.render()
+        assert frame is None or isinstance(frame, np.ndarray)  # render_mode="rgb_array" (checked in __init__)
+        self._show(frame)
         self._clock.tick(self.fps)
         held = [key for key in self._held if key in self._actions]
         return self._actions[held[-1]] if held else self.noop

@@ -2,18 +2,19 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import gymnasium as gym
 
 from imitation.envs.make import make_env
 from imitation.envs.tabular import TabularEnv
 from imitation.errors import ImitationError
-from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
 from imitation.experts.sb3 import load_sb3_policy
 from imitation.experts.scripted import scripted_expert
 from imitation.experts.tabular import SoftOptimalExpert
+from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
 
 Policy = Callable[[Any], Any]
 EXPERT_SPECS = ("scripted", "random", "keyboard", "RUN_DIR", "sb3:PATH")

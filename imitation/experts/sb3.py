@@ -31,12 +31,13 @@ import io
 import json
 import math
 import os
-from pickletools import genops  # disassembles a pickle without running it
 import re
 import warnings
 import zipfile
 import zlib
-from typing import Any, Iterator
+from collections.abc import Iterator
+from pickletools import genops  # disassembles a pickle without running it
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -58,7 +59,21 @@ HEADS = {
 HIDDEN_LAYER = re.compile(r"mlp_extractor\.(policy_net|value_net|shared_net)\.(\d+)\.(weight|bias)")
 SPACE_TYPE = re.compile(r"<class '(?:gym|gymnasium)\.spaces\.\w+\.(\w+)'>")
 ACTIVATION_MODULE = "torch.nn.modules.activation"
-PLAIN_BUILTINS = {"dict", "list", "tuple", "set", "frozenset", "int", "float", "bool", "str", "bytes", "complex", "slice", "range"}
+PLAIN_BUILTINS = {
+    "dict",
+    "list",
+    "tuple",
+    "set",
+    "frozenset",
+    "int",
+    "float",
+    "bool",
+    "str",
+    "bytes",
+    "complex",
+    "slice",
+    "range",
+}
 STRING_OPCODES = {"STRING", "BINSTRING", "SHORT_BINSTRING", "UNICODE", "BINUNICODE", "SHORT_BINUNICODE", "BINUNICODE8"}
 
 
@@ -70,7 +85,11 @@ def load_sb3_policy(path: str | os.PathLike) -> ActorCritic:
         raise ImitationError(f"{file}: the policy uses gSDE (state-dependent exploration), which is not supported")
     observation_space = _space(file, data, "observation_space")
     action_space = _space(file, data, "action_space")
-    if isinstance(observation_space, gym.spaces.Box) and observation_space.dtype == np.uint8 and len(observation_space.shape) == 3:
+    if (
+        isinstance(observation_space, gym.spaces.Box)
+        and observation_space.dtype == np.uint8
+        and len(observation_space.shape) == 3
+    ):
         raise ImitationError(f"{file}: image observations are not supported (SB3 scales them by 1/255 inside the policy)")
     hidden_sizes, shared, state = _rename_weights(file, weights)
     head = state.get("action_head.weight")
@@ -101,7 +120,15 @@ def _read_zip(file: str) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
                     raise ImitationError(f"{file}: no {member} in the zip, so not a stable-baselines3 PPO/A2C model")
                 check_zip_member(file, archive.getinfo(member))
             weights_bytes, data_bytes = archive.read("policy.pth"), archive.read("data")
-    except (zipfile.BadZipFile, zlib.error, OSError, NotImplementedError, EOFError, ValueError, RuntimeError) as error:  # RuntimeError: "encrypted"
+    except (
+        zipfile.BadZipFile,
+        zlib.error,
+        OSError,
+        NotImplementedError,
+        EOFError,
+        ValueError,
+        RuntimeError,
+    ) as error:  # RuntimeError: "encrypted"
         raise ImitationError(f"{file}: cannot read as a stable-baselines3 zip ({str(error)[:200]})") from None
     try:
         with warnings.catch_warnings():  # torch warns on stderr about pickle protocols; one line only
@@ -110,7 +137,9 @@ def _read_zip(file: str) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     except Exception as error:  # noqa: BLE001 - any failure of a stranger's file is one line
         # weights_only refuses anything but tensors and plain containers: an unpickling error here
         # may also mean the file tried to import code.
-        raise ImitationError(f"{file}: policy.pth is not a plain PyTorch state dict ({_refusal(error)}); nothing in it was run") from None
+        raise ImitationError(
+            f"{file}: policy.pth is not a plain PyTorch state dict ({_refusal(error)}); nothing in it was run"
+        ) from None
     if not isinstance(weights, dict) or not all(isinstance(v, torch.Tensor) for v in weights.values()):
         raise ImitationError(f"{file}: policy.pth holds a {type(weights).__name__}, not a state dict of tensors")
     try:
@@ -138,6 +167,7 @@ def _space(file: str, data: dict[str, Any], key: str) -> gym.Space:
     match = SPACE_TYPE.fullmatch(entry[":type:"]) if isinstance(entry, dict) and isinstance(entry.get(":type:"), str) else None
     if match is None:
         raise ImitationError(f"{file}: data has no readable {key} (expected a gym/gymnasium space entry)")
+    assert isinstance(entry, dict)  # match is only found in a dict entry
     kind = match[1]
     try:
         if kind == "Discrete":
@@ -158,7 +188,9 @@ def _space(file: str, data: dict[str, Any], key: str) -> gym.Space:
             low, high = (_parse_array(entry[bound], shape, dtype) for bound in ("low", "high"))
             return gym.spaces.Box(low=low, high=high, shape=shape, dtype=dtype)
     except (KeyError, TypeError, ValueError, OverflowError) as error:
-        raise ImitationError(f"{file}: cannot read {key} ({kind}) from its readable fields, and its pickle is not opened: {error}") from None
+        raise ImitationError(
+            f"{file}: cannot read {key} ({kind}) from its readable fields, and its pickle is not opened: {error}"
+        ) from None
     raise ImitationError(f"{file}: {key} is a {kind}; only Box and Discrete spaces are supported")
 
 
@@ -199,10 +231,11 @@ def _rename_weights(file: str, weights: dict[str, torch.Tensor]) -> tuple[list[i
     if sizes["shared_net"] and (sizes["policy_net"] or sizes["value_net"]):
         raise ImitationError(f"{file}: a shared network followed by separate actor/critic layers is not supported")
     if sizes["shared_net"]:
-        trunks = {"shared_net": ("actor_trunk", "critic_trunk")}
+        trunks: dict[str, tuple[str, ...]] = {"shared_net": ("actor_trunk", "critic_trunk")}
     elif sizes["policy_net"] != sizes["value_net"]:
         raise ImitationError(
-            f"{file}: actor hidden sizes {sizes['policy_net']} differ from critic hidden sizes {sizes['value_net']}, which is not supported"
+            f"{file}: actor hidden sizes {sizes['policy_net']} differ from critic hidden sizes {sizes['value_net']}, which "
+            "is not supported"
         )
     else:
         trunks = {"policy_net": ("actor_trunk",), "value_net": ("critic_trunk",)}
@@ -218,7 +251,9 @@ def _hidden_sizes(file: str, net: str, found: dict[int, dict[str, torch.Tensor]]
     indices = sorted(found)
     linear = all(set(found[i]) == {"weight", "bias"} and found[i]["weight"].dim() == 2 for i in indices)
     if indices != list(range(0, 2 * len(indices), 2)) or not linear:
-        raise ImitationError(f"{file}: mlp_extractor.{net} is not Linear layers alternating with activations (layers {indices})")
+        raise ImitationError(
+            f"{file}: mlp_extractor.{net} is not Linear layers alternating with activations (layers {indices})"
+        )
     return [int(found[i]["weight"].shape[0]) for i in indices]
 
 
@@ -267,6 +302,7 @@ def _pickle_globals(payload: bytes) -> Iterator[tuple[str, str]]:
     pushes are tracked: any other push is recorded as None, which is all STACK_GLOBAL needs."""
     memo: dict[int, Any] = {}
     pushed: list[Any] = []
+    arg: Any  # its type depends on the opcode: str for GLOBAL and the string pushes, int for the memo's
     for opcode, arg, _ in genops(payload):
         if opcode.name == "GLOBAL":
             module, name = arg.split(" ", 1)

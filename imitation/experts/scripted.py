@@ -7,7 +7,8 @@ as the DAgger oracle) and reproduces the same actions for the same states.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 

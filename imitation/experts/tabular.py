@@ -1,6 +1,6 @@
 """The expert of a tabular MDP: its soft-optimal policy under the true reward.
 
-Soft value iteration (the backward pass of `imitation.algorithms.maxent_irl`) gives a
+Soft value iteration (`imitation.envs.tabular_planning`) gives a
 time-indexed policy π_t(a|s) ∝ exp Q_t(s, a); the expert reads the env's clock to pick π_t and
 samples its action from a seeded generator, so recordings are reproducible. This is exactly the
 demonstrator that maximum (causal) entropy IRL assumes.
@@ -11,17 +11,8 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from imitation.algorithms.maxent_irl import Dynamics, soft_value_iteration
-from imitation.envs.tabular import TabularEnv, TabularMDP
-
-
-def soft_optimal_policy(mdp: TabularMDP, reward: np.ndarray | None = None, *, discount: float | None = None) -> np.ndarray:
-    """π_t(a|s) of shape (H, S, A), soft-optimal (causal, for any dynamics) for `reward` (default:
-    the MDP's true one) and `discount` (default: the MDP's)."""
-    dynamics = Dynamics.of(mdp.transition)
-    reward = mdp.reward if reward is None else reward
-    policy, _ = soft_value_iteration(dynamics, reward, horizon=mdp.horizon, discount=mdp.discount if discount is None else discount)
-    return policy
+from imitation.envs.tabular import TabularEnv
+from imitation.envs.tabular_planning import soft_optimal_policy
 
 
 class SoftOptimalExpert:

@@ -15,22 +15,42 @@ from __future__ import annotations
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import closing
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
+from imitation.algorithms.bc import BCConfig
+from imitation.algorithms.dagger import DAggerConfig
+from imitation.algorithms.gcl import GCLConfig
+from imitation.algorithms.maxent_irl import MaxEntIRLConfig
+from imitation.algorithms.ppo import PPOConfig
+from imitation.bundled import bundled_datasets
+from imitation.data.summary import summarize
+from imitation.envs.make import make_env
 from imitation.errors import ImitationError
 from imitation.evaluation.report import write_report
+from imitation.evaluation.reward import reward_report
+from imitation.evaluation.video import record_video
+from imitation.jobs.bc import bc_job
+from imitation.jobs.dagger import dagger_job
+from imitation.jobs.evaluate_policy import eval_policy_job
+from imitation.jobs.evaluate_reward import RewardEvaluationConfig, evaluate_reward
+from imitation.jobs.irl import gcl_job, tabular_irl_job
+from imitation.jobs.presets import EVAL_EPISODES, EVAL_SEED, ppo_settings, preset
+from imitation.jobs.run_config import RunConfig
+from imitation.policies import SingleObservationPolicy, load_policy
+from imitation.runs import read_run
 
-BUNDLED = Path(__file__).resolve().parent.parent / "datasets"
+BUNDLED = bundled_datasets()
 GRIDWORLD = "imitation/GridWorld8x8Slippery-v0"
 CARTPOLE_FH = "imitation/CartPoleFixedHorizon-v0"
-GCL_STEPS = 200_000
-RETRAIN_STEPS = 300_000
 QUICK_STEPS = 4096
 
 
-def run_demo(out: str | os.PathLike, *, datasets: str | os.PathLike = BUNDLED, quick: bool = False, progress: bool = True) -> dict[str, Any]:
+def run_demo(
+    out: str | os.PathLike, *, datasets: str | os.PathLike = BUNDLED, quick: bool = False, progress: bool = True
+) -> dict[str, Any]:
     """Run every stage into `out`; returns the results and the report's path. `quick` shrinks
     every training to a smoke test (a minute; the learning results then mean nothing)."""
     out, datasets = Path(out), Path(datasets)
@@ -45,13 +65,19 @@ def run_demo(out: str | os.PathLike, *, datasets: str | os.PathLike = BUNDLED, q
     results: dict[str, Any] = {"datasets": _dataset_summaries(datasets)}
     _say(f"guided cost learning on {CARTPOLE_FH} runs in the background meanwhile", progress)
     with ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn")) as pool:
-        gcl = pool.submit(_timed, _gcl_stage, datasets, out, steps=QUICK_STEPS if quick else GCL_STEPS)
+        gcl = pool.submit(_timed, _gcl_stage, datasets, out, steps=QUICK_STEPS if quick else preset(CARTPOLE_FH).gcl_steps)
         results["bc"] = _timed(_bc_stage, datasets, out, epochs=2 if quick else 40, progress=progress)
         results["dagger"] = _timed(_dagger_stage, datasets, out, epochs=2 if quick else 30, progress=progress)
         results["tabular_irl"] = _timed(_tabular_irl_stage, datasets, out, iterations=20 if quick else 500, progress=progress)
         results["gcl"] = gcl.result()
-    _say(f"guided cost learning done in {results['gcl']['seconds']:.0f} s; evaluating its reward (PPO retrained from scratch on it and on two controls)", progress)
-    results["gcl_eval"] = _timed(_gcl_evaluation_stage, out, steps=QUICK_STEPS if quick else RETRAIN_STEPS, progress=progress)
+    _say(
+        f"guided cost learning done in {results['gcl']['seconds']:.0f} s; evaluating its reward (PPO retrained from scratch "
+        "on it and on two controls)",
+        progress,
+    )
+    results["gcl_eval"] = _timed(
+        _gcl_evaluation_stage, out, steps=QUICK_STEPS if quick else preset(CARTPOLE_FH).retrain_steps, progress=progress
+    )
     results["seconds"] = time.perf_counter() - started
     report, page = write_report(out / "report.md", demo_report(results, out), title="imitation demo")
     return {"report": str(report), "report_html": str(page), **results}
@@ -69,86 +95,109 @@ def _timed(stage: Any, *args: Any, **kwargs: Any) -> dict[str, Any]:
 
 
 def _dataset_summaries(datasets: Path) -> list[dict[str, Any]]:
-    from imitation.data.summary import summarize
-
     return [summarize(path) for path in sorted(datasets.glob("*.mcap"))]
 
 
-def _policy_eval(run: Path, env_id: str, demos: list[str]) -> dict[str, Any]:
-    from contextlib import closing
-
-    from imitation.envs.make import make_env
-    from imitation.evaluation.policy import evaluate_policy, normalized_return
-    from imitation.policies import SingleObservationPolicy, load_policy
-    from imitation.training import EVAL_EPISODES, EVAL_SEED
-
-    with closing(make_env(env_id)) as env:
-        stats = evaluate_policy(SingleObservationPolicy(load_policy(run)), env, episodes=EVAL_EPISODES, seed=EVAL_SEED)
-        return stats | normalized_return(stats, env, demos, seed=EVAL_SEED)
+def _policy_eval(run: str | os.PathLike, env_id: str, demos: list[str]) -> dict[str, Any]:
+    return eval_policy_job(run, env_id, episodes=EVAL_EPISODES, seed=EVAL_SEED, demos=demos)
 
 
 def _bc_stage(datasets: Path, out: Path, *, epochs: int, progress: bool) -> dict[str, Any]:
-    from imitation.algorithms.bc import BCConfig
-    from imitation.training import bc_job
-
     _say("behavioural cloning on the bundled CartPole-v1 demos", progress)
     demos = [str(datasets / "CartPole-v1.mcap")]
     run = bc_job(demos, "CartPole-v1", BCConfig(epochs=epochs), out / "bc-cartpole", progress=False)
-    return {"run": run["run"], "epochs": run["epochs"], "validation_loss": run["best_validation_loss"], "eval": _policy_eval(Path(run["run"]), "CartPole-v1", demos)}
+    return {
+        "run": run["run"],
+        "epochs": run["epochs"],
+        "validation_loss": run["best_validation_loss"],
+        "eval": _policy_eval(run["run"], "CartPole-v1", demos),
+    }
 
 
 def _dagger_stage(datasets: Path, out: Path, *, epochs: int, progress: bool) -> dict[str, Any]:
-    from imitation.algorithms.bc import BCConfig
-    from imitation.algorithms.dagger import DAggerConfig
-    from imitation.training import dagger_job
-
     _say("DAgger on CartPole-v1 with the scripted expert (3 rounds)", progress)
-    run = dagger_job("CartPole-v1", "scripted", DAggerConfig(rounds=3, episodes_per_round=3, bc=BCConfig(epochs=epochs)), out / "dagger-cartpole", progress=False)
-    evaluation = _policy_eval(Path(run["run"]), "CartPole-v1", [str(datasets / "CartPole-v1.mcap")])
-    return {"run": run["run"], "rounds": run["rounds"], "expert_labels": run["expert_labels"], "round_returns": run["round_returns"], "eval": evaluation}
+    run = dagger_job(
+        "CartPole-v1",
+        "scripted",
+        DAggerConfig(rounds=3, episodes_per_round=3, bc=BCConfig(epochs=epochs)),
+        out / "dagger-cartpole",
+        progress=False,
+    )
+    evaluation = _policy_eval(run["run"], "CartPole-v1", [str(datasets / "CartPole-v1.mcap")])
+    return {
+        "run": run["run"],
+        "rounds": run["rounds"],
+        "expert_labels": run["expert_labels"],
+        "round_returns": run["round_returns"],
+        "eval": evaluation,
+    }
 
 
 def _tabular_irl_stage(datasets: Path, out: Path, *, iterations: int, progress: bool) -> dict[str, Any]:
-    from imitation.algorithms.maxent_irl import MaxEntIRLConfig
-    from imitation.evaluation.reward import RewardEvaluationConfig, evaluate_reward
-    from imitation.training import tabular_irl_job
-
     _say(f"maximum causal entropy IRL on the bundled {GRIDWORLD} demos, then its reward evaluated exactly", progress)
-    run = tabular_irl_job([str(datasets / f"{GRIDWORLD.split('/')[1]}.mcap")], GRIDWORLD, MaxEntIRLConfig(method="mce", iterations=iterations), out / "irl-gridworld", progress=False)
-    evaluation = evaluate_reward(run["run"], GRIDWORLD, RewardEvaluationConfig(), Path(run["run"]) / "eval-reward", progress=False)
-    return {"run": run["run"], "iterations": run["iterations"], "occupancy_error": run["occupancy_error"], "normalized_return": run["normalized_return"], "evaluation": evaluation}
+    run = tabular_irl_job(
+        [str(datasets / f"{GRIDWORLD.split('/')[1]}.mcap")],
+        GRIDWORLD,
+        MaxEntIRLConfig(method="mce", iterations=iterations),
+        out / "irl-gridworld",
+        progress=False,
+    )
+    evaluation = evaluate_reward(
+        run["run"], GRIDWORLD, RewardEvaluationConfig(), Path(run["run"]) / "eval-reward", progress=False
+    )
+    return {
+        "run": run["run"],
+        "iterations": run["iterations"],
+        "occupancy_error": run["occupancy_error"],
+        "normalized_return": run["normalized_return"],
+        "evaluation": evaluation,
+    }
 
 
 def _gcl_stage(datasets: Path, out: Path, *, steps: int) -> dict[str, Any]:
     """In a worker process: guided cost learning with `train irl --method gcl`'s defaults."""
     import torch
 
-    from imitation.algorithms.gcl import GCLConfig
-    from imitation.algorithms.ppo import PPOConfig, learned_reward_ppo_defaults
-    from imitation.envs.make import make_env
-    from imitation.training import gcl_job
-
     torch.set_num_threads(1)
-    with make_env(CARTPOLE_FH) as env:
-        settings = learned_reward_ppo_defaults(CARTPOLE_FH, env.action_space)
+    with closing(make_env(CARTPOLE_FH)) as env:
+        settings = ppo_settings(CARTPOLE_FH, env.action_space, learned_reward=True)
     demos = [str(datasets / f"{CARTPOLE_FH.split('/')[1]}.mcap")]
-    run = gcl_job(demos, CARTPOLE_FH, GCLConfig(), PPOConfig(env_id=CARTPOLE_FH, total_steps=steps, **settings), out / "gcl-cartpole", progress=False)
-    return {"run": run["run"], "steps": run["steps"], "demo_return": run["demo_return"], "demo_accuracy": run["demo_accuracy"], "sample_accuracy": run["sample_accuracy"], "eval": run["eval"]}
+    run = gcl_job(
+        demos,
+        CARTPOLE_FH,
+        GCLConfig(),
+        PPOConfig(env_id=CARTPOLE_FH, total_steps=steps, **settings),
+        out / "gcl-cartpole",
+        progress=False,
+    )
+    return {
+        "run": run["run"],
+        "steps": run["steps"],
+        "demo_return": run["demo_return"],
+        "demo_accuracy": run["demo_accuracy"],
+        "sample_accuracy": run["sample_accuracy"],
+        "eval": run["eval"],
+    }
 
 
 def _gcl_evaluation_stage(out: Path, *, steps: int, progress: bool) -> dict[str, Any]:
-    from imitation.evaluation.policy import run_demos
-    from imitation.evaluation.reward import RewardEvaluationConfig, evaluate_reward
-    from imitation.evaluation.video import record_video
-    from imitation.policies import SingleObservationPolicy, load_policy
-
     reward_run = out / "gcl-cartpole"
     config = RewardEvaluationConfig(retrain_steps=steps, seeds=1, jobs=3)
     evaluation = evaluate_reward(reward_run, CARTPOLE_FH, config, reward_run / "eval-reward", progress=progress)
     retrained = Path(evaluation["out"]) / evaluation["retrain"]["seed_runs"][0]
-    policy = _policy_eval(retrained, CARTPOLE_FH, run_demos(reward_run))
-    video = record_video(CARTPOLE_FH, SingleObservationPolicy(load_policy(retrained)), out / "ppo-on-gcl-reward.gif", seed=0)
-    return {"evaluation": evaluation, "retrained_policy": {"run": str(retrained), "eval": policy, "video": "ppo-on-gcl-reward.gif", "video_return": video["return"]}}
+    video = out / "ppo-on-gcl-reward.gif"
+    policy = eval_policy_job(
+        retrained,
+        CARTPOLE_FH,
+        episodes=EVAL_EPISODES,
+        seed=EVAL_SEED,
+        demos=RunConfig.from_json(read_run(reward_run)[0]).existing_demos(),
+    )
+    video_return = record_video(CARTPOLE_FH, SingleObservationPolicy(load_policy(retrained)), video, seed=0)["return"]
+    return {
+        "evaluation": evaluation,
+        "retrained_policy": {"run": str(retrained), "eval": policy, "video": video.name, "video_return": video_return},
+    }
 
 
 # ------------------------------------------------------------------------------------------------
@@ -167,9 +216,13 @@ def _policy_row(stage: str, what: str, evaluation: dict[str, Any], seconds: floa
 
 def demo_report(results: dict[str, Any], out: Path) -> str:
     """Every stage's numbers and plots as one Markdown page (image paths relative to `out`)."""
-    from imitation.evaluation.reward import reward_report
-
-    bc, dagger, tabular, gcl, gcl_eval = results["bc"], results["dagger"], results["tabular_irl"], results["gcl"], results["gcl_eval"]
+    bc, dagger, tabular, gcl, gcl_eval = (
+        results["bc"],
+        results["dagger"],
+        results["tabular_irl"],
+        results["gcl"],
+        results["gcl_eval"],
+    )
     retrained = gcl_eval["retrained_policy"]
     tabular_eval, continuous_eval = tabular["evaluation"], gcl_eval["evaluation"]
     lines = [
@@ -181,18 +234,35 @@ def demo_report(results: dict[str, Any], out: Path) -> str:
         "| stage | what | result | time |",
         "|---|---|---|---:|",
         _policy_row("behavioural cloning", "CartPole-v1, bundled demos", bc["eval"], bc["seconds"]),
-        _policy_row("DAgger", f"CartPole-v1, scripted expert, {dagger['rounds']} rounds, {dagger['expert_labels']} labels", dagger["eval"], dagger["seconds"]),
-        f"| MCE IRL | {GRIDWORLD}, bundled demos | EPIC {tabular_eval['epic']:.3f}, optimal policy for it normalised {tabular_eval['retrain']['normalized']:.2f} | {tabular['seconds']:.0f} s |",
-        f"| guided cost learning | {CARTPOLE_FH}, bundled demos, {gcl['steps']:,} PPO steps | its maximum-entropy sampler {gcl['eval']['mean_return']:.1f} (not for use) | {gcl['seconds']:.0f} s |",
-        _policy_row("PPO on the recovered reward", f"{CARTPOLE_FH}, from scratch, {continuous_eval['retrain']['steps']:,} steps", retrained["eval"], gcl_eval["seconds"]),
-        f"| eval reward | GCL reward vs the true one | EPIC {continuous_eval['epic']:.3f}; controls: constant {continuous_eval['controls']['constant']['normalized']:.2f}, "
-        f"random network {continuous_eval['controls']['random']['normalized']:.2f} (normalised, retrained) | (with the row above) |",
+        _policy_row(
+            "DAgger",
+            f"CartPole-v1, scripted expert, {dagger['rounds']} rounds, {dagger['expert_labels']} labels",
+            dagger["eval"],
+            dagger["seconds"],
+        ),
+        f"| MCE IRL | {GRIDWORLD}, bundled demos | EPIC {tabular_eval['epic']:.3f}, optimal policy for it normalised "
+        f"{tabular_eval['retrain']['normalized']:.2f} | {tabular['seconds']:.0f} s |",
+        f"| guided cost learning | {CARTPOLE_FH}, bundled demos, {gcl['steps']:,} PPO steps | its maximum-entropy sampler "
+        f"{gcl['eval']['mean_return']:.1f} (not for use) | {gcl['seconds']:.0f} s |",
+        _policy_row(
+            "PPO on the recovered reward",
+            f"{CARTPOLE_FH}, from scratch, {continuous_eval['retrain']['steps']:,} steps",
+            retrained["eval"],
+            gcl_eval["seconds"],
+        ),
+        f"| eval reward | GCL reward vs the true one | EPIC {continuous_eval['epic']:.3f}; controls: constant "
+        f"{continuous_eval['controls']['constant']['normalized']:.2f}, random network "
+        f"{continuous_eval['controls']['random']['normalized']:.2f} (normalised, retrained) | (with the row above) |",
         "",
         "## Bundled datasets",
         "",
         "| file | env | episodes | transitions | return (mean ± std) |",
         "|---|---|---:|---:|---:|",
-        *(f"| {Path(s['file']).name} | {s['env_id']} | {s['episodes']} | {s['transitions']:,} | {s['return']['mean']:.2f} ± {s['return']['std']:.2f} |" for s in results["datasets"]),
+        *(
+            f"| {Path(s['file']).name} | {s['env_id']} | {s['episodes']} | {s['transitions']:,} | {s['return']['mean']:.2f} "
+            f"± {s['return']['std']:.2f} |"
+            for s in results["datasets"]
+        ),
         "",
         "## Behavioural cloning",
         "",
@@ -202,24 +272,28 @@ def demo_report(results: dict[str, Any], out: Path) -> str:
         "",
         "## DAgger",
         "",
-        "Return after each round: " + ", ".join(f"{value:.1f}" for value in dagger["round_returns"]) + f"; run `{_relative(dagger['run'], out)}`.",
+        "Return after each round: "
+        + ", ".join(f"{value:.1f}" for value in dagger["round_returns"])
+        + f"; run `{_relative(dagger['run'], out)}`.",
         "",
         f"![DAgger]({_relative(Path(dagger['run']) / 'return_curve.png', out)})",
         "",
         "## MaxEnt IRL on a gridworld",
         "",
-        f"MCE IRL, {tabular['iterations']} iterations, final visitation error {tabular['occupancy_error']:.2e}; run `{_relative(tabular['run'], out)}`.",
+        f"MCE IRL, {tabular['iterations']} iterations, final visitation error {tabular['occupancy_error']:.2e}; run "
+        f"`{_relative(tabular['run'], out)}`.",
         "",
         f"![visitation]({_relative(Path(tabular['run']) / 'occupancy_maps.png', out)})",
         "",
         reward_report(tabular_eval, heading="###", image_prefix=_relative(tabular_eval["out"], out) + "/"),
         "## Guided cost learning, then PPO on the recovered reward",
         "",
-        f"GCL alternates reward updates with PPO on the current reward plus an entropy term, the maximum-entropy policy its model "
-        f"assumes, which stays far more random than the demos (its return above); at the end its discriminator calls {gcl['demo_accuracy']:.2f} of demo "
-        f"states and {gcl['sample_accuracy']:.2f} of policy states correctly; run `{_relative(gcl['run'], out)}`. A fresh PPO policy trained on the "
-        f"recovered reward alone earns {retrained['eval']['mean_return']:.1f} of the true reward (normalised {retrained['eval']['normalized_return']:.2f}); "
-        f"an episode of it: [{retrained['video']}]({retrained['video']}).",
+        "GCL alternates reward updates with PPO on the current reward plus an entropy term, the maximum-entropy policy its "
+        "model assumes, which stays far more random than the demos (its return above); at the end its discriminator calls "
+        f"{gcl['demo_accuracy']:.2f} of demo states and {gcl['sample_accuracy']:.2f} of policy states correctly; run "
+        f"`{_relative(gcl['run'], out)}`. A fresh PPO policy trained on the recovered reward alone earns "
+        f"{retrained['eval']['mean_return']:.1f} of the true reward (normalised "
+        f"{retrained['eval']['normalized_return']:.2f}); an episode of it: [{retrained['video']}]({retrained['video']}).",
         "",
         f"![GCL reward learning]({_relative(Path(gcl['run']) / 'reward_curve.png', out)})",
         f"![PPO on the recovered reward]({_relative(Path(retrained['run']) / 'learning_curve.png', out)})",

@@ -9,12 +9,13 @@ import pytest
 import torch
 from support import DATASETS
 
-from imitation.algorithms.bc import BCConfig, bc_loss, policy_options, train_bc
+from imitation.algorithms.bc import BCConfig, BehaviouralCloning, bc_loss, policy_options
 from imitation.data.loader import TransitionTensors, load_transitions, transitions_to_torch
-from imitation.data.store import DemoFile
+from imitation.data.mcap.reader import DemoFile
 from imitation.envs.make import make_env
 from imitation.errors import ImitationError
 from imitation.evaluation.policy import evaluate_policy
+from imitation.jobs.loop import run
 from imitation.policies import SingleObservationPolicy, make_policy
 
 BOX4 = gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)
@@ -59,12 +60,13 @@ def test_early_stopping_keeps_the_best_epoch() -> None:
     train = batch_of(torch.randn(64, 4), torch.randint(0, 2, (64,)))
     validation = batch_of(torch.randn(64, 4), torch.randint(0, 2, (64,)))
     policy = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[64, 64])
-    result = train_bc(policy, train, validation, BCConfig(epochs=200, patience=5, batch_size=16, learning_rate=1e-2), progress=False)
-    assert len(result.history) < 200
-    best = min(result.history, key=lambda row: row["validation_loss"])
-    assert result.best_epoch == best["epoch"] and len(result.history) == result.best_epoch + 5
+    learner = BehaviouralCloning(policy, train, validation, BCConfig(epochs=200, patience=5, batch_size=16, learning_rate=1e-2))
+    history = run(learner)
+    assert len(history) < 200
+    best = min(history, key=lambda row: row["validation_loss"])
+    assert learner.best_epoch == best["epoch"] and len(history) == learner.best_epoch + 5
     with torch.no_grad():
-        final, _ = bc_loss(result.policy, validation, BCConfig())
+        final, _ = bc_loss(learner.policy, validation, BCConfig())
     assert final.item() == pytest.approx(best["validation_loss"], rel=1e-4)
 
 
@@ -74,7 +76,9 @@ def test_short_bc_clones_the_bundled_expert(env_id: str, minimum: float) -> None
     config = BCConfig(epochs=30, patience=30, seed=0)
     policy = make_policy(env.observation_space, env.action_space, **policy_options(config))
     data = transitions_to_torch(load_transitions(DATASETS / f"{env_id}.mcap", next_observations=False))
-    trained = train_bc(policy, data, None, config, progress=False).policy
+    learner = BehaviouralCloning(policy, data, None, config)
+    run(learner)
+    trained = learner.policy
     assert evaluate_policy(SingleObservationPolicy(trained), env, episodes=5, seed=0)["mean_return"] >= minimum
 
 
@@ -88,7 +92,9 @@ def test_short_bc_on_the_bundled_pendulum_demos_reaches_eight_tenths_of_the_expe
     expert_return = float(np.mean([f.episode_return for f in DemoFile(demos).episodes]))
     config = BCConfig(epochs=60, patience=60, seed=0)
     policy = make_policy(env.observation_space, env.action_space, **policy_options(config))
-    trained = train_bc(policy, transitions_to_torch(load_transitions(demos, next_observations=False)), None, config, progress=False).policy
+    learner = BehaviouralCloning(policy, transitions_to_torch(load_transitions(demos, next_observations=False)), None, config)
+    run(learner)
+    trained = learner.policy
     learned = evaluate_policy(SingleObservationPolicy(trained), env, episodes=10, seed=0)["mean_return"]
     assert (learned - random_return) / (expert_return - random_return) >= 0.8
 
@@ -101,6 +107,8 @@ def test_acceptance_pendulum_normalised_return() -> None:
     expert_return = float(np.mean([f.episode_return for f in DemoFile(DATASETS / "Pendulum-v1.mcap").episodes]))
     config = BCConfig(seed=0)
     policy = make_policy(env.observation_space, env.action_space, **policy_options(config))
-    trained = train_bc(policy, data, None, config, progress=False).policy
+    learner = BehaviouralCloning(policy, data, None, config)
+    run(learner)
+    trained = learner.policy
     learned = evaluate_policy(SingleObservationPolicy(trained), env, episodes=10, seed=0)["mean_return"]
     assert (learned - random_return) / (expert_return - random_return) >= 0.9

@@ -7,10 +7,12 @@ import numpy as np
 import pytest
 
 from imitation.algorithms.bc import BCConfig, policy_options
-from imitation.algorithms.dagger import DAggerConfig, beta_for_round, collect_round, train_dagger
-from imitation.data.store import DemoDataset, DemoFile
+from imitation.algorithms.dagger import DAgger, DAggerConfig, beta_for_round, collect_round
+from imitation.data.dataset import DemoDataset
+from imitation.data.mcap.reader import DemoFile
 from imitation.evaluation.policy import evaluate_policy
 from imitation.experts.scripted import cartpole
+from imitation.jobs.loop import run
 from imitation.policies import SingleObservationPolicy, make_policy
 
 
@@ -76,12 +78,13 @@ def test_dagger_rounds_are_reloadable_demo_files(tmp_path) -> None:
     env = gym.make("CartPole-v1")
     config = DAggerConfig(rounds=3, episodes_per_round=2, seed=0, bc=BCConfig(epochs=15, patience=15, hidden_sizes=[64, 64]))
     policy = make_policy(env.observation_space, env.action_space, **policy_options(config.bc))
-    result = train_dagger(env, cartpole, policy, config, round_dir=tmp_path / "rounds", env_id="CartPole-v1")
-    assert [path.name for path in result.round_files] == ["round-01.mcap", "round-02.mcap", "round-03.mcap"]
-    aggregate = DemoDataset(result.round_files)
+    dagger = DAgger(env, cartpole, policy, config, round_dir=tmp_path / "rounds", env_id="CartPole-v1")
+    history = run(dagger)
+    assert [path.name for path in dagger.files] == ["round-01.mcap", "round-02.mcap", "round-03.mcap"]
+    aggregate = DemoDataset(dagger.files)
     assert len(aggregate) == 6
-    assert [DemoFile(path).user_metadata["beta"] for path in result.round_files] == pytest.approx([1.0, 2 / 3, 1 / 3])
-    assert [row["expert_labels"] for row in result.history] == np.cumsum(
-        [sum(f.length for f in DemoFile(path).episodes) for path in result.round_files]
+    assert [DemoFile(path).user_metadata["beta"] for path in dagger.files] == pytest.approx([1.0, 2 / 3, 1 / 3])
+    assert [row["expert_labels"] for row in history] == np.cumsum(
+        [sum(f.length for f in DemoFile(path).episodes) for path in dagger.files]
     ).tolist()
-    assert evaluate_policy(SingleObservationPolicy(result.policy), env, episodes=3, seed=0)["mean_return"] >= 200
+    assert evaluate_policy(SingleObservationPolicy(dagger.policy), env, episodes=3, seed=0)["mean_return"] >= 200

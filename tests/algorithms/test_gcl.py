@@ -11,14 +11,25 @@ import torch
 from support import DATASETS
 
 import imitation.envs  # noqa: F401  (registers the ids)
-from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning, _env_action_log_probs
-from imitation.algorithms.ppo import PPOConfig, Rollout, ppo_defaults, train_ppo
+from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning, RewardLearner, _env_action_log_probs
+from imitation.algorithms.ppo import PPO, PPOConfig
+from imitation.data.dataset import DemoDataset
 from imitation.data.loader import load_transitions, transitions_to_torch
-from imitation.data.store import DemoDataset
+from imitation.envs.rollout import Rollout
+from imitation.jobs.loop import run
+from imitation.jobs.presets import ppo_settings
 from imitation.policies import make_policy
 from imitation.rewards import make_reward_model
 
 ENV_ID = "imitation/CartPoleFixedHorizon-v0"
+
+
+def learn_from(learner: RewardLearner, rollout: Rollout, policy) -> tuple[torch.Tensor, dict[str, float]]:
+    """One outer-loop pass of the reward side, as GCL's step does it: pool the rollout, learn,
+    and the rewards PPO then optimises, r_θ(s) - α log π_k(a|s); with the reward update's statistics."""
+    log_pi = learner.add_rollout(rollout, policy)
+    statistics = learner.learn()
+    return learner.reward.relabel(rollout) - learner.config.policy_entropy * log_pi, statistics
 
 
 @pytest.mark.parametrize("objective", ["discriminator", "importance"])
@@ -27,17 +38,22 @@ def test_reward_learns_to_rate_demo_states_above_policy_states(objective: str) -
     demos = transitions_to_torch(load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True))
     torch.manual_seed(0)
     reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[32, 32], normalize_observations=True)
-    config = PPOConfig(env_id=ENV_ID, total_steps=8 * 256, **ppo_defaults(ENV_ID))
-    learner = GuidedCostLearning(reward, demos, GCLConfig(objective=objective, warmup_steps=300, learning_rate=1e-3), updates=8)
+    config = PPOConfig(env_id=ENV_ID, total_steps=8 * 256, **ppo_settings(ENV_ID))
+    ppo = PPO(config)
+    learner = GuidedCostLearning(ppo, reward, demos, GCLConfig(objective=objective, warmup_steps=300, learning_rate=1e-3))
     seen: list[tuple[Rollout, torch.Tensor]] = []
+    update = ppo.update
 
-    def hook(rollout: Rollout, policy) -> torch.Tensor:
-        rewards = learner(rollout, policy)
-        seen.append((rollout, rewards))
-        return rewards
+    def spy(rollout: Rollout, rewards: torch.Tensor) -> dict[str, float]:
+        seen.append((rollout, rewards))  # the rewards PPO optimises
+        return update(rollout, rewards)
 
-    train_ppo(config, rollout_rewards=hook, progress=False)
-    assert len(learner.history) == 8 and len(seen) == 8
+    ppo.update = spy
+    try:
+        run(learner)
+    finally:
+        ppo.close()
+    assert learner.rewards.learned == 8 and len(seen) == 8
     rollout, rewards = seen[-1]
     assert rewards.shape == rollout.env_rewards.shape == (32, 8)
     with torch.no_grad():
@@ -68,7 +84,7 @@ def test_the_pool_keeps_each_rollout_although_ppo_refills_its_buffers_in_place()
     demos = transitions_to_torch(load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True))
     torch.manual_seed(0)
     reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8], normalize_observations=True)
-    learner = GuidedCostLearning(reward, demos, GCLConfig(warmup_steps=1, reward_steps=1, batch_size=8), updates=2)
+    learner = RewardLearner(reward, demos, GCLConfig(warmup_steps=1, reward_steps=1, batch_size=8), updates=2)
     policy = make_policy(env.observation_space, env.action_space)
     steps = 6
     buffers = Rollout(
@@ -77,9 +93,9 @@ def test_the_pool_keeps_each_rollout_although_ppo_refills_its_buffers_in_place()
         env_rewards=torch.zeros(3, 2), terminated=torch.zeros(3, 2, dtype=torch.bool), truncated=torch.zeros(3, 2, dtype=torch.bool),
     )
     first = buffers.observations.reshape(-1, 5).clone()
-    learner(buffers, policy)
+    learn_from(learner, buffers, policy)
     buffers.observations.fill_(7.0)  # the next rollout, written into the same buffers
-    learner(buffers, policy)
+    learn_from(learner, buffers, policy)
     assert len(learner.pool.observations) == 2 * steps
     assert torch.equal(learner.pool.observations[:steps], first) and (learner.pool.observations[steps:] == 7.0).all()
 
@@ -91,7 +107,7 @@ def test_centring_the_reward_on_the_demos_leaves_the_discriminator_unchanged() -
     demos = transitions_to_torch(load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True))
     torch.manual_seed(0)
     reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[16], normalize_observations=True)
-    learner = GuidedCostLearning(reward, demos, GCLConfig(), updates=1)
+    learner = RewardLearner(reward, demos, GCLConfig(), updates=1)
     with torch.no_grad():
         reward.net[-1].bias += 3.0
         before = reward(demos.observations, demos.actions, demos.next_observations) - learner.log_partition
@@ -107,14 +123,14 @@ def _two_rollouts_under_two_policies(**options):
     demos = transitions_to_torch(load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True))
     torch.manual_seed(0)
     reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8], normalize_observations=True, inputs=options.pop("inputs", "s"))
-    learner = GuidedCostLearning(reward, demos, GCLConfig(warmup_steps=1, reward_steps=1, batch_size=8, **options), updates=2)
+    learner = RewardLearner(reward, demos, GCLConfig(warmup_steps=1, reward_steps=1, batch_size=8, **options), updates=2)
     policies = [make_policy(env.observation_space, env.action_space, hidden_sizes=[8]) for _ in range(2)]
     with torch.no_grad():
         policies[1].action_head.bias.copy_(torch.tensor([2.0, -2.0]))  # far from uniform: the two densities differ
     steps = 6
     for k, policy in enumerate(policies):
         rows = slice(k * steps, (k + 1) * steps)
-        learner(Rollout(
+        learn_from(learner, Rollout(
             observations=demos.observations[rows].reshape(3, 2, 5), actions=demos.actions[rows].reshape(3, 2).float(),
             env_actions=demos.actions[rows].reshape(3, 2).float(), next_observations=demos.next_observations[rows].reshape(3, 2, 5),
             log_probs=torch.zeros(3, 2), env_rewards=torch.zeros(3, 2), terminated=torch.zeros(3, 2, dtype=torch.bool),
@@ -204,24 +220,25 @@ def test_each_rollout_takes_its_reward_steps_with_the_learning_rate_annealed_and
     demos = transitions_to_torch(load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True))
     torch.manual_seed(0)
     reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8], normalize_observations=True)
-    learner = GuidedCostLearning(reward, demos, GCLConfig(warmup_steps=3, reward_steps=2, batch_size=8, learning_rate=0.01), updates=2)
+    learner = RewardLearner(reward, demos, GCLConfig(warmup_steps=3, reward_steps=2, batch_size=8, learning_rate=0.01), updates=2)
     steps, take_step = [], learner._step
     learner._step = lambda step, total: steps.append((step, total, take_step(step, total))) or steps[-1][2]
     policy = make_policy(env.observation_space, env.action_space)
     first = demos.observations[:6].reshape(3, 2, 5) * 3.0
-    rates = []
+    rates, history = [], []
     for k in range(3):
         observations = first if k == 0 else demos.observations[6:12].reshape(3, 2, 5)
-        learner(Rollout(
+        _, statistics = learn_from(learner, Rollout(
             observations=observations, actions=torch.zeros(3, 2), env_actions=torch.zeros(3, 2), next_observations=observations,
             log_probs=torch.zeros(3, 2), env_rewards=torch.zeros(3, 2), terminated=torch.zeros(3, 2, dtype=torch.bool),
             truncated=torch.zeros(3, 2, dtype=torch.bool),
         ), policy)
+        history.append(statistics)
         rates.append(learner.optimizer.param_groups[0]["lr"])
     assert [(step, total) for step, total, _ in steps] == [(1, 5), (2, 5), (3, 5), (4, 5), (5, 5), (1, 2), (2, 2), (1, 2), (2, 2)]
     assert rates == pytest.approx([0.01, 0.005, 0.0])
     first_row = np.mean([result for _, _, result in steps[:5]], axis=0)
-    assert learner.history[0] == pytest.approx(dict(zip(("reward_loss", "demo_accuracy", "sample_accuracy"), first_row)))
+    assert history[0] == pytest.approx(dict(zip(("reward_loss", "demo_accuracy", "sample_accuracy"), first_row)))
     # The observation statistics come from the demos and the first rollout only.
     expected = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8], normalize_observations=True)
     expected.set_observation_statistics(demos.observations, first.reshape(6, 5))
@@ -243,7 +260,7 @@ def test_continuous_actions_keep_their_dimensions_in_the_pool_and_the_entropy_te
     demos = transitions_to_torch(load_transitions(DemoDataset([DATASETS / "Pendulum-v1.mcap"]), next_observations=True))
     torch.manual_seed(0)
     reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8], normalize_observations=True)
-    learner = GuidedCostLearning(reward, demos, GCLConfig(warmup_steps=1, reward_steps=1, batch_size=8, policy_entropy=0.5), updates=1)
+    learner = RewardLearner(reward, demos, GCLConfig(warmup_steps=1, reward_steps=1, batch_size=8, policy_entropy=0.5), updates=1)
     policy = make_policy(env.observation_space, env.action_space, hidden_sizes=[8], log_std_init=-0.5)
     shaped = lambda tensor: tensor[:8].reshape(4, 2, *tensor.shape[1:])  # noqa: E731
     rollout = Rollout(
@@ -251,7 +268,7 @@ def test_continuous_actions_keep_their_dimensions_in_the_pool_and_the_entropy_te
         next_observations=shaped(demos.next_observations), log_probs=torch.zeros(4, 2), env_rewards=torch.zeros(4, 2),
         terminated=torch.zeros(4, 2, dtype=torch.bool), truncated=torch.zeros(4, 2, dtype=torch.bool),
     )
-    rewards = learner(rollout, policy)
+    rewards, _ = learn_from(learner, rollout, policy)
     assert learner.pool.env_actions.shape == (8, 1)
     with torch.no_grad():
         log_probs = policy.env_action_log_prob(policy.distribution(policy.encode(demos.observations[:8])), demos.actions[:8])

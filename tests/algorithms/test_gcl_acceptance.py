@@ -13,14 +13,16 @@ import numpy as np
 import pytest
 from support import DATASETS
 
-from imitation.algorithms.gcl import GCLConfig, default_steps
-from imitation.algorithms.ppo import PPOConfig, learned_reward_ppo_defaults
+from imitation.algorithms.gcl import GCLConfig
+from imitation.algorithms.ppo import PPOConfig
 from imitation.envs.make import make_env
-from imitation.evaluation.reward import DEFAULT_RETRAIN_STEPS
 from imitation.evaluation.policy import evaluate_policy
+from imitation.jobs.irl import gcl_job
+from imitation.jobs.ppo import ppo_job
+from imitation.jobs.presets import ppo_settings, preset
 from imitation.rewards import make_reward_model, reward_tensors
 from imitation.runs import RunWriter
-from imitation.training import gcl_job, ppo_job
+
 
 def _random_return(env_id: str) -> float:
     env = make_env(env_id)
@@ -32,10 +34,10 @@ def _pipeline(env_id: str, demos: str, seed: int, tmp_path, *, irl_steps: int, r
     """The true mean return of PPO trained from scratch on the recovered (or given) reward."""
     if reward_run is None:
         reward_run = tmp_path / f"gcl-{seed}"
-        gcl_job([demos], env_id, GCLConfig(seed=seed), PPOConfig(env_id=env_id, total_steps=irl_steps, seed=seed, **learned_reward_ppo_defaults(env_id)), reward_run, progress=False)
+        gcl_job([demos], env_id, GCLConfig(seed=seed), PPOConfig(env_id=env_id, total_steps=irl_steps, seed=seed, **ppo_settings(env_id, learned_reward=True)), reward_run, progress=False)
     retrained = ppo_job(
-        PPOConfig(env_id=env_id, total_steps=retrain_steps, seed=seed, reward_run=str(reward_run), **learned_reward_ppo_defaults(env_id)),
-        tmp_path / f"ppo-{seed}", progress=False,
+        PPOConfig(env_id=env_id, total_steps=retrain_steps, seed=seed, **ppo_settings(env_id, learned_reward=True)),
+        tmp_path / f"ppo-{seed}", reward_run=str(reward_run), progress=False,
     )
     return retrained["eval"]["mean_return"]
 
@@ -55,7 +57,7 @@ def _constant_reward_run(env_id: str, path) -> str:
 def test_gcl_on_fixed_horizon_cartpole_retrains_to_nine_tenths_and_beats_a_constant_reward(tmp_path) -> None:
     env_id, demos = "imitation/CartPoleFixedHorizon-v0", str(DATASETS / "CartPoleFixedHorizon-v0.mcap")
     expert, random = 500.0, _random_return(env_id)
-    steps = {"irl_steps": default_steps(env_id), "retrain_steps": DEFAULT_RETRAIN_STEPS[env_id]}
+    steps = {"irl_steps": preset(env_id).gcl_steps, "retrain_steps": preset(env_id).retrain_steps}
     learned = [(_pipeline(env_id, demos, seed, tmp_path, **steps) - random) / (expert - random) for seed in (0, 1, 2)]
     constant = (_pipeline(env_id, demos, 0, tmp_path, irl_steps=0, retrain_steps=steps["retrain_steps"], reward_run=_constant_reward_run(env_id, tmp_path / "constant")) - random) / (expert - random)
     print(f"fixed-horizon CartPole, retrained on GCL's reward, normalised: {learned}; constant reward: {constant}")
@@ -66,7 +68,7 @@ def test_gcl_on_fixed_horizon_cartpole_retrains_to_nine_tenths_and_beats_a_const
 def test_gcl_on_pendulum_retrains_to_eight_tenths(tmp_path) -> None:
     env_id, demos = "Pendulum-v1", str(DATASETS / "Pendulum-v1.mcap")
     expert, random = -160.2, _random_return(env_id)
-    steps = {"irl_steps": default_steps(env_id), "retrain_steps": DEFAULT_RETRAIN_STEPS[env_id]}
+    steps = {"irl_steps": preset(env_id).gcl_steps, "retrain_steps": preset(env_id).retrain_steps}
     learned = [(_pipeline(env_id, demos, seed, tmp_path, **steps) - random) / (expert - random) for seed in (0, 1, 2)]
     print(f"Pendulum, retrained on GCL's reward, normalised: {learned}")
     assert min(learned) >= 0.8, learned

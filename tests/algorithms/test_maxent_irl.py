@@ -10,18 +10,20 @@ import pytest
 import torch
 
 import imitation.envs  # noqa: F401  (registers the ids)
-from imitation.algorithms.maxent_irl import (
-    DenseDynamics, Dynamics, MaxEntIRLConfig, SparseDynamics, _logsumexp, _logsumexp_rows, all_state_rewards, demo_visitation,
-    expected_return, soft_value_iteration, state_visitation, train_maxent_irl,
-)
+from imitation.algorithms.maxent_irl import MaxEntIRL, MaxEntIRLConfig, demo_visitation
+from imitation.data.dataset import DemoDataset
+from imitation.data.mcap.writer import DemoWriter
 from imitation.data.recorder import RecordEpisodes, run_episodes
-from imitation.data.store import DemoDataset, DemoWriter
 from imitation.data.types import Episode, episodes_to_transitions
 from imitation.envs.tabular import TabularMDP, gridworld, random_mdp
+from imitation.envs.tabular_planning import (
+    DenseDynamics, Dynamics, SparseDynamics, _logsumexp, _logsumexp_rows, expected_return, soft_optimal_policy, soft_value_iteration,
+    state_visitation,
+)
 from imitation.errors import ImitationError
 from imitation.experts.load import load_expert
-from imitation.experts.tabular import soft_optimal_policy
-from imitation.rewards import make_reward_model
+from imitation.jobs.loop import run
+from imitation.rewards import all_state_rewards, make_reward_model
 
 
 def _model(mdp: TabularMDP, hidden_sizes: list[int] = ()) -> torch.nn.Module:
@@ -58,10 +60,10 @@ def test_infinite_horizon_without_discount_is_refused() -> None:
     with pytest.raises(ImitationError, match="infinite horizon needs a discount below 1"):
         soft_value_iteration(Dynamics.of(mdp.transition), mdp.reward, horizon=None, discount=1.0)
     with pytest.raises(ImitationError, match="infinite horizon"):
-        train_maxent_irl(
+        run(MaxEntIRL(
             TabularMDP(transition=mdp.transition, initial=mdp.initial, features=mdp.features, reward=mdp.reward, horizon=None),
             np.ones(mdp.n_states), _model(mdp), MaxEntIRLConfig(),
-        )
+        ))
 
 
 def test_dense_dynamics_compute_in_float64_whatever_they_are_given() -> None:
@@ -158,15 +160,16 @@ def test_the_gradient_is_demo_minus_learner_feature_counts_and_that_of_the_likel
 def test_linear_reward_matches_the_experts_exact_occupancy(slip: float, method: str) -> None:
     mdp = gridworld(slip=slip)
     target = _exact_expert_visitation(mdp)
-    result = train_maxent_irl(mdp, target, _model(mdp), MaxEntIRLConfig(method=method, iterations=1000, learning_rate=0.2, tolerance=1e-3))
-    assert np.abs(result.occupancy - target).max() <= 1e-3
-    assert result.history[-1]["occupancy_error"] <= 1e-3 and len(result.history) < 1000
+    learner = MaxEntIRL(mdp, target, _model(mdp), MaxEntIRLConfig(method=method, iterations=1000, learning_rate=0.2, tolerance=1e-3))
+    history = run(learner)
+    assert np.abs(learner.occupancy - target).max() <= 1e-3
+    assert history[-1]["occupancy_error"] <= 1e-3 and len(history) < 1000
 
 
 def test_maxent_on_stochastic_dynamics_is_refused() -> None:
     mdp = gridworld(slip=0.2)
-    with pytest.raises(ImitationError, match="deterministic dynamics.*use --method mce"):
-        train_maxent_irl(mdp, _exact_expert_visitation(mdp), _model(mdp), MaxEntIRLConfig(method="maxent"))
+    with pytest.raises(ImitationError, match="deterministic dynamics.*use mce"):
+        run(MaxEntIRL(mdp, _exact_expert_visitation(mdp), _model(mdp), MaxEntIRLConfig(method="maxent")))
 
 
 def _record(env_id: str, path, episodes: int = 50) -> DemoDataset:
@@ -185,7 +188,7 @@ def test_reward_from_50_recorded_episodes_earns_nine_tenths_of_the_experts_retur
     dataset = _record(env_id, tmp_path / "demos.mcap")
     target = demo_visitation(dataset.read_episodes(), n_states=mdp.n_states, horizon=mdp.horizon, discount=1.0)
     model = _model(mdp, hidden_sizes)
-    train_maxent_irl(mdp, target, model, MaxEntIRLConfig(iterations=300))
+    run(MaxEntIRL(mdp, target, model, MaxEntIRLConfig(iterations=300)))
     learned = all_state_rewards(model, mdp.n_states).detach().double().numpy()
     dynamics = Dynamics.of(mdp.transition)
     returns = [expected_return(dynamics, mdp, policy) for policy in (

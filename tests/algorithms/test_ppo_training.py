@@ -10,14 +10,26 @@ import torch
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
 import imitation.algorithms.ppo as ppo
-from imitation.algorithms.ppo import PPOConfig, ppo_defaults, train_ppo
+from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.envs.make import make_env
 from imitation.errors import ImitationError
 from imitation.evaluation.policy import evaluate_policy
+from imitation.jobs.loop import run
+from imitation.jobs.ppo import ppo_job
+from imitation.jobs.presets import ppo_settings
 from imitation.policies import SingleObservationPolicy
-from imitation.rewards import LearnedReward, make_reward_model
+from imitation.rewards import make_reward_model
 
 gym.register("TestShortCartPole-v0", entry_point=CartPoleEnv, max_episode_steps=7)
+
+
+def run_ppo(config: PPOConfig, **options) -> tuple[PPO, list[dict[str, float]]]:
+    """PPO run to the end through the training loop: the learner (its envs closed) and its rows."""
+    learner = PPO(config, **options)
+    try:
+        return learner, run(learner)
+    finally:
+        learner.close()
 
 
 def test_truncated_steps_bootstrap_from_the_final_state(monkeypatch) -> None:
@@ -29,7 +41,7 @@ def test_truncated_steps_bootstrap_from_the_final_state(monkeypatch) -> None:
         return original(rewards, values, next_values, terminated, truncated, **kwargs)
 
     monkeypatch.setattr(ppo, "compute_gae", capture)
-    train_ppo(PPOConfig(env_id="TestShortCartPole-v0", total_steps=64, n_envs=2, n_steps=32, batch_size=32, n_epochs=1, seed=0, device="cpu"), progress=False)
+    run_ppo(PPOConfig(env_id="TestShortCartPole-v0", total_steps=64, n_envs=2, n_steps=32, batch_size=32, n_epochs=1, seed=0, device="cpu"))
     values, next_values, truncated, terminated = captured["values"], captured["next_values"], captured["truncated"], captured["terminated"]
     assert truncated.any(), "a 7-step time limit must truncate within 32 steps"
     following = torch.cat([values[1:], values[-1:]])
@@ -42,10 +54,10 @@ def test_truncated_steps_bootstrap_from_the_final_state(monkeypatch) -> None:
 
 
 def quick_cartpole(objective: str, steps: int, seed: int = 0) -> tuple[float, list[dict]]:
-    config = PPOConfig(env_id="CartPole-v1", total_steps=steps, objective=objective, seed=seed, device="cpu", **ppo_defaults("CartPole-v1"))
-    result = train_ppo(config, progress=False)
+    config = PPOConfig(env_id="CartPole-v1", total_steps=steps, objective=objective, seed=seed, device="cpu", **ppo_settings("CartPole-v1"))
+    learner, history = run_ppo(config)
     env = make_env("CartPole-v1")
-    return evaluate_policy(SingleObservationPolicy(result.policy), env, episodes=5, seed=123)["mean_return"], result.history
+    return evaluate_policy(SingleObservationPolicy(learner.policy), env, episodes=5, seed=123)["mean_return"], history
 
 
 def test_a_short_clip_run_learns_cartpole() -> None:
@@ -66,39 +78,49 @@ def test_a_short_kl_run_learns_and_adapts_beta() -> None:
 
 
 def test_pendulum_runs_with_its_defaults() -> None:
-    config = PPOConfig(env_id="Pendulum-v1", total_steps=8192, seed=0, device="cpu", **ppo_defaults("Pendulum-v1"))
-    result = train_ppo(config, progress=False)
-    assert result.policy.is_continuous and result.steps == 8192
-    assert np.isfinite(result.history[-1]["value_loss"])
+    config = PPOConfig(env_id="Pendulum-v1", total_steps=8192, seed=0, device="cpu", **ppo_settings("Pendulum-v1"))
+    learner, history = run_ppo(config)
+    assert learner.policy.is_continuous and learner.global_step == 8192
+    assert np.isfinite(history[-1]["value_loss"])
 
 
 def test_a_nan_reward_stops_at_the_env_step_it_enters() -> None:
-    """A learned-reward wrapper gone NaN is caught at the first step, before any loss (NaN losses
-    themselves: tests/test_numerical_faults.py)."""
+    """A learned reward gone NaN is caught at the first env step of the rollout it relabels, before
+    any loss (NaN losses themselves: tests/test_numerical_faults.py)."""
     model = make_reward_model(gym.spaces.Box(-np.inf, np.inf, (4,), np.float32), gym.spaces.Discrete(2))
     with torch.no_grad():
         for parameter in model.parameters():
             parameter.fill_(float("nan"))
     config = PPOConfig(env_id="CartPole-v1", total_steps=512, n_envs=2, n_steps=64, batch_size=64, seed=0, device="cpu")
-    with pytest.raises(ImitationError, match=r"^CartPole-v1: the environment returned a non-finite reward at env step 1 \(env copy 0\)"):
-        train_ppo(config, wrap_env=lambda env: LearnedReward(env, model), progress=False)
+    with pytest.raises(ImitationError, match=r"^CartPole-v1: the learned reward is not finite at env step 1 \(env copy 0\)"):
+        run_ppo(config, reward=model)
 
 
-def test_learned_reward_wrapper_passes_the_model_reward_and_keeps_the_true_one() -> None:
+def test_relabel_gives_the_model_reward_of_every_step_of_a_rollout_and_keeps_the_true_one() -> None:
     env = gym.make("CartPole-v1")
     model = make_reward_model(env.observation_space, env.action_space, inputs="sas")
-    wrapped = LearnedReward(env, model)
-    observation, _ = wrapped.reset(seed=0)
-    next_observation, reward, _, _, info = wrapped.step(1)
+    config = PPOConfig(env_id="CartPole-v1", total_steps=256, n_envs=2, n_steps=128, batch_size=64, seed=0, device="cpu")
+    learner = PPO(config, reward=model)
+    try:
+        rollout = learner.collect_rollout()
+    finally:
+        learner.close()
+    rewards = model.relabel(rollout)
+    assert rewards.shape == rollout.env_rewards.shape == (128, 2)
+    assert (rollout.terminated | rollout.truncated).any(), "steps where an episode ended are relabelled too"
     with torch.no_grad():
-        expected = model(torch.as_tensor(observation[None]), torch.tensor([1]), torch.as_tensor(next_observation[None])).item()
-    assert reward == pytest.approx(expected) and info["true_reward"] == 1.0
+        for t in range(128):
+            for i in range(2):
+                expected = model(rollout.observations[t, i][None], rollout.env_actions[t, i][None], rollout.next_observations[t, i][None]).item()
+                assert rewards[t, i].item() == pytest.approx(expected), (t, i)
+    assert (rollout.env_rewards == 1.0).all()
 
 
-def test_learned_reward_must_fit_the_env() -> None:
+def test_learned_reward_must_fit_the_env(tmp_path) -> None:
     model = make_reward_model(gym.spaces.Box(-1, 1, (3,), np.float32), gym.spaces.Discrete(2))
+    config = PPOConfig(env_id="CartPole-v1", total_steps=256, n_envs=2, n_steps=128, seed=0, device="cpu")
     with pytest.raises(ImitationError, match=r"observation space Box\(float32, \(3,\)\) does not match the env's Box\(float32, \(4,\)\)"):
-        LearnedReward(gym.make("CartPole-v1"), model)
+        ppo_job(config, tmp_path / "run", reward=model, progress=False)
 
 
 def test_training_on_a_learned_reward_logs_both_returns() -> None:
@@ -107,7 +129,7 @@ def test_training_on_a_learned_reward_logs_both_returns() -> None:
         model.net[0].weight.zero_()
         model.net[0].bias.fill_(2.0)  # a constant reward of 2 per step
     config = PPOConfig(env_id="CartPole-v1", total_steps=1024, n_envs=2, n_steps=128, batch_size=64, seed=0, device="cpu")
-    history = train_ppo(config, wrap_env=lambda env: LearnedReward(env, model), progress=False).history
+    _, history = run_ppo(config, reward=model)
     last = history[-1]
     assert last["optimised_return"] == pytest.approx(2 * last["return"], rel=0.35)
 
@@ -117,8 +139,8 @@ def test_training_on_a_learned_reward_logs_both_returns() -> None:
 def test_acceptance_cartpole_100k(objective: str, needed: int) -> None:
     results = []
     for seed in (0, 1, 2):
-        config = PPOConfig(env_id="CartPole-v1", total_steps=100_000, objective=objective, seed=seed, device="cpu", **ppo_defaults("CartPole-v1"))
-        policy = train_ppo(config, progress=False).policy
+        config = PPOConfig(env_id="CartPole-v1", total_steps=100_000, objective=objective, seed=seed, device="cpu", **ppo_settings("CartPole-v1"))
+        policy = run_ppo(config)[0].policy
         results.append(evaluate_policy(SingleObservationPolicy(policy), make_env("CartPole-v1"), episodes=10, seed=0)["mean_return"])
     assert sum(r >= 475 for r in results) >= needed, results
 
@@ -127,8 +149,8 @@ def test_acceptance_cartpole_100k(objective: str, needed: int) -> None:
 def test_acceptance_pendulum_200k() -> None:
     results = []
     for seed in (0, 1, 2):
-        config = PPOConfig(env_id="Pendulum-v1", total_steps=200_000, seed=seed, device="cpu", **ppo_defaults("Pendulum-v1"))
-        policy = train_ppo(config, progress=False).policy
+        config = PPOConfig(env_id="Pendulum-v1", total_steps=200_000, seed=seed, device="cpu", **ppo_settings("Pendulum-v1"))
+        policy = run_ppo(config)[0].policy
         results.append(evaluate_policy(SingleObservationPolicy(policy), make_env("Pendulum-v1"), episodes=10, seed=0)["mean_return"])
     assert sum(r >= -250 for r in results) >= 2, results
 
@@ -136,7 +158,7 @@ def test_acceptance_pendulum_200k() -> None:
 def test_async_envs_give_the_same_rollouts_as_sync() -> None:
     def first_update(asynchronous: bool) -> dict:
         config = PPOConfig(env_id="CartPole-v1", total_steps=256, n_envs=2, n_steps=128, batch_size=128, n_epochs=1, seed=3, device="cpu", async_envs=asynchronous)
-        return train_ppo(config, progress=False).history[0]
+        return run_ppo(config)[1][0]
 
     sync_row, async_row = first_update(False), first_update(True)
     for key in ("return", "policy_loss", "value_loss", "entropy"):

@@ -12,7 +12,8 @@ from mcap.reader import make_reader
 from support import DATASETS
 
 from imitation.data.export.foxglove import export_foxglove
-from imitation.data.store import DemoFile, write_episodes
+from imitation.data.mcap.reader import DemoFile
+from imitation.data.mcap.writer import write_episodes
 from imitation.data.types import Episode
 
 

@@ -13,7 +13,8 @@ import pytest
 
 from imitation.data.convert.job import convert
 from imitation.data.convert.lerobot import lerobot_to_episodes
-from imitation.data.store import DemoFile, write_episodes
+from imitation.data.mcap.reader import DemoFile
+from imitation.data.mcap.writer import write_episodes
 from imitation.data.types import Episode
 from imitation.errors import ImitationError
 

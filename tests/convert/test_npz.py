@@ -11,7 +11,7 @@ import pytest
 
 from imitation.data.convert.job import convert
 from imitation.data.convert.npz import npz_to_episodes
-from imitation.data.store import DemoFile
+from imitation.data.mcap.reader import DemoFile
 from imitation.errors import ImitationError
 
 UNPICKLED: list[str] = []

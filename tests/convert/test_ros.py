@@ -12,7 +12,7 @@ import yaml
 from support import TURTLE_MAP, write_map
 
 from imitation.data.convert.job import convert, inspect
-from imitation.data.store import DemoFile
+from imitation.data.mcap.reader import DemoFile
 from imitation.errors import ImitationError
 
 

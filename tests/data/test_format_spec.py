@@ -2,7 +2,7 @@
 
 The reading side below uses only the generic `mcap` library (`make_reader`, `iter_metadata`,
 `iter_messages`), numpy, json, zlib and, for the salvage scan, struct and zstandard. Nothing from
-`imitation.data.store` or `imitation.data.spaces` is imported for reading: `DemoWriter` only
+`imitation.data.mcap` or `imitation.data.spaces` is imported for reading: `DemoWriter` only
 produces the files under test, and the expected values are the arrays and gymnasium spaces the
 test itself built. Section numbers (§) refer to docs/FORMAT.md.
 """
@@ -22,7 +22,7 @@ import pytest
 import zstandard
 from mcap.reader import make_reader
 
-from imitation.data.store import DemoWriter  # the writer under test; never used for reading
+from imitation.data.mcap.writer import DemoWriter  # the writer under test; never used for reading
 from imitation.data.types import Episode
 
 # ------------------------------------------------------------------------------------------------

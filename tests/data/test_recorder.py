@@ -13,8 +13,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from imitation.data.mcap.reader import DemoFile
+from imitation.data.mcap.writer import DemoWriter
 from imitation.data.recorder import RecordEpisodes, run_episodes
-from imitation.data.store import DemoFile, DemoWriter
 from imitation.errors import DemoFileError
 from imitation.experts.scripted import cartpole
 from support import REPO

@@ -13,7 +13,9 @@ from hypothesis import strategies as st
 from helpers import assert_episodes_equal, random_episode
 from test_spaces import all_spaces
 
-from imitation.data.store import DemoDataset, DemoFile, DemoWriter, write_episodes
+from imitation.data.dataset import DemoDataset
+from imitation.data.mcap.reader import DemoFile
+from imitation.data.mcap.writer import DemoWriter, write_episodes
 from imitation.data.types import Episode
 from imitation.errors import DemoFileError, ImitationError
 
@@ -61,15 +63,15 @@ def test_random_access_reads_only_the_chunks_of_that_episode(tmp_path, monkeypat
     demo = DemoFile(tmp_path / "f.mcap")
     assert len(demo._index.chunks) >= 20
     decompressed: list[int] = []
-    import imitation.data.store as store
+    import imitation.data.mcap.records as records
 
-    original = store._decode_chunk
+    original = records.decode_chunk
 
     def counting(record, *args):
         decompressed.append(len(record))
         return original(record, *args)
 
-    monkeypatch.setattr(store, "_decode_chunk", counting)
+    monkeypatch.setattr(records, "decode_chunk", counting)
     for k in (37, 0, 21, -1):
         decompressed.clear()
         assert_episodes_equal(demo[k], episodes[k])
@@ -93,19 +95,19 @@ def test_flushed_episodes_are_readable_from_the_partial_file_while_the_writer_is
 
 
 def test_iteration_is_lazy(tmp_path, monkeypatch) -> None:
-    import imitation.data.store as store
+    import imitation.data.mcap.records as records
 
     write(tmp_path / "f.mcap", [random_episode(BOX4, DISCRETE2, 20, seed=i) for i in range(40)], durable=True)
     demo = DemoFile(tmp_path / "f.mcap")
     assert len(demo._index.chunks) == 40  # durable: one chunk per episode
     read: list[int] = []
-    original = store._read_chunk
+    original = records._read_chunk
 
     def counting(fd, chunk, buffers):
         read.append(chunk.offset)
         return original(fd, chunk, buffers)
 
-    monkeypatch.setattr(store, "_read_chunk", counting)
+    monkeypatch.setattr(records, "_read_chunk", counting)
     iterator = iter(demo)
     assert len(next(iterator)) == 20
     assert len(read) < 10, "only a small window of chunks is read ahead of the first episode"
@@ -288,10 +290,8 @@ def test_ctrl_c_during_a_write_lands_after_the_episode(tmp_path, monkeypatch) ->
     import os
     import signal
 
-    import imitation.data.store as store
-
     episodes = [random_episode(BOX4, DISCRETE2, 30, seed=i) for i in range(2)]
-    original_add = store.DemoWriter._add
+    original_add = DemoWriter._add
     calls = []
 
     def interrupting_add(self, topic, log_time, data):
@@ -303,7 +303,7 @@ def test_ctrl_c_during_a_write_lands_after_the_episode(tmp_path, monkeypatch) ->
     with pytest.raises(KeyboardInterrupt):
         with DemoWriter(tmp_path / "c.mcap", finite_only=False, env_id="T", observation_space=BOX4, action_space=DISCRETE2, block_steps=5) as writer:
             writer.write(episodes[0])
-            monkeypatch.setattr(store.DemoWriter, "_add", interrupting_add)
+            monkeypatch.setattr(DemoWriter, "_add", interrupting_add)
             writer.write(episodes[1])
     demo = DemoFile(tmp_path / "c.mcap", verify=True)
     assert demo.damage is None and len(demo) == 2
@@ -321,23 +321,23 @@ def test_every_compression_round_trips(tmp_path, compression) -> None:
 
 
 def test_reading_a_subset_decodes_each_chunk_once(tmp_path, monkeypatch) -> None:
-    import imitation.data.store as store
+    import imitation.data.mcap.records as records
 
     episodes = [random_episode(BOX4, DISCRETE2, 40, seed=i) for i in range(30)]
     write(tmp_path / "s.mcap", episodes, chunk_size=3000)  # several episodes per chunk
     demo = DemoFile(tmp_path / "s.mcap")
     decoded: list[int] = []
-    original = store._decode_chunk
+    original = records.decode_chunk
 
     def counting(record, *args):
         decoded.append(len(record))
         return original(record, *args)
 
-    monkeypatch.setattr(store, "_decode_chunk", counting)
+    monkeypatch.setattr(records, "decode_chunk", counting)
     wanted = [3, 4, 5, 17, 29]
     for read, k in zip(demo.read_episodes(wanted), wanted, strict=True):
         assert_episodes_equal(read, episodes[k])
-    chunks_needed = {chunk.offset for k in wanted for chunk in demo._chunks_of(demo.episodes[k])}
+    chunks_needed = {chunk.offset for k in wanted for chunk in demo.chunks_of(demo.episodes[k])}
     assert len(decoded) == len(chunks_needed) < len(demo._index.chunks)
 
 

@@ -11,7 +11,9 @@ import pytest
 from helpers import assert_episodes_equal, random_episode
 from mcap.writer import Writer
 
-from imitation.data.store import DATASET_METADATA, DemoFile, metadata_crc, write_episodes
+from imitation.data.mcap.format import DATASET_METADATA, metadata_crc
+from imitation.data.mcap.reader import DemoFile
+from imitation.data.mcap.writer import write_episodes
 from imitation.errors import DemoFileError
 
 BOX = gym.spaces.Box(-1, 1, (3,), np.float32)

@@ -7,12 +7,11 @@ import numpy as np
 import pytest
 
 import imitation.envs  # noqa: F401  (registers the ids)
-from imitation.algorithms.maxent_irl import Dynamics, expected_return
+from imitation.envs.rollout import play_episode
 from imitation.envs.tabular import TabularMDP, cliff_world, gridworld, random_mdp, tabular_mdp_of
+from imitation.envs.tabular_planning import Dynamics, expected_return, soft_optimal_policy
 from imitation.errors import ImitationError
 from imitation.experts.load import load_expert
-from imitation.experts.tabular import soft_optimal_policy
-from imitation.envs.rollout import play_episode
 
 TABULAR_IDS = ["imitation/GridWorld8x8-v0", "imitation/GridWorld8x8Slippery-v0", "imitation/CliffWorld-v0", "imitation/RandomMDP-v0"]
 

@@ -9,7 +9,6 @@ import pytest
 import torch
 
 import imitation.evaluation.epic as epic_module
-from imitation.algorithms.maxent_irl import all_state_rewards
 from imitation.data.types import Transitions
 from imitation.envs.tabular import random_mdp
 from imitation.errors import ImitationError
@@ -17,7 +16,7 @@ from imitation.evaluation.epic import (
     TransitionBatch, canonicalize_sampled, canonicalize_tabular, coverage_samples, epic_distance_sampled,
     epic_distance_tabular, pearson_distance, tabulate, torch_reward, uniform_space_samples,
 )
-from imitation.rewards import make_reward_model
+from imitation.rewards import all_state_rewards, make_reward_model
 
 S, A = 6, 3
 

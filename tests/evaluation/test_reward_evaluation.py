@@ -12,7 +12,8 @@ from support import DATASETS, run_cli
 import imitation.envs  # noqa: F401 - registers the imitation/ envs
 from imitation.envs.make import make_env
 from imitation.envs.tabular import _GRID_WEIGHTS
-from imitation.rewards import make_reward_model, save_reward_run
+from imitation.jobs.run_directory import save_reward_run
+from imitation.rewards import make_reward_model
 
 GRIDWORLD = "imitation/GridWorld8x8Slippery-v0"
 CARTPOLE = "imitation/CartPoleFixedHorizon-v0"

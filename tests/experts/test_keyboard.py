@@ -69,8 +69,9 @@ def test_continuous_envs_are_refused(tmp_path) -> None:
 
 
 def test_a_keyboard_episode_is_recorded(tmp_path) -> None:
+    from imitation.data.mcap.reader import DemoFile
+    from imitation.data.mcap.writer import DemoWriter
     from imitation.data.recorder import RecordEpisodes, run_episodes
-    from imitation.data.store import DemoFile, DemoWriter
 
     env = gym.make("CartPole-v1", render_mode="rgb_array")
     expert = KeyboardExpert(env, fps=1000)

@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import contextlib
 import io
+from collections.abc import Callable, Generator, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Protocol
+from typing import Any, Protocol
 
 import yaml
 
@@ -46,8 +47,23 @@ def _damage_errors() -> tuple[type[BaseException], ...]:
         sqlite_errors: tuple[type[BaseException], ...] = (sqlite3.Error, apsw.Error)
     except ImportError:
         sqlite_errors = (sqlite3.Error,)
-    return (McapError, Ros1Error, Ros2Error, *sqlite_errors, zstandard.ZstdError, struct.error, EOFError, AssertionError,
-            KeyError, IndexError, ValueError, TypeError, RuntimeError, OverflowError, MemoryError)
+    return (
+        McapError,
+        Ros1Error,
+        Ros2Error,
+        *sqlite_errors,
+        zstandard.ZstdError,
+        struct.error,
+        EOFError,
+        AssertionError,
+        KeyError,
+        IndexError,
+        ValueError,
+        TypeError,
+        RuntimeError,
+        OverflowError,
+        MemoryError,
+    )
 
 
 @contextlib.contextmanager
@@ -58,7 +74,10 @@ def _reading(path: Path, what: str) -> Iterator[None]:
     except ImitationError:
         raise
     except _damage_errors() as error:
-        raise ImitationError(f"{path}: cannot read {what}: the file is damaged or not what it claims ({type(error).__name__}: {str(error)[:200]})") from None
+        raise ImitationError(
+            f"{path}: cannot read {what}: the file is damaged or not what it claims ({type(error).__name__}: "
+            f"{str(error)[:200]})"
+        ) from None
 
 
 @dataclass
@@ -86,7 +105,7 @@ class Bag(Protocol):
     def topics(self) -> dict[str, TopicInfo]:
         """Every topic, with counts and time range (read from the index or one pass over the bag)."""
 
-    def messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
+    def messages(self, topics: Iterable[str]) -> Generator[tuple[str, int, Any], None, None]:
         """(topic, log time ns, decoded message) of these topics, in log-time order."""
 
     def close(self) -> None: ...
@@ -147,7 +166,9 @@ def _rosbag2_directory(path: Path) -> tuple[str, list[Path]]:
         except ImitationError as error:
             raise ImitationError(f"{metadata}: {error}") from None
         except (OSError, yaml.YAMLError, KeyError, TypeError, AttributeError, ValueError, RecursionError) as error:
-            raise ImitationError(f"{metadata}: not a rosbag2 metadata file ({type(error).__name__}: {' '.join(str(error).split())[:200]})") from None
+            raise ImitationError(
+                f"{metadata}: not a rosbag2 metadata file ({type(error).__name__}: {' '.join(str(error).split())[:200]})"
+            ) from None
         if storage not in ("sqlite3", "mcap"):
             raise ImitationError(f"{metadata}: storage {storage!r} is not supported (sqlite3 or mcap)")
         missing = [f.name[:80] for f in files if not _is_file(f)]
@@ -193,7 +214,7 @@ class McapBag:
         for file in self._files:
             with self._open(file) as reader:
                 summary = reader.get_summary()
-                for channel in (summary.channels.values() if summary else []):
+                for channel in summary.channels.values() if summary else []:
                     schema = summary.schemas.get(channel.schema_id)
                     info = topics.setdefault(channel.topic, TopicInfo(channel.topic, schema.name if schema else "?"))
                     if info.problem is None and channel.topic not in self._decoders:
@@ -210,7 +231,7 @@ class McapBag:
         self._topics = topics
         return topics
 
-    def messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
+    def messages(self, topics: Iterable[str]) -> Generator[tuple[str, int, Any], None, None]:
         wanted = [t for t in topics if self.topics()[t].problem is None]
         for file in self._files:
             with self._open(file) as reader:
@@ -218,7 +239,9 @@ class McapBag:
                     try:
                         decoded = self._decoders[channel.topic](message.data)
                     except Exception as error:
-                        raise ImitationError(f"{file}: a message on {channel.topic} at {message.log_time} ns does not decode ({error})") from None
+                        raise ImitationError(
+                            f"{file}: a message on {channel.topic} at {message.log_time} ns does not decode ({error})"
+                        ) from None
                     yield channel.topic, message.log_time, decoded
 
     def close(self) -> None:
@@ -241,6 +264,7 @@ class McapBag:
                 decoder = self._factory_type().decoder_for(channel.message_encoding, schema)
         except Exception as error:
             return f"its schema {schema.name} cannot be parsed ({type(error).__name__}: {str(error).strip() or 'no detail'})"
+        assert decoder is not None  # decoder_for returns None only for the encodings refused above
         self._decoders[channel.topic] = decoder
         return None
 
@@ -262,7 +286,7 @@ class RosbagsBag:
         from rosbags.interfaces import MessageDefinitionFormat
         from rosbags.rosbag1 import Reader as Reader1
         from rosbags.rosbag2 import Reader as Reader2
-        from rosbags.typesys import Stores, get_typestore, get_types_from_idl, get_types_from_msg
+        from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 
         self.path = path
         self.format = format
@@ -327,7 +351,7 @@ class RosbagsBag:
         self._topics = topics
         return topics
 
-    def messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
+    def messages(self, topics: Iterable[str]) -> Generator[tuple[str, int, Any], None, None]:
         wanted = {t for t in topics if self.topics()[t].problem is None}
         connections = [c for c in self._connections if str(c.topic) in wanted]
         if not connections:
@@ -338,7 +362,9 @@ class RosbagsBag:
                 try:
                     decoded = self._deserialize(raw, connection.msgtype)
                 except Exception as error:
-                    raise ImitationError(f"{self.path}: a message on {connection.topic} at {time_ns} ns does not decode ({error})") from None
+                    raise ImitationError(
+                        f"{self.path}: a message on {connection.topic} at {time_ns} ns does not decode ({error})"
+                    ) from None
                 yield str(connection.topic), time_ns, decoded
 
     def close(self) -> None:

@@ -9,16 +9,17 @@ policy` accept the demos) and the data is checked and cast to them.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
+from imitation.data.mcap.writer import DemoWriter
 from imitation.data.spaces import describe_space
-from imitation.data.store import DemoWriter
 from imitation.data.types import Episode, first_nonfinite
 from imitation.errors import ImitationError
 
@@ -60,7 +61,9 @@ def cast_rows(rows: np.ndarray, space: gym.Space, what: str) -> np.ndarray:
     if isinstance(space, gym.spaces.Discrete):
         flat = rows.reshape(len(rows), -1)
         if flat.shape[1] != 1:
-            raise ImitationError(f"{what}: rows of {flat.shape[1]} values do not fit {describe_space(space)} (one integer per step)")
+            raise ImitationError(
+                f"{what}: rows of {flat.shape[1]} values do not fit {describe_space(space)} (one integer per step)"
+            )
         values = flat[:, 0]
         if not np.all(np.equal(np.mod(values, 1), 0)):
             raise ImitationError(f"{what}: non-integer values do not fit {describe_space(space)}")
@@ -84,16 +87,23 @@ def fit_to_env(converted: Converted, env_id: str) -> Converted:
         observation_space, action_space, dt = env.observation_space, env.action_space, control_period(env)
     if isinstance(converted.observation_space, gym.spaces.Dict) or isinstance(converted.action_space, gym.spaces.Dict):
         raise ImitationError(f"--env {env_id}: demos with Dict spaces cannot be fitted to an env's spaces")
-    episodes = [
-        dataclasses.replace(
-            episode,
-            observations=cast_rows(episode.observations, observation_space, f"observations (for {env_id})"),
-            actions=cast_rows(episode.actions, action_space, f"actions (for {env_id})"),
+    episodes = []
+    for episode in converted.episodes:
+        # Arrays, not dicts: Dict spaces were refused above.
+        assert isinstance(episode.observations, np.ndarray) and isinstance(episode.actions, np.ndarray)
+        episodes.append(
+            dataclasses.replace(
+                episode,
+                observations=cast_rows(episode.observations, observation_space, f"observations (for {env_id})"),
+                actions=cast_rows(episode.actions, action_space, f"actions (for {env_id})"),
+            )
         )
-        for episode in converted.episodes
-    ]
     return dataclasses.replace(
-        converted, episodes=episodes, observation_space=observation_space, action_space=action_space, env_id=env_id,
+        converted,
+        episodes=episodes,
+        observation_space=observation_space,
+        action_space=action_space,
+        env_id=env_id,
         dt=converted.dt or dt,  # a recording's own rate wins over the simulator's step
     )
 
@@ -108,7 +118,11 @@ def write_converted(converted: Converted, out: str | Path, *, progress: bool = T
     if not converted.episodes:
         raise ImitationError(f"{converted.source}: no episode to write")
     for index, episode in enumerate(converted.episodes):
-        for what, tree in (("observation", episode.observations), ("action", episode.actions), ("reward", np.asarray(episode.rewards, dtype=np.float64))):
+        for what, tree in (
+            ("observation", episode.observations),
+            ("action", episode.actions),
+            ("reward", np.asarray(episode.rewards, dtype=np.float64)),
+        ):
             if found := first_nonfinite(tree, what):
                 step, name, value = found
                 raise ImitationError(
@@ -116,8 +130,14 @@ def write_converted(converted: Converted, out: str | Path, *, progress: bool = T
                     "demo files hold finite observations, actions and rewards only (nothing was written)"
                 )
     writer = DemoWriter(
-        out, env_id=converted.env_id, observation_space=converted.observation_space, action_space=converted.action_space,
-        dt=converted.dt, source=converted.source, metadata=converted.metadata, flush_episodes=True,
+        out,
+        env_id=converted.env_id,
+        observation_space=converted.observation_space,
+        action_space=converted.action_space,
+        dt=converted.dt,
+        source=converted.source,
+        metadata=converted.metadata,
+        flush_episodes=True,
     )
     with writer:
         for episode in _bar(converted.episodes, progress):

@@ -12,7 +12,8 @@ from __future__ import annotations
 import array
 import dataclasses
 import re
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 
@@ -68,9 +69,10 @@ def numbers(value: Any) -> np.ndarray | None:
         return np.frombuffer(value, dtype=np.uint8).astype(np.float64)
     if isinstance(value, np.ndarray):
         return value.astype(np.float64).reshape(-1) if value.dtype.kind in "biuf" else None
-    if isinstance(value, (list, tuple, array.array)):
-        if all(isinstance(item, (bool, int, float, np.bool_, np.integer, np.floating)) for item in value):
-            return np.asarray(value, dtype=np.float64).reshape(-1)
+    if isinstance(value, (list, tuple, array.array)) and all(
+        isinstance(item, (bool, int, float, np.bool_, np.integer, np.floating)) for item in value
+    ):
+        return np.asarray(value, dtype=np.float64).reshape(-1)
     return None
 
 
@@ -106,8 +108,12 @@ def resolve_numbers(message: Any, text: str) -> np.ndarray:
         raise FieldError(f"field {text!r} is a string ({value[:40]!r}), not a number")
     names = message_fields(value)
     if names is not None:
-        raise FieldError(f"field {text!r} is a message, not a number; name one of its fields: {', '.join(f'{text}.{n}' for n in names)}")
-    raise FieldError(f"field {text!r} holds {type(value).__name__} values, not numbers; index one of its elements, e.g. {text}[0]")
+        raise FieldError(
+            f"field {text!r} is a message, not a number; name one of its fields: {', '.join(f'{text}.{n}' for n in names)}"
+        )
+    raise FieldError(
+        f"field {text!r} holds {type(value).__name__} values, not numbers; index one of its elements, e.g. {text}[0]"
+    )
 
 
 def numeric_fields(message: Any, prefix: str = "") -> Iterator[tuple[str, int]]:

@@ -31,9 +31,12 @@ def inspect_bag(bag: Bag) -> dict[str, Any]:
     warnings = []
     for info in topics.values():
         entry: dict[str, Any] = {
-            "topic": info.topic, "type": info.type, "count": info.count,
+            "topic": info.topic,
+            "type": info.type,
+            "count": info.count,
             "rate_hz": None if info.rate_hz is None else round(info.rate_hz, 3),
-            "fields": [], "problem": info.problem,
+            "fields": [],
+            "problem": info.problem,
         }
         if info.problem:
             warnings.append(f"{info.topic} ({info.type}): skipped: {info.problem}")
@@ -107,7 +110,12 @@ def starter_map(report: dict[str, Any]) -> str:
         header.append("# No command-like topic was found: put the topic the demonstrator controlled under action.")
     header.append("# Topics in the bag (fields marked [n] are arrays of n numbers):")
     for e in report["topics"]:
-        note = "cannot decode" if e["problem"] else ", ".join(f["field"] if f["values"] == 1 else f"{f['field']}[{f['values']}]" for f in e["fields"][:40]) or "no numeric fields"
+        note = (
+            "cannot decode"
+            if e["problem"]
+            else ", ".join(f["field"] if f["values"] == 1 else f"{f['field']}[{f['values']}]" for f in e["fields"][:40])
+            or "no numeric fields"
+        )
         header.append(f"#   {e['topic']} ({e['type']}, {e['count']} msgs): {note}")
     return "\n".join(header) + "\n" + yaml.safe_dump(body, sort_keys=False, default_flow_style=None, width=120)
 

@@ -24,7 +24,9 @@ def detect_source(path: str | Path) -> str:
             return "ros2"
         if (path / "meta").is_dir() or (path / "data").is_dir():
             raise ImitationError(f"{path}: looks like a LeRobot dataset root but has no meta/info.json")
-        raise ImitationError(f"{path}: cannot tell what this folder holds (a rosbag2 directory or a LeRobot dataset root); say it with --from")
+        raise ImitationError(
+            f"{path}: cannot tell what this folder holds (a rosbag2 directory or a LeRobot dataset root); say it with --from"
+        )
     try:
         with open(path, "rb") as stream:
             head = stream.read(16)
@@ -63,7 +65,10 @@ def convert(
     kind = _source_kind(path, source)
     if kind in ("ros2", "ros1"):
         if map_path is None:
-            raise ImitationError(f"{path}: converting a bag needs --map MAP.yaml (`imitation convert {path} --inspect --write-map map.yaml` writes a starter)")
+            raise ImitationError(
+                f"{path}: converting a bag needs --map MAP.yaml (`imitation convert {path} --inspect --write-map map.yaml` "
+                "writes a starter)"
+            )
         from imitation.data.convert.bags import open_bag
         from imitation.data.convert.maps import load_map
         from imitation.data.convert.ros import bag_to_episodes
@@ -92,7 +97,9 @@ def convert(
     return {"from": kind, **write_converted(converted, out, progress=progress)}
 
 
-def inspect(path: str | Path, *, source: str | None = None, write_map: str | Path | None = None, ros_distro: str = "latest") -> dict[str, Any]:
+def inspect(
+    path: str | Path, *, source: str | None = None, write_map: str | Path | None = None, ros_distro: str = "latest"
+) -> dict[str, Any]:
     """Describe a bag's topics and fields; optionally write a starter map."""
     from imitation.data.convert.bags import open_bag
     from imitation.data.convert.inspect import inspect_bag, write_starter_map

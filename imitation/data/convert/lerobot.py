@@ -21,9 +21,10 @@ from __future__ import annotations
 import json
 import logging
 import os
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -123,19 +124,23 @@ def _read_v30(root: Path, wanted: list[str]) -> dict[str, np.ndarray]:
         try:
             dataset = LeRobotDataset(repo_id=f"local/{root.name}", root=root, download_videos=False, video_backend="pyav")
         except Exception as error:
-            raise ImitationError(f"{root}: lerobot cannot load it ({type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ''})") from None
+            raise ImitationError(
+                f"{root}: lerobot cannot load it ({type(error).__name__}: "
+                f"{str(error).strip().splitlines()[0] if str(error).strip() else ''})"
+            ) from None
         try:
             table = dataset.hf_dataset.select_columns(wanted).with_format("numpy")
             return {key: np.asarray(table[key]) for key in wanted}
         except (ValueError, KeyError, TypeError) as error:  # a column missing, or rows of different lengths
-            raise ImitationError(f"{root}: its data does not match meta/info.json's features ({type(error).__name__}: {str(error)[:200]})") from None
+            raise ImitationError(
+                f"{root}: its data does not match meta/info.json's features ({type(error).__name__}: {str(error)[:200]})"
+            ) from None
 
 
 def _read_v21(root: Path, info: dict[str, Any], wanted: list[str], progress: bool) -> dict[str, np.ndarray]:
+    import pyarrow as pa
     import pyarrow.parquet as pq
     from tqdm import tqdm
-
-    import pyarrow as pa
 
     episodes_path = root / "meta" / "episodes.jsonl"
     try:
@@ -143,16 +148,30 @@ def _read_v21(root: Path, info: dict[str, Any], wanted: list[str], progress: boo
         template, chunk_size = str(info["data_path"]), int(info.get("chunks_size", 1000))
         if chunk_size < 1:
             raise ValueError(f"chunks_size {chunk_size} is not positive")
-    except (OSError, ValueError, KeyError, TypeError, OverflowError, RecursionError) as error:  # ValueError: JSON, UTF-8 or a number
-        raise ImitationError(f"{episodes_path}: cannot read the v2.1 episode list ({type(error).__name__}: {str(error)[:200]})") from None
+    except (
+        OSError,
+        ValueError,
+        KeyError,
+        TypeError,
+        OverflowError,
+        RecursionError,
+    ) as error:  # ValueError: JSON, UTF-8 or a number
+        raise ImitationError(
+            f"{episodes_path}: cannot read the v2.1 episode list ({type(error).__name__}: {str(error)[:200]})"
+        ) from None
     parts: dict[str, list[np.ndarray]] = {key: [] for key in wanted}
-    for line, entry in enumerate(tqdm(listed, desc="read", unit="episode", disable=None if progress else True, dynamic_ncols=True), 1):
+    for line, entry in enumerate(
+        tqdm(listed, desc="read", unit="episode", disable=None if progress else True, dynamic_ncols=True), 1
+    ):
         try:
             index = int(entry["episode_index"])
             length = int(entry.get("length", -1))
             path = root / template.format(episode_chunk=index // chunk_size, episode_index=index)
         except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as error:
-            raise ImitationError(f"{episodes_path}: line {line} is not an episode entry, or data_path does not fit it ({type(error).__name__}: {str(error)[:100]})") from None
+            raise ImitationError(
+                f"{episodes_path}: line {line} is not an episode entry, or data_path does not fit it "
+                f"({type(error).__name__}: {str(error)[:100]})"
+            ) from None
         try:
             table = pq.read_table(path, columns=wanted)
             columns = {key: _column(table.column(key)) for key in wanted}
@@ -189,12 +208,20 @@ def _shaped(root: Path, key: str, values: np.ndarray, feature: dict[str, Any]) -
             raise ValueError(f"values of type {values.dtype}")
         return values.reshape((len(values), *shape))
     except (ValueError, TypeError) as error:
-        raise ImitationError(f"{root}: feature {key!r} does not hold rows of its declared shape {str(shape)[:40]} ({str(error)[:100]})") from None
+        raise ImitationError(
+            f"{root}: feature {key!r} does not hold rows of its declared shape {str(shape)[:40]} ({str(error)[:100]})"
+        ) from None
 
 
 def _build(
-    root: Path, version: str, fps: float, features: dict[str, Any], observation_keys: list[str], action_key: str,
-    columns: dict[str, np.ndarray], warnings: list[str],
+    root: Path,
+    version: str,
+    fps: float,
+    features: dict[str, Any],
+    observation_keys: list[str],
+    action_key: str,
+    columns: dict[str, np.ndarray],
+    warnings: list[str],
 ) -> Converted:
     episode_index = columns["episode_index"].reshape(-1).astype(np.int64)
     starts = np.flatnonzero(np.diff(episode_index, prepend=episode_index[0] - 1) != 0)
@@ -205,11 +232,15 @@ def _build(
         observation_space = space_from_json(sidecar["observation_space"])
         action_space = space_from_json(sidecar["action_space"])
     else:
-        leaves = {names[key]: box_for(columns[key]) for key in observation_keys}
+        leaves: dict[str, gym.Space] = {names[key]: box_for(columns[key]) for key in observation_keys}
         observation_space = next(iter(leaves.values())) if len(leaves) == 1 else gym.spaces.Dict(leaves)
         action_space = infer_action_space(columns[action_key])
     observations = _observation_tree(columns, observation_keys, names, observation_space, root)
-    actions = cast_rows(columns[action_key], action_space, f"{root}: action") if not isinstance(action_space, gym.spaces.Dict) else None
+    actions = (
+        cast_rows(columns[action_key], action_space, f"{root}: action")
+        if not isinstance(action_space, gym.spaces.Dict)
+        else None
+    )
     if actions is None:
         raise ImitationError(f"{root}: Dict action spaces are not supported")
     rewards = columns["next.reward"].reshape(-1) if "next.reward" in columns else None
@@ -219,31 +250,42 @@ def _build(
         steps = int(end - start) - 1
         facts = sidecar["episodes"][k] if sidecar else {}
         terminated = bool(facts.get("terminated", bool(done[end - 1]) if done is not None else False))
-        episodes.append(Episode(
-            observations=_slice(observations, start, end),
-            actions=actions[start : start + steps],
-            rewards=rewards[start : start + steps].astype(np.float64) if rewards is not None else np.zeros(steps),
-            terminated=terminated,
-            truncated=bool(facts.get("truncated", False)),
-            metadata=facts.get("metadata", {"source_episode_index": int(episode_index[start])}),
-        ))
+        episodes.append(
+            Episode(
+                observations=_slice(observations, start, end),
+                actions=actions[start : start + steps],
+                rewards=rewards[start : start + steps].astype(np.float64) if rewards is not None else np.zeros(steps),
+                terminated=terminated,
+                truncated=bool(facts.get("truncated", False)),
+                metadata=facts.get("metadata", {"source_episode_index": int(episode_index[start])}),
+            )
+        )
     if rewards is None:
         warnings.append(f"{root}: no next.reward feature; rewards are zero")
     return Converted(
-        episodes=episodes, observation_space=observation_space, action_space=action_space,
+        episodes=episodes,
+        observation_space=observation_space,
+        action_space=action_space,
         source=sidecar["source"] if sidecar else f"LeRobot {version} {root}",
         env_id=sidecar["env_id"] if sidecar else "",
         dt=sidecar["dt"] if sidecar else 1.0 / float(fps),
-        metadata=sidecar["user_metadata"] if sidecar else {
-            "converter": "lerobot", "root": str(root), "codebase_version": version,
-            "observation_features": observation_keys, "action_feature": action_key,
+        metadata=sidecar["user_metadata"]
+        if sidecar
+        else {
+            "converter": "lerobot",
+            "root": str(root),
+            "codebase_version": version,
+            "observation_features": observation_keys,
+            "action_feature": action_key,
             "names": {key: features[key].get("names") for key in [*observation_keys, action_key]},
         },
         warnings=warnings,
     )
 
 
-def _observation_tree(columns: dict[str, np.ndarray], keys: list[str], names: dict[str, str], space: gym.Space, root: Path) -> Any:
+def _observation_tree(
+    columns: dict[str, np.ndarray], keys: list[str], names: dict[str, str], space: gym.Space, root: Path
+) -> Any:
     if isinstance(space, gym.spaces.Dict):
         by_name = {names[key]: key for key in keys}
         missing = [name for name in space.spaces if name not in by_name]

@@ -127,8 +127,15 @@ def parse_map(raw: Any, path: Path) -> RecordingMap:
     if unknown:
         raise fail(f"unknown key {unknown[0]!r} (a map has {', '.join(sorted(_TOP_KEYS))})")
     rate = raw.get("rate_hz")
-    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) or not MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
-        raise fail(f"rate_hz must be a number of samples per second between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g}, got {str(rate)[:40]}")
+    if (
+        isinstance(rate, bool)
+        or not isinstance(rate, (int, float))
+        or not math.isfinite(rate)
+        or not MIN_RATE_HZ <= rate <= MAX_RATE_HZ
+    ):
+        raise fail(
+            f"rate_hz must be a number of samples per second between {MIN_RATE_HZ:g} and {MAX_RATE_HZ:g}, got {str(rate)[:40]}"
+        )
     clock = raw.get("time", "log")
     if clock not in CLOCKS:
         raise fail(f"time must be log or header, got {clock!r}")
@@ -154,8 +161,15 @@ def parse_map(raw: Any, path: Path) -> RecordingMap:
         if len(reward.fields) != 1:
             raise fail("reward: give exactly one field (the reward is one number per step)")
     return RecordingMap(
-        path=path, rate_hz=float(rate), time=clock, observation=observation, action=action, reward=reward,
-        episodes=_split(raw.get("episodes", {"split": "file"}), fail), env_id=env_id, raw=raw,
+        path=path,
+        rate_hz=float(rate),
+        time=clock,
+        observation=observation,
+        action=action,
+        reward=reward,
+        episodes=_split(raw.get("episodes", {"split": "file"}), fail),
+        env_id=env_id,
+        raw=raw,
     )
 
 
@@ -200,7 +214,9 @@ def _split(spec: Any, fail: Any) -> EpisodeSplit:
     if isinstance(spec, str):
         spec = {"split": spec}
     if not isinstance(spec, dict) or spec.get("split") not in SPLITS:
-        raise fail(f"episodes must be {{split: file}}, {{split: gap, seconds: S}} or {{split: topic, topic: /marker}}; got {spec!r}")
+        raise fail(
+            f"episodes must be {{split: file}}, {{split: gap, seconds: S}} or {{split: topic, topic: /marker}}; got {spec!r}"
+        )
     mode = spec["split"]
     extra = sorted(set(spec) - {"split", {"gap": "seconds", "topic": "topic"}.get(mode, "split")})
     if extra:

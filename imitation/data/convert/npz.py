@@ -21,6 +21,7 @@ import zipfile
 import zlib
 from pathlib import Path
 from tokenize import TokenError  # numpy parses old .npy headers with tokenize
+from typing import Any
 
 import numpy as np
 
@@ -38,9 +39,9 @@ def npz_to_episodes(path: str | Path) -> Converted:
     path = Path(path)
     arrays, object_keys = _read_npz(path)
     keys = set(arrays) | object_keys
-    if SB_KEYS <= keys:
+    if keys >= SB_KEYS:
         return _stable_baselines(path, _used(path, arrays, object_keys, SB_KEYS | ({"episode_returns"} & keys)))
-    if IMITATION_KEYS <= keys:
+    if keys >= IMITATION_KEYS:
         return _imitation(path, _used(path, arrays, object_keys, IMITATION_KEYS | ({"rews"} & keys)))
     raise ImitationError(
         f"{path}: unknown npz layout (keys {', '.join(sorted(keys))[:200]}); expected stable-baselines' "
@@ -51,7 +52,9 @@ def npz_to_episodes(path: str | Path) -> Converted:
 def _used(path: Path, arrays: dict[str, np.ndarray], object_keys: set[str], keys: set[str]) -> dict[str, np.ndarray]:
     """The arrays a layout reads; one it needs that holds Python objects is refused."""
     if unreadable := sorted(keys & object_keys):
-        raise ImitationError(f"{path}: array {unreadable[0]!r} holds Python objects; it is not read (that would unpickle them)")
+        raise ImitationError(
+            f"{path}: array {unreadable[0]!r} holds Python objects; it is not read (that would unpickle them)"
+        )
     return {key: arrays[key] for key in keys}
 
 
@@ -72,19 +75,34 @@ def _read_npz(path: Path) -> tuple[dict[str, np.ndarray], set[str]]:
                 check_zip_member(path, info)
                 with archive.open(info) as member:
                     version = np.lib.format.read_magic(member)
-                    read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+                    read_header = (
+                        np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+                    )
                     shape, _, dtype = read_header(member)
                     if dtype.hasobject:
                         object_keys.add(key)
                         continue
                     if math.prod(shape) * dtype.itemsize > info.file_size:
-                        raise ImitationError(f"{path}: array {key!r} is damaged (its header promises more data than the archive holds)")
+                        raise ImitationError(
+                            f"{path}: array {key!r} is damaged (its header promises more data than the archive holds)"
+                        )
                 with archive.open(info) as member:
                     arrays[key] = np.lib.format.read_array(member, allow_pickle=False)
         return arrays, object_keys
     except ImitationError:
         raise
-    except (OSError, EOFError, ValueError, KeyError, SyntaxError, TokenError, zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError) as error:
+    except (
+        OSError,
+        EOFError,
+        ValueError,
+        KeyError,
+        SyntaxError,
+        TokenError,
+        zipfile.BadZipFile,
+        zlib.error,
+        NotImplementedError,
+        RuntimeError,
+    ) as error:
         # zipfile's and numpy's ways of saying the bytes are not an npz archive (or a damaged one).
         raise ImitationError(f"{path}: not a readable npz file ({type(error).__name__}: {str(error)[:200]})") from None
 
@@ -93,7 +111,9 @@ def _numeric(path: Path, key: str, array: np.ndarray, *, flat: bool = False) -> 
     """A numeric array with one row per step (1-D when `flat`); ImitationError otherwise."""
     if array.dtype.kind not in "biuf" or array.ndim == 0 or (flat and array.ndim != 1):
         shape = "one value per row" if flat else "one row per step"
-        raise ImitationError(f"{path}: array {key!r} must be numbers with {shape}, got {array.dtype} of shape {list(array.shape)}")
+        raise ImitationError(
+            f"{path}: array {key!r} must be numbers with {shape}, got {array.dtype} of shape {list(array.shape)}"
+        )
     return array
 
 
@@ -103,7 +123,9 @@ def _stable_baselines(path: Path, data: dict[str, np.ndarray]) -> Converted:
     starts = _numeric(path, "episode_starts", data["episode_starts"], flat=True).astype(bool)
     steps = len(obs)
     if not (len(actions) == len(rewards) == len(starts) == steps) or steps == 0 or not starts[0]:
-        raise ImitationError(f"{path}: obs, actions, rewards and episode_starts must have one row per step and start with an episode start")
+        raise ImitationError(
+            f"{path}: obs, actions, rewards and episode_starts must have one row per step and start with an episode start"
+        )
     returns = data.get("episode_returns")
     if returns is not None:
         returns = _numeric(path, "episode_returns", returns.reshape(-1) if returns.ndim == 0 else returns, flat=True)
@@ -112,15 +134,23 @@ def _stable_baselines(path: Path, data: dict[str, np.ndarray]) -> Converted:
     obs, actions = cast_rows(obs, observation_space, f"{path}: obs"), cast_rows(actions, action_space, f"{path}: actions")
     episodes = []
     for index, (start, end) in enumerate(zip(bounds[:-1], bounds[1:])):
-        metadata = {"source_index": index, "source_length": int(end - start)}
+        metadata: dict[str, Any] = {"source_index": index, "source_length": int(end - start)}
         if returns is not None and index < len(returns):
             metadata["source_return"] = float(returns[index])
-        episodes.append(Episode(
-            observations=obs[start:end], actions=actions[start : end - 1], rewards=rewards[start : end - 1], metadata=metadata,
-        ))
+        episodes.append(
+            Episode(
+                observations=obs[start:end],
+                actions=actions[start : end - 1],
+                rewards=rewards[start : end - 1],
+                metadata=metadata,
+            )
+        )
     return Converted(
-        episodes=episodes, observation_space=observation_space, action_space=action_space,
-        source=f"stable-baselines npz {path}", metadata={"converter": "npz", "layout": "stable-baselines", "file": str(path)},
+        episodes=episodes,
+        observation_space=observation_space,
+        action_space=action_space,
+        source=f"stable-baselines npz {path}",
+        metadata={"converter": "npz", "layout": "stable-baselines", "file": str(path)},
         warnings=[f"{path}: the format stores no final observations; each episode's last action and reward were dropped"],
     )
 
@@ -151,14 +181,21 @@ def _imitation(path: Path, data: dict[str, np.ndarray]) -> Converted:
     episodes = []
     for index in range(count):
         start, end = int(act_bounds[index]), int(act_bounds[index + 1])
-        episodes.append(Episode(
-            observations=obs[start + index : end + index + 1],  # each earlier trajectory has one extra observation
-            actions=acts[start:end],
-            rewards=rewards[start:end].astype(np.float64) if rewards is not None else np.zeros(end - start),
-            terminated=bool(terminal[index]), truncated=not terminal[index], metadata={"source_index": index},
-        ))
+        episodes.append(
+            Episode(
+                observations=obs[start + index : end + index + 1],  # each earlier trajectory has one extra observation
+                actions=acts[start:end],
+                rewards=rewards[start:end].astype(np.float64) if rewards is not None else np.zeros(end - start),
+                terminated=bool(terminal[index]),
+                truncated=not terminal[index],
+                metadata={"source_index": index},
+            )
+        )
     return Converted(
-        episodes=episodes, observation_space=observation_space, action_space=action_space,
-        source=f"imitation npz {path}", metadata={"converter": "npz", "layout": "imitation", "file": str(path)},
+        episodes=episodes,
+        observation_space=observation_space,
+        action_space=action_space,
+        source=f"imitation npz {path}",
+        metadata={"converter": "npz", "layout": "imitation", "file": str(path)},
         warnings=[] if rewards is not None else [f"{path}: no rews array; rewards are zero"],
     )

@@ -69,7 +69,10 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
             bar.update()
             time_ns = _time_of(message, log_ns, recording_map, topic)
             if not 0 <= time_ns < 2**63:
-                raise ImitationError(f"{bag.path}: a message on {topic} is stamped {time_ns} ns, outside what a timestamp can hold (a damaged bag?)")
+                raise ImitationError(
+                    f"{bag.path}: a message on {topic} is stamped {time_ns} ns, outside what a timestamp can hold (a damaged "
+                    "bag?)"
+                )
             if topic == marker_topic:
                 markers.append(time_ns)
             for column in by_topic.get(topic, []):
@@ -93,29 +96,44 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
             )
         grid = regular_grid(begin, end, recording_map.rate_hz)
         if len(grid) == 0:
-            warnings.append(f"episode span {index} ({start / NS:.3f} s to {end / NS:.3f} s) ends before every stream has a value; skipped")
+            warnings.append(
+                f"episode span {index} ({start / NS:.3f} s to {end / NS:.3f} s) ends before every stream has a value; skipped"
+            )
             continue
         # One period past the last grid time: the last sampled action gets its following observation.
         grid = np.append(grid, grid[-1] + round(NS / recording_map.rate_hz))
         values = [
-            sample(*arrays[id(c)], grid, align=c.stream.align, default=c.default,
-                   max_age_ns=None if c.stream.max_age_s is None else round(c.stream.max_age_s * NS))
+            sample(
+                *arrays[id(c)],
+                grid,
+                align=c.stream.align,
+                default=c.default,
+                max_age_ns=None if c.stream.max_age_s is None else round(c.stream.max_age_s * NS),
+            )
             for c in columns
         ]
         observations = np.concatenate(values[:n_obs], axis=1).astype(np.float32)
         actions = np.concatenate(values[n_obs : n_obs + n_act], axis=1)[:-1].astype(np.float32)
         rewards = values[-1][1:, 0] if recording_map.reward else np.zeros(len(grid) - 1)
-        episodes.append(Episode(
-            observations=observations, actions=actions, rewards=rewards.astype(np.float64), truncated=True,
-            timestamps=grid, metadata={"span": index},
-        ))
+        episodes.append(
+            Episode(
+                observations=observations,
+                actions=actions,
+                rewards=rewards.astype(np.float64),
+                truncated=True,
+                timestamps=grid,
+                metadata={"span": index},
+            )
+        )
     if not episodes:
         raise ImitationError(f"{bag.path}: no episode: the mapped topics never all have a value at the same time")
     names = [c.names for c in columns]
+    first = episodes[0]
+    assert isinstance(first.observations, np.ndarray) and isinstance(first.actions, np.ndarray)  # built as arrays above
     return Converted(
         episodes=episodes,
-        observation_space=gym.spaces.Box(-np.inf, np.inf, shape=(episodes[0].observations.shape[1],), dtype=np.float32),
-        action_space=gym.spaces.Box(-np.inf, np.inf, shape=(episodes[0].actions.shape[1],), dtype=np.float32),
+        observation_space=gym.spaces.Box(-np.inf, np.inf, shape=(first.observations.shape[1],), dtype=np.float32),
+        action_space=gym.spaces.Box(-np.inf, np.inf, shape=(first.actions.shape[1],), dtype=np.float32),
         source=f"{bag.format} {bag.path}",
         env_id=recording_map.env_id or "",
         dt=1.0 / recording_map.rate_hz,
@@ -133,7 +151,9 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
 
 
 def _check_topics(bag: Bag, recording_map: RecordingMap, topics: dict[str, TopicInfo]) -> None:
-    wanted = [s.topic for s in recording_map.streams] + ([recording_map.episodes.topic] if recording_map.episodes.topic else [])
+    wanted = [s.topic for s in recording_map.streams] + (
+        [recording_map.episodes.topic] if recording_map.episodes.topic else []
+    )
     present = sorted(topics)
     if not any(topic in topics for topic in wanted):
         raise ImitationError(
@@ -149,7 +169,9 @@ def _check_topics(bag: Bag, recording_map: RecordingMap, topics: dict[str, Topic
 def _check_topic(bag: Bag, recording_map: RecordingMap, topic: str, where: str, topics: dict[str, TopicInfo]) -> None:
     info = topics.get(topic)
     if info is None:
-        raise ImitationError(f"{recording_map.path}: {where}: topic {topic} is not in {bag.path} (it has {_listing(sorted(topics))})")
+        raise ImitationError(
+            f"{recording_map.path}: {where}: topic {topic} is not in {bag.path} (it has {_listing(sorted(topics))})"
+        )
     if info.problem:
         raise ImitationError(f"{recording_map.path}: {where}: topic {topic} cannot be read: {info.problem}")
     if info.count == 0:
@@ -199,7 +221,9 @@ def _time_of(message: Any, log_ns: int, recording_map: RecordingMap, topic: str)
     except FieldError:
         if topic == recording_map.episodes.topic:
             return log_ns  # a marker without a header (std_msgs/Empty) marks when it was logged
-        raise ImitationError(f"{recording_map.path}: topic {topic} has a message without header.stamp; use time: log") from None
+        raise ImitationError(
+            f"{recording_map.path}: topic {topic} has a message without header.stamp; use time: log"
+        ) from None
     return int(stamp.sec) * NS + int(getattr(stamp, "nanosec", getattr(stamp, "nsec", 0)))
 
 
@@ -212,8 +236,8 @@ def _row(message: Any, column: _Column, log_ns: int) -> np.ndarray:
             raise ImitationError(f"{column.stream.where} ({column.stream.topic}) at {log_ns} ns: {error}") from None
         if len(values) != width:
             raise ImitationError(
-                f"{column.stream.where} ({column.stream.topic}) at {log_ns} ns: field {text!r} held {width} values in the first "
-                f"message and {len(values)} now (a variable-length array: index it, e.g. {text}[0])"
+                f"{column.stream.where} ({column.stream.topic}) at {log_ns} ns: field {text!r} held {width} values in the "
+                f"first message and {len(values)} now (a variable-length array: index it, e.g. {text}[0])"
             )
         parts.append(values)
     return np.concatenate(parts)
@@ -232,8 +256,8 @@ def _spans(recording_map: RecordingMap, stream_times: list[np.ndarray], markers:
     every = np.sort(np.concatenate(stream_times))
     start, end = int(every[0]), int(every[-1])
     if recording_map.episodes.mode == "gap":
+        assert recording_map.episodes.seconds is not None  # a gap split always has its seconds (maps.py)
         return split_at_gaps(every, round(recording_map.episodes.seconds * NS))
     if recording_map.episodes.mode == "topic":
         return split_at_markers(start, end, markers)
     return [(start, end)]
-

@@ -31,7 +31,9 @@ class _BoundedLoader(yaml.SafeLoader):
     def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
         # Python refuses int() of more than 4300 digits with a ValueError; no real value has 400.
         if len(node.value) > MAX_INTEGER_DIGITS:
-            raise ImitationError(f"line {node.start_mark.line + 1}: an integer of {len(node.value)} digits, more than any real value has")
+            raise ImitationError(
+                f"line {node.start_mark.line + 1}: an integer of {len(node.value)} digits, more than any real value has"
+            )
         return super().construct_yaml_int(node)
 
 

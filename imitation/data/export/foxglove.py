@@ -22,8 +22,9 @@ from mcap.writer import CompressionType, Writer
 from tqdm import tqdm
 
 from imitation import __version__
+from imitation.data.mcap.format import to_json_text
+from imitation.data.mcap.reader import DemoFile
 from imitation.data.spaces import space_to_json
-from imitation.data.store import DemoFile, to_json_text
 from imitation.data.types import Tree
 from imitation.errors import ImitationError
 from imitation.output import OutputLock, check_target, create_exclusive, lstat_kind, writing
@@ -38,8 +39,11 @@ def space_schema(space: gym.Space) -> dict[str, Any]:
         return {"type": "object", "properties": {key: space_schema(sub) for key, sub in space.spaces.items()}}
     if isinstance(space, gym.spaces.Discrete):
         return {"type": "integer"}
-    item = {"type": "number"} if isinstance(space, gym.spaces.Box) and np.dtype(space.dtype).kind == "f" else {"type": "integer"}
-    schema = item
+    item = (
+        {"type": "number"} if isinstance(space, gym.spaces.Box) and np.dtype(space.dtype).kind == "f" else {"type": "integer"}
+    )
+    schema: dict[str, Any] = item
+    assert space.shape is not None  # Box, MultiDiscrete or MultiBinary: the spaces a demo file holds besides the above
     for size in reversed(space.shape):
         schema = {"type": "array", "items": schema, "minItems": size, "maxItems": size}
     return schema
@@ -83,7 +87,13 @@ def export_foxglove(demo_path: str | os.PathLike, out: str | os.PathLike, *, pro
         if lstat_kind(partial) == "a regular file":
             partial.unlink()  # an earlier export's leftover: derived data, made again below
         messages = _write(demo, create_exclusive(partial), partial, out, progress=progress)
-    return {"out": str(out), "to": "foxglove", "episodes": len(demo), "messages": messages, "topics": [STEP_TOPIC, EPISODE_TOPIC]}
+    return {
+        "out": str(out),
+        "to": "foxglove",
+        "episodes": len(demo),
+        "messages": messages,
+        "topics": [STEP_TOPIC, EPISODE_TOPIC],
+    }
 
 
 def _write(demo: DemoFile, stream: BinaryIO, partial: Path, out: Path, *, progress: bool) -> int:
@@ -94,15 +104,40 @@ def _write(demo: DemoFile, stream: BinaryIO, partial: Path, out: Path, *, progre
         with stream:
             writer = Writer(stream, compression=CompressionType.ZSTD)
             writer.start(profile="", library=f"imitation-mcap {__version__}")
-            writer.add_metadata("imitation.export", {
-                "source_file": str(demo.path), "env_id": demo.env_id, "observation_space": json.dumps(space_to_json(demo.observation_space)),
-                "action_space": json.dumps(space_to_json(demo.action_space)), "source": demo.source,
-            })
-            step_channel = writer.register_channel(STEP_TOPIC, "json", writer.register_schema(
-                "imitation.Step", "jsonschema", json.dumps(step_schema(demo.observation_space, demo.action_space)).encode()))
-            episode_channel = writer.register_channel(EPISODE_TOPIC, "json", writer.register_schema(
-                "imitation.Episode", "jsonschema", json.dumps({"type": "object", "title": "imitation episode marker"}).encode()))
-            bar = tqdm(zip(demo.episodes, demo), total=len(demo), desc="export", unit="episode", disable=None if progress else True, dynamic_ncols=True)
+            writer.add_metadata(
+                "imitation.export",
+                {
+                    "source_file": str(demo.path),
+                    "env_id": demo.env_id,
+                    "observation_space": json.dumps(space_to_json(demo.observation_space)),
+                    "action_space": json.dumps(space_to_json(demo.action_space)),
+                    "source": demo.source,
+                },
+            )
+            step_channel = writer.register_channel(
+                STEP_TOPIC,
+                "json",
+                writer.register_schema(
+                    "imitation.Step", "jsonschema", json.dumps(step_schema(demo.observation_space, demo.action_space)).encode()
+                ),
+            )
+            episode_channel = writer.register_channel(
+                EPISODE_TOPIC,
+                "json",
+                writer.register_schema(
+                    "imitation.Episode",
+                    "jsonschema",
+                    json.dumps({"type": "object", "title": "imitation episode marker"}).encode(),
+                ),
+            )
+            bar = tqdm(
+                zip(demo.episodes, demo),
+                total=len(demo),
+                desc="export",
+                unit="episode",
+                disable=None if progress else True,
+                dynamic_ncols=True,
+            )
             for facts, episode in bar:
                 steps = len(episode)
                 if episode.timestamps is not None:
@@ -110,15 +145,27 @@ def _write(demo: DemoFile, stream: BinaryIO, partial: Path, out: Path, *, progre
                 else:
                     times = facts.t_start_ns + np.arange(steps + 1, dtype=np.int64) * dt_ns
                 for i in range(steps + 1):
-                    message: dict[str, Any] = {"episode": facts.index, "step": i, "observation": _value(episode.observations, i), "final": i == steps}
+                    message: dict[str, Any] = {
+                        "episode": facts.index,
+                        "step": i,
+                        "observation": _value(episode.observations, i),
+                        "final": i == steps,
+                    }
                     if i < steps:
                         message["action"] = _value(episode.actions, i)
                         message["reward"] = float(episode.rewards[i])
                     else:
                         message["terminated"], message["truncated"] = facts.terminated, facts.truncated
                     time_ns = int(times[i])
-                    writer.add_message(step_channel, log_time=time_ns, publish_time=time_ns, data=to_json_text(message).encode())
-                writer.add_message(episode_channel, log_time=facts.t_end_ns, publish_time=facts.t_end_ns, data=to_json_text(facts.to_json()).encode())
+                    writer.add_message(
+                        step_channel, log_time=time_ns, publish_time=time_ns, data=to_json_text(message).encode()
+                    )
+                writer.add_message(
+                    episode_channel,
+                    log_time=facts.t_end_ns,
+                    publish_time=facts.t_end_ns,
+                    data=to_json_text(facts.to_json()).encode(),
+                )
                 messages += steps + 2
             writer.finish()
         os.replace(partial, out)

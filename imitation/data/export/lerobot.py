@@ -21,11 +21,13 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import numpy.typing as npt
 from tqdm import tqdm
 
 from imitation.data.convert.lerobot import SIDECAR, lerobot_quietly
+from imitation.data.mcap.format import to_json_text
+from imitation.data.mcap.reader import DemoFile
 from imitation.data.spaces import space_leaves, space_to_json
-from imitation.data.store import DemoFile, to_json_text
 from imitation.data.types import Episode, tree_leaves
 from imitation.errors import ImitationError
 from imitation.output import OutputLock, check_target, writing
@@ -35,10 +37,15 @@ def _feature_names(space: gym.Space, role: str) -> dict[tuple[str, ...], str]:
     if isinstance(space, gym.spaces.Dict) and any(isinstance(sub, gym.spaces.Dict) for sub in space.spaces.values()):
         raise ImitationError(f"nested Dict {role} spaces cannot be exported to LeRobot")
     base = "observation" if role == "observation" else "action"
-    return {path: (f"{base}.state" if role == "observation" else base) if path == () else f"{base}.{path[0]}" for path, _, _ in space_leaves(space)}
+    return {
+        path: (f"{base}.state" if role == "observation" else base) if path == () else f"{base}.{path[0]}"
+        for path, _, _ in space_leaves(space)
+    }
 
 
-def export_lerobot(demo_path: str | os.PathLike, out_dir: str | os.PathLike, *, task: str | None = None, progress: bool = True) -> dict[str, Any]:
+def export_lerobot(
+    demo_path: str | os.PathLike, out_dir: str | os.PathLike, *, task: str | None = None, progress: bool = True
+) -> dict[str, Any]:
     """Write the demos as a LeRobotDataset v3.0 at `out_dir`, which must not exist (or be empty).
 
     The dataset is built in `<out_dir>.partial` and renamed when lerobot has finalized it."""
@@ -64,13 +71,27 @@ def export_lerobot(demo_path: str | os.PathLike, out_dir: str | os.PathLike, *, 
     with OutputLock(out), writing(out):
         shutil.rmtree(partial, ignore_errors=True)
         frames = _write(demo, partial, out, features, observation_names, action_names, fps, task, progress)
-    return {"out": str(out), "to": "lerobot", "codebase_version": "v3.0", "episodes": len(demo), "frames": frames, "fps": fps,
-            "features": sorted(features)}
+    return {
+        "out": str(out),
+        "to": "lerobot",
+        "codebase_version": "v3.0",
+        "episodes": len(demo),
+        "frames": frames,
+        "fps": fps,
+        "features": sorted(features),
+    }
 
 
 def _write(
-    demo: DemoFile, partial: Path, out: Path, features: dict[str, dict[str, Any]], observation_names: dict, action_names: dict, fps: int,
-    task: str, progress: bool,
+    demo: DemoFile,
+    partial: Path,
+    out: Path,
+    features: dict[str, dict[str, Any]],
+    observation_names: dict,
+    action_names: dict,
+    fps: int,
+    task: str,
+    progress: bool,
 ) -> int:
     """Build the dataset in `partial`, then move it to `out`; the number of frames written."""
     frames = 0
@@ -78,22 +99,48 @@ def _write(
         with lerobot_quietly():
             from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-            dataset = LeRobotDataset.create(repo_id=f"local/{out.name}", fps=fps, features=features, root=partial, use_videos=False)
+            dataset = LeRobotDataset.create(
+                repo_id=f"local/{out.name}", fps=fps, features=features, root=partial, use_videos=False
+            )
             try:
-                for episode in tqdm(demo, total=len(demo), desc="export", unit="episode", disable=None if progress else True, dynamic_ncols=True):
+                for episode in tqdm(
+                    demo,
+                    total=len(demo),
+                    desc="export",
+                    unit="episode",
+                    disable=None if progress else True,
+                    dynamic_ncols=True,
+                ):
                     for frame in _frames(episode, observation_names, action_names, features, task):
                         dataset.add_frame(frame)
                         frames += 1
                     dataset.save_episode()
             finally:
                 dataset.finalize()
-        (partial / SIDECAR).write_text(to_json_text({
-            "format": "imitation LeRobot sidecar", "version": 1, "source_file": str(demo.path),
-            "env_id": demo.env_id, "observation_space": space_to_json(demo.observation_space), "action_space": space_to_json(demo.action_space),
-            "dt": demo.dt, "source": demo.source, "user_metadata": demo.user_metadata,
-            "features": {"observation": {"/".join(p): n for p, n in observation_names.items()}, "action": {"/".join(p): n for p, n in action_names.items()}},
-            "episodes": [{"length": f.length, "terminated": f.terminated, "truncated": f.truncated, "metadata": f.metadata} for f in demo.episodes],
-        }) + "\n")
+        (partial / SIDECAR).write_text(
+            to_json_text(
+                {
+                    "format": "imitation LeRobot sidecar",
+                    "version": 1,
+                    "source_file": str(demo.path),
+                    "env_id": demo.env_id,
+                    "observation_space": space_to_json(demo.observation_space),
+                    "action_space": space_to_json(demo.action_space),
+                    "dt": demo.dt,
+                    "source": demo.source,
+                    "user_metadata": demo.user_metadata,
+                    "features": {
+                        "observation": {"/".join(p): n for p, n in observation_names.items()},
+                        "action": {"/".join(p): n for p, n in action_names.items()},
+                    },
+                    "episodes": [
+                        {"length": f.length, "terminated": f.terminated, "truncated": f.truncated, "metadata": f.metadata}
+                        for f in demo.episodes
+                    ],
+                }
+            )
+            + "\n"
+        )
         if out.exists():
             out.rmdir()  # empty, checked above
         os.replace(partial, out)
@@ -109,7 +156,7 @@ def _frames(episode: Episode, observation_names: dict, action_names: dict, featu
     observations = dict(tree_leaves(episode.observations))
     actions = dict(tree_leaves(episode.actions))
 
-    def shaped(value: np.ndarray, name: str) -> np.ndarray:
+    def shaped(value: npt.ArrayLike, name: str) -> np.ndarray:
         return np.asarray(value, dtype=features[name]["dtype"]).reshape(features[name]["shape"])
 
     for t in range(steps + 1):

@@ -1,0 +1,87 @@
+"""`train dagger`: DAgger with an expert into a run directory, its rounds as MCAP files."""
+
+from __future__ import annotations
+
+import os
+from contextlib import closing
+from typing import Any
+
+from imitation.algorithms.bc import policy_options
+from imitation.algorithms.dagger import DAgger, DAggerConfig
+from imitation.data.dataset import DemoDataset
+from imitation.evaluation.plots import plot_curve
+from imitation.evaluation.policy import evaluate_policy
+from imitation.experts.load import load_expert, make_env_for_expert
+from imitation.jobs.loop import run as run_learner
+from imitation.jobs.presets import EVAL_SEED
+from imitation.jobs.run_config import RunConfig, config_json
+from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
+from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy, policy_tensors
+from imitation.seeding import seed_everything
+
+
+def dagger_job(
+    env_id: str,
+    expert_spec: str,
+    config: DAggerConfig,
+    out: str | os.PathLike,
+    *,
+    demos: list[str] | None = None,
+    progress: bool = True,
+    resume: bool = False,
+) -> dict[str, Any]:
+    """DAgger with `expert_spec` into run directory `out`; each round's labelled rollouts are
+    written to `out/rounds/round-NN.mcap`. `resume` continues the interrupted run in
+    `out`.partial from its checkpoint, with the rounds it had finished."""
+    demos = demos or []
+    seed_everything(config.seed)
+    env = make_env_for_expert(env_id, expert_spec)
+    expert = load_expert(expert_spec, env, seed=config.seed)
+    given = DemoDataset(demos) if demos else None
+    if given is not None:
+        check_demos_fit_env(given, env)
+    policy = make_policy(env.observation_space, env.action_space, **policy_options(config.bc))
+    config.bc.validate(policy.is_continuous)
+
+    def env_return(candidate: ActorCritic) -> float:
+        return evaluate_policy(SingleObservationPolicy(candidate), env, episodes=5, seed=EVAL_SEED)["mean_return"]
+
+    run_config = RunConfig(
+        kind="dagger",
+        env_id=env_id,
+        expert=expert_spec,
+        demos=[str(p) for p in demos],
+        demo_fingerprints=fingerprints(given),
+        dagger=config_json(config),
+        policy=policy.config.to_json(),
+    )
+    with closing(env), training_run(out, run_config, x_axis="round", resume=resume) as run:
+        learner = DAgger(
+            env, expert, policy, config, round_dir=run.file("rounds"), env_id=env_id, demos=demos, evaluate=env_return
+        )
+        run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
+        run.save_weights(policy_tensors(learner.policy.cpu()))
+        plot_curve(
+            run.file("return_curve.png"),
+            run.history,
+            x="expert_labels",
+            ys=["return", "rollout_return"],
+            title=f"DAgger on {env_id}",
+        )
+        plot_curve(
+            run.file("loss_curve.png"),
+            run.history,
+            x="round",
+            ys=["validation_loss"],
+            title=f"DAgger on {env_id}: validation loss",
+        )
+        metrics = {
+            "env_id": env_id,
+            "expert": expert_spec,
+            "rounds": len(run.history),
+            "expert_labels": int(run.history[-1]["expert_labels"]),
+            "round_returns": [row["return"] for row in run.history],
+            "eval": final_evaluation(learner.policy.cpu(), env),
+        }
+        run.finish(metrics)
+    return {"run": str(run.path), "round_files": [str(run.path / "rounds" / p.name) for p in learner.files], **metrics}

@@ -1,0 +1,43 @@
+"""`eval policy`: a run's policy in an env: returns, the return normalised by the demos it
+learnt from, and a video of an episode."""
+
+from __future__ import annotations
+
+import os
+from contextlib import closing
+from typing import Any
+
+from imitation.envs.make import make_env
+from imitation.evaluation.policy import evaluate_policy, normalized_return
+from imitation.evaluation.video import record_video
+from imitation.jobs.run_config import RunConfig
+from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
+from imitation.runs import read_run
+
+
+def eval_policy_job(
+    run: str | os.PathLike,
+    env_id: str,
+    *,
+    episodes: int = 10,
+    seed: int = 0,
+    stochastic: bool = False,
+    demos: list[str] | None = None,
+    video: str | os.PathLike | None = None,
+) -> dict[str, Any]:
+    """Evaluate run directory `run`'s policy on `episodes` episodes of `env_id` (episode i reset
+    with seed `seed + i`), deterministically unless `stochastic`. The return is also normalised
+    between a random policy (0) and `demos` (default: those the run learnt from) when there are
+    any; `video` writes episode 0 as .mp4 or .gif."""
+    policy = load_policy(run)
+    config, _ = read_run(run)
+    actor = SingleObservationPolicy(policy, deterministic=not stochastic)
+    with closing(make_env(env_id)) as env:
+        check_policy_fits_env(policy, env, str(run))
+        result = evaluate_policy(actor, env, episodes=episodes, seed=seed)
+        demos = demos if demos is not None else RunConfig.from_json(config).existing_demos()
+        if demos:
+            result |= normalized_return(result, env, demos, seed=seed)
+    if video is not None:
+        result["video"] = {"path": str(video), **record_video(env_id, actor, video, seed=seed)}
+    return {"run": str(run), "env_id": env_id, "deterministic": not stochastic, **result}

@@ -1,0 +1,203 @@
+"""`eval reward`: is a recovered reward any good? Retrains policies on it and on two controls,
+samples the coverage batch, and writes the lenses of `imitation.evaluation.reward` (metrics.json,
+plots, report.md and the retrained runs) to one output directory."""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import closing
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from imitation.algorithms.ppo import PPOConfig
+from imitation.data.dataset import DemoDataset
+from imitation.data.loader import load_transitions
+from imitation.data.spaces import check_spaces_fit
+from imitation.envs.make import make_env
+from imitation.envs.rollout import collect_transitions
+from imitation.envs.tabular import TabularEnv
+from imitation.envs.true_rewards import true_reward
+from imitation.errors import ConfigError, ImitationError
+from imitation.evaluation.epic import TransitionBatch, coverage_samples
+from imitation.evaluation.policy import evaluate_policy
+from imitation.evaluation.report import write_report
+from imitation.evaluation.reward import (
+    Retraining,
+    SampledEvaluation,
+    evaluate_sampled_reward,
+    evaluate_tabular_reward,
+    reward_report,
+    with_controls,
+)
+from imitation.experts.load import load_expert
+from imitation.jobs.ppo import ppo_job
+from imitation.jobs.presets import EVAL_SEED, ppo_settings, preset
+from imitation.jobs.run_config import RunConfig, config_json
+from imitation.policies import SingleObservationPolicy, load_policy
+from imitation.rewards import RewardNet, load_reward
+from imitation.runs import RunWriter, read_run
+
+REFERENCE_EPISODES = 10
+ROLLOUT_EPISODES = 4  # per policy, for the coverage batch
+
+
+@dataclass(kw_only=True)
+class RewardEvaluationConfig:
+    retrain_steps: int | None = None  # None: the env's preset; 0: no retraining
+    seeds: int = 3
+    coverage_uniform: int = 2048
+    mean_samples: int = 512
+    seed: int = 0
+    jobs: int = 2  # PPO trainings run side by side, one CPU thread each
+    demos: list[str] | None = None  # None: the demos the reward was learned from
+
+    def validate(self) -> None:
+        for name in ("seeds", "jobs"):
+            if getattr(self, name) < 1:
+                raise ConfigError(name, f"must be at least 1, got {getattr(self, name)}", owner="RewardEvaluationConfig")
+        if self.retrain_steps is not None and self.retrain_steps < 0:
+            raise ConfigError(
+                "retrain_steps", f"must be non-negative, got {self.retrain_steps}", owner="RewardEvaluationConfig"
+            )
+
+
+def evaluate_reward(
+    run: str | os.PathLike, env_id: str, config: RewardEvaluationConfig, out: str | os.PathLike, *, progress: bool = True
+) -> dict[str, Any]:
+    """Evaluate the reward model of run directory `run` on `env_id`; write the results
+    (metrics.json), plots and report.md to directory `out` (replaced only when complete)."""
+    config.validate()
+    model = load_reward(run)
+    run_config = RunConfig.from_json(read_run(run)[0])
+    with closing(make_env(env_id)) as env:
+        check_spaces_fit("reward model's", model.observation_space, model.action_space, env, where=f"{run}")
+        writer_config = RunConfig(kind="reward-evaluation", env_id=env_id, run=str(run), evaluation=config_json(config))
+        with RunWriter(out, config=writer_config.to_json(), tensorboard=False) as writer:
+            if isinstance(env.unwrapped, TabularEnv):
+                discount = float((run_config.irl or {}).get("discount", 1.0))
+                results = evaluate_tabular_reward(
+                    model, env.unwrapped.mdp, env_id, discount=discount, seed=config.seed, out=writer.partial
+                )
+            else:
+                results = _evaluate_continuous(model, env, env_id, run, run_config, config, writer.partial, progress=progress)
+            results = {"run": str(run), "env_id": env_id, **results}
+            write_report(writer.partial / "report.md", reward_report(results), title=f"Reward evaluation: {run} on {env_id}")
+            writer.finish(results)
+    return {"out": str(writer.path), **results}
+
+
+def _evaluate_continuous(
+    model: RewardNet,
+    env: gym.Env,
+    env_id: str,
+    run: str | os.PathLike,
+    run_config: RunConfig,
+    config: RewardEvaluationConfig,
+    out: Path,
+    *,
+    progress: bool,
+) -> dict[str, Any]:
+    demo_paths = config.demos if config.demos is not None else run_config.demos or []
+    if not demo_paths:
+        raise ImitationError(
+            f"{run}: its config names no demos; pass --demos F.mcap (the expert reference and EPIC's coverage)"
+        )
+    dataset = DemoDataset(demo_paths)
+    check_spaces_fit("demos'", dataset.observation_space, dataset.action_space, env, where=str(demo_paths[0]))
+    demos = load_transitions(dataset, next_observations=True)
+    expert_return = float(np.mean([facts.episode_return for facts in dataset.episodes]))
+    random_policy = load_expert("random", env, seed=config.seed)
+    random_return = evaluate_policy(random_policy, env, episodes=REFERENCE_EPISODES, seed=EVAL_SEED)["mean_return"]
+    references = {
+        "expert_return": expert_return,
+        "random_return": random_return,
+        "source": f"demos' mean return ({len(dataset)} episodes); uniform random actions ({REFERENCE_EPISODES} episodes)",
+    }
+
+    rewards = with_controls(model, seed=config.seed)
+    settings = ppo_settings(env_id, env.action_space, learned_reward=True)
+    retraining = _retrain(rewards, run, env_id, settings, config, out, progress=progress)
+    policy_rollouts = [_policy_transitions(out / path, env, seed=EVAL_SEED) for path in retraining.runs["learned"]]
+    random_rollouts = collect_transitions(env, random_policy, episodes=ROLLOUT_EPISODES, seed=EVAL_SEED)
+    rollouts = TransitionBatch(*(np.concatenate([part[i] for part in [random_rollouts, *policy_rollouts]]) for i in range(3)))
+    # The demos' s, a, s' as arrays, as EPIC's coverage takes them: a reward model takes no Dict
+    # spaces, and the next observations were loaded above.
+    assert isinstance(demos.observations, np.ndarray) and isinstance(demos.actions, np.ndarray)
+    assert isinstance(demos.next_observations, np.ndarray)
+    demo_batch = TransitionBatch(demos.observations, demos.actions, demos.next_observations)
+    coverage = coverage_samples(env, demo_batch, rollouts, n_uniform=config.coverage_uniform, seed=config.seed)
+    return evaluate_sampled_reward(
+        rewards,
+        true_reward(env_id, env),
+        coverage,
+        env=env,
+        env_id=env_id,
+        discount=float(settings.get("gamma", PPOConfig(env_id=env_id).gamma)),
+        demos=demos,
+        rollout_transitions=len(rollouts.observations),
+        retraining=retraining,
+        references=references,
+        config=SampledEvaluation(coverage_uniform=config.coverage_uniform, mean_samples=config.mean_samples, seed=config.seed),
+        out=out,
+    )
+
+
+def _retrain(
+    rewards: dict[str, RewardNet],
+    run: str | os.PathLike,
+    env_id: str,
+    settings: dict[str, Any],
+    config: RewardEvaluationConfig,
+    out: Path,
+    *,
+    progress: bool,
+) -> Retraining:
+    """PPO from scratch on each reward for `config.seeds` seeds, `config.jobs` at a time in fresh
+    processes, into `out`/retrain/NAME-seedS. The recovered reward is named by its run, so each
+    retrained run says which reward it optimised; the controls go as they are."""
+    steps = preset(env_id).retrain_steps if config.retrain_steps is None else config.retrain_steps
+    seeds = list(range(config.seed, config.seed + config.seeds))
+    retraining = Retraining(
+        steps=steps, seeds=seeds, returns={name: [] for name in rewards}, runs={name: [] for name in rewards}
+    )
+    if steps == 0:
+        return retraining
+    jobs = []
+    for name, reward in rewards.items():
+        source = (
+            {"reward_run": str(run)}
+            if name == "learned"
+            else {"reward": reward, "reward_source": f"eval reward control: {name} reward"}
+        )
+        for seed in seeds:
+            ppo_config = PPOConfig(env_id=env_id, total_steps=steps, seed=seed, device="cpu", **settings)
+            jobs.append((name, ppo_config, out / "retrain" / f"{name}-seed{seed}", source))
+    bar = tqdm(total=len(jobs), desc="retrain", unit="run", disable=None if progress else True, dynamic_ncols=True)
+    with bar, ProcessPoolExecutor(max_workers=min(config.jobs, len(jobs)), mp_context=get_context("spawn")) as pool:
+        futures = [
+            (name, pool.submit(_train_ppo_quietly, ppo_config, path, source)) for name, ppo_config, path, source in jobs
+        ]
+        for name, future in futures:
+            result = future.result()
+            retraining.returns[name].append(result["eval"]["mean_return"])
+            retraining.runs[name].append(str(Path(result["run"]).relative_to(out)))
+            bar.update()
+    return retraining
+
+
+def _train_ppo_quietly(config: PPOConfig, out: Path, source: dict[str, Any]) -> dict[str, Any]:
+    """One retraining in a worker process (one torch thread, no progress bar)."""
+    torch.set_num_threads(1)
+    return ppo_job(config, out, progress=False, **source)
+
+
+def _policy_transitions(run: Path, env: gym.Env, *, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return collect_transitions(env, SingleObservationPolicy(load_policy(run)), episodes=ROLLOUT_EPISODES, seed=seed)

@@ -1,0 +1,189 @@
+"""`train irl`: maximum-entropy IRL into a reward run directory, tabular (maxent, mce) or
+sample-based (guided cost learning with PPO alongside)."""
+
+from __future__ import annotations
+
+import os
+from contextlib import closing
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning
+from imitation.algorithms.maxent_irl import MaxEntIRL, MaxEntIRLConfig, all_state_rewards, demo_visitation
+from imitation.algorithms.ppo import PPO, PPOConfig
+from imitation.data.dataset import DemoDataset
+from imitation.data.loader import check_episodes_finite, load_transitions, transitions_to_torch
+from imitation.envs.make import make_env
+from imitation.envs.tabular import tabular_mdp_of
+from imitation.envs.tabular_planning import soft_optimal_returns
+from imitation.evaluation.plots import plot_curve, plot_grid_maps
+from imitation.jobs.loop import run as run_learner
+from imitation.jobs.run_config import RunConfig, config_json
+from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
+from imitation.policies import policy_tensors
+from imitation.rewards import make_reward_model, reward_tensors
+from imitation.seeding import seed_everything
+
+
+def tabular_irl_job(
+    demos: list[str],
+    env_id: str,
+    config: MaxEntIRLConfig,
+    out: str | os.PathLike,
+    *,
+    progress: bool = True,
+    resume: bool = False,
+) -> dict[str, Any]:
+    """Tabular MaxEnt or MCE IRL on `demos` of a tabular env into run directory `out`; `resume`
+    continues the interrupted run in `out`.partial from its checkpoint.
+
+    The reward is judged by the true return of the policy that is soft-optimal for it, computed
+    exactly from the known dynamics and normalised between the uniform random policy (0) and
+    the soft-optimal policy for the true reward (1)."""
+    config.validate()
+    seed_everything(config.seed)
+    with closing(make_env(env_id)) as env:
+        mdp = tabular_mdp_of(env, where=f"--method {config.method}")
+        dataset = DemoDataset(demos)
+        check_demos_fit_env(dataset, env)
+        observation_space, action_space = env.observation_space, env.action_space
+    demo_episodes = dataset.read_episodes()
+    check_episodes_finite(demo_episodes, dataset)
+    occupancy_target = demo_visitation(demo_episodes, n_states=mdp.n_states, horizon=mdp.horizon, discount=config.discount)
+    model = make_reward_model(
+        observation_space, action_space, feature_table=mdp.features, hidden_sizes=list(config.hidden_sizes)
+    )
+
+    run_config = RunConfig(
+        kind="reward",
+        env_id=env_id,
+        demos=[str(p) for p in demos],
+        demo_fingerprints=fingerprints(dataset),
+        irl=config_json(config),
+        reward=model.config.to_json(),
+    )
+    with training_run(out, run_config, x_axis="iteration", resume=resume) as run:
+        learner = MaxEntIRL(mdp, occupancy_target, model, config)
+        run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
+        run.save_weights(reward_tensors(model))
+        learned_reward = all_state_rewards(model, mdp.n_states).detach().double().numpy()
+        returns = soft_optimal_returns(mdp, learned_reward, discount=config.discount)
+        plot_curve(
+            run.file("irl_curve.png"),
+            run.history,
+            x="iteration",
+            ys=["loss", "occupancy_error"],
+            title=f"{config.method} IRL on {env_id}",
+        )
+        if mdp.grid_shape is not None:
+            plot_grid_maps(
+                run.file("reward_maps.png"),
+                {"true reward": mdp.reward, "learned reward": learned_reward},
+                grid_shape=mdp.grid_shape,
+                title=env_id,
+            )
+            # Set by every iteration; a run (resumed or not) takes at least one, as checkpoints are never of a finished one.
+            assert learner.occupancy is not None
+            plot_grid_maps(
+                run.file("occupancy_maps.png"),
+                {"demos' visitation": occupancy_target, "learned visitation": learner.occupancy},
+                grid_shape=mdp.grid_shape,
+                title=env_id,
+            )
+        last = run.history[-1]
+        seconds = learner.clock.seconds
+        metrics = {
+            "env_id": env_id,
+            "method": config.method,
+            "demo_episodes": len(dataset),
+            "iterations": len(run.history),
+            "occupancy_error": last["occupancy_error"],
+            "loss": last["loss"],
+            "seconds": seconds,
+            "seconds_per_iteration": seconds / len(run.history),
+            **returns,
+        }
+        run.finish(metrics)
+    return {"run": str(run.path), **metrics}
+
+
+def gcl_job(
+    demos: list[str],
+    env_id: str,
+    config: GCLConfig,
+    ppo_config: PPOConfig,
+    out: str | os.PathLike,
+    *,
+    progress: bool = True,
+    resume: bool = False,
+) -> dict[str, Any]:
+    """Guided cost learning on `demos` into run directory `out`: the reward model (for `train ppo
+    --reward`) and the PPO policy trained alongside it. `resume` continues the interrupted run in
+    `out`.partial from its checkpoint (PPO's, holding the reward learner's state too)."""
+    ppo_config.validate()
+    config.validate()
+    seed_everything(config.seed)
+    with closing(make_env(env_id)) as env:
+        dataset = DemoDataset(demos)
+        check_demos_fit_env(dataset, env)
+        observation_space, action_space = env.observation_space, env.action_space
+    transitions = transitions_to_torch(load_transitions(dataset, next_observations=True))
+    reward = make_reward_model(
+        observation_space,
+        action_space,
+        hidden_sizes=list(config.hidden_sizes),
+        inputs=config.inputs,
+        normalize_observations=isinstance(observation_space, gym.spaces.Box),
+    )
+    run_config = RunConfig(
+        kind="reward",
+        env_id=env_id,
+        demos=[str(p) for p in demos],
+        demo_fingerprints=fingerprints(dataset),
+        irl={"method": "gcl", **config_json(config)},
+        ppo=config_json(ppo_config),
+        reward=reward.config.to_json(),
+    )
+    with training_run(out, run_config, resume=resume) as run:
+        ppo = PPO(ppo_config)
+        try:
+            learner = GuidedCostLearning(ppo, reward, transitions, config)
+            run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
+        finally:
+            ppo.close()
+        run.save_weights(reward_tensors(reward) | policy_tensors(ppo.policy))
+        run.update_config(policy=ppo.policy.config.to_json())
+        plot_curve(
+            run.file("learning_curve.png"),
+            run.history,
+            x="step",
+            ys=["return", "optimised_return"],
+            title=f"GCL on {env_id}: PPO's returns",
+        )
+        plot_curve(
+            run.file("reward_curve.png"),
+            run.history,
+            x="step",
+            ys=["reward_loss", "demo_accuracy", "sample_accuracy"],
+            title=f"GCL on {env_id}: reward learning",
+        )
+        with closing(make_env(env_id)) as env:
+            evaluation = final_evaluation(ppo.policy.cpu(), env)
+        last = run.history[-1]
+        metrics = {
+            "env_id": env_id,
+            "method": "gcl",
+            "demo_episodes": len(dataset),
+            "demo_return": float(np.mean([facts.episode_return for facts in dataset.episodes])),
+            "steps": ppo.global_step,
+            "seconds": ppo.clock.seconds,
+            "reward_loss": last["reward_loss"],
+            "demo_accuracy": last["demo_accuracy"],
+            "sample_accuracy": last["sample_accuracy"],
+            "final_train_return": last["return"],
+            "eval": evaluation,
+        }
+        run.finish(metrics)
+    return {"run": str(run.path), **metrics}

@@ -1,0 +1,137 @@
+"""The one training loop: every learner is a state object plus a step, and this loop runs it.
+
+A learner (`Learner`) knows its equations and nothing of run directories, Ctrl-C or save
+intervals. `run` steps it until it is done and owns everything around the steps:
+
+- resuming: a checkpoint given in `Checkpointing.resume` is loaded into the learner first;
+- saving: every `Checkpointing.interval` steps (a tenth of the run by default) the learner's
+  `state_dict()` is handed to `Checkpointing.save` (the run directory writes it);
+- Ctrl-C (and SIGTERM, which the CLI routes to the same handler) is deferred to the end of the
+  current step, where a checkpoint is saved and `TrainingInterrupted` raised; a second Ctrl-C
+  stops at once;
+- logging and progress: each step's row goes to `log` and to a progress bar.
+
+A checkpoint is a pair (tensors, state): tensors go to a safetensors file, everything else to
+JSON (`imitation.checkpoints` has the helpers learners build theirs with); nothing is pickled.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from tqdm import tqdm
+
+from imitation.checkpoints import CheckpointData, Tensors, snapshot
+
+Row = dict[str, float]
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped training after a checkpoint was saved; the message says where."""
+
+
+class Learner(Protocol):
+    """What `run` needs of an algorithm: its state (`state_dict`/`load_state_dict`) and one step
+    of it (an update, epoch, round or iteration) that returns the row to log."""
+
+    name: str  # for messages: "PPO", "BC", "DAgger", "mce IRL"
+    unit: str  # what one step is: "update", "epoch", "round", "iteration"
+    total: int  # the steps planned
+
+    @property
+    def completed(self) -> int: ...  # the steps taken, counting those before a checkpoint
+
+    @property
+    def done(self) -> bool: ...  # all steps taken, or stopped early (converged, no progress)
+
+    def position(self) -> str: ...  # where it stands, for the message of an interruption
+
+    def progress(self, row: Row) -> dict[str, str]: ...  # the row's figures a progress bar shows
+
+    def step(self) -> Row: ...
+
+    def state_dict(self) -> CheckpointData: ...
+
+    def load_state_dict(self, checkpoint: CheckpointData) -> None: ...
+
+
+@dataclass
+class Checkpointing:
+    """`save(tensors, state)` every `every` steps (None: every tenth of the run) and when
+    interrupted; `resume`, when given, is the checkpoint to continue from."""
+
+    save: Callable[[Tensors, dict[str, Any]], None]
+    every: int | None = None
+    resume: CheckpointData | None = None
+
+    def interval(self, total: int) -> int:
+        return self.every if self.every is not None else max(1, total // 10)
+
+
+class StopAtBoundary:
+    """Within the block, Ctrl-C only sets `requested`; the loop checks it between steps. The
+    first Ctrl-C restores the previous handler, so a second one interrupts immediately. Outside
+    the main thread (where signal handlers cannot be set) it does nothing."""
+
+    def __init__(self, *, enabled: bool = True) -> None:
+        self.requested = False
+        self._enabled = enabled
+        self._previous: Any = None
+        self._active = False
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        self.requested = True
+        signal.signal(signal.SIGINT, self._previous)
+
+    def __enter__(self) -> StopAtBoundary:
+        if self._enabled and threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+            self._active = True
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._active:
+            signal.signal(signal.SIGINT, self._previous)
+
+
+def run(
+    learner: Learner,
+    *,
+    checkpoints: Checkpointing | None = None,
+    log: Callable[[Row], None] | None = None,
+    progress: bool = False,
+) -> list[Row]:
+    """Step `learner` until it is done; the rows logged by this call. With `checkpoints`, resume
+    from `checkpoints.resume`, save every interval, and stop on Ctrl-C with a checkpoint saved
+    (`TrainingInterrupted`); a run that finishes is not interrupted."""
+    if checkpoints is not None and checkpoints.resume is not None:
+        learner.load_state_dict(checkpoints.resume)
+    rows: list[Row] = []
+    bar = tqdm(
+        total=learner.total,
+        initial=learner.completed,
+        desc=learner.name,
+        unit=learner.unit,
+        disable=None if progress else True,
+        dynamic_ncols=True,
+    )
+    with bar, StopAtBoundary(enabled=checkpoints is not None) as stop:
+        while not learner.done:
+            row = learner.step()
+            rows.append(row)
+            if log is not None:
+                log(row)
+            bar.update()
+            bar.set_postfix(learner.progress(row))
+            if learner.done or checkpoints is None:
+                continue
+            interrupted = stop.requested
+            if interrupted or learner.completed % checkpoints.interval(learner.total) == 0:
+                checkpoints.save(*snapshot(*learner.state_dict()))
+            if interrupted:
+                raise TrainingInterrupted(f"{learner.name} stopped after {learner.position()}")
+    return rows

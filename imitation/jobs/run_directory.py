@@ -1,0 +1,81 @@
+"""What every training job does around its learner: open the run directory (or reopen it to
+resume), hand the loop its checkpoints, check demos against the env, evaluate at the end."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+from imitation.data.dataset import DemoDataset
+from imitation.data.spaces import check_spaces_fit
+from imitation.errors import ImitationError
+from imitation.evaluation.policy import evaluate_policy
+from imitation.jobs.loop import Checkpointing, TrainingInterrupted
+from imitation.jobs.presets import EVAL_EPISODES, EVAL_SEED
+from imitation.jobs.run_config import RunConfig
+from imitation.policies import ActorCritic, SingleObservationPolicy
+from imitation.rewards import RewardNet, reward_tensors
+from imitation.runs import RunWriter
+
+# What may differ between an interrupted run and its --resume: where and how fast it runs.
+RESUME_IGNORE = (
+    "creator",
+    "ppo.device",
+    "ppo.threads",
+    "ppo.async_envs",
+    "bc.device",
+    "bc.threads",
+    "dagger.bc.device",
+    "dagger.bc.threads",
+)
+
+
+@contextmanager
+def training_run(
+    out: str | os.PathLike, config: RunConfig, *, x_axis: str = "step", resume: bool = False
+) -> Iterator[RunWriter]:
+    """The run directory `out` being written (or its interrupted run reopened, with `resume`);
+    Ctrl-C's message says where the checkpoint is and how to continue."""
+    with RunWriter(out, config=config.to_json(), x_axis=x_axis, resume=resume, resume_ignore=RESUME_IGNORE) as run:
+        try:
+            yield run
+        except TrainingInterrupted as stopped:
+            raise TrainingInterrupted(
+                f"{stopped}; its checkpoint is in {run.partial}: run the same command with --resume to continue"
+            ) from None
+
+
+def checkpointing(run: RunWriter) -> Checkpointing:
+    """Checkpoints into `run`, from the one it was reopened with."""
+    return Checkpointing(save=run.save_checkpoint, resume=run.resumed)
+
+
+def fingerprints(dataset: DemoDataset | None) -> list[str]:
+    """What the run records of its demo files' content, so that --resume can tell a change."""
+    return [file.fingerprint for file in dataset.files] if dataset is not None else []
+
+
+def check_demos_fit_env(dataset: DemoDataset, env: gym.Env) -> None:
+    first = dataset.files[0].path
+    if dataset.num_transitions == 0:
+        raise ImitationError(f"{first}: the demos hold no transitions (no episode, or only empty ones)")
+    check_spaces_fit("demos'", dataset.observation_space, dataset.action_space, env, where=str(first))
+
+
+def final_evaluation(policy: ActorCritic, env: gym.Env) -> dict[str, Any]:
+    """The deterministic evaluation every run records in metrics.json (returns list left out)."""
+    evaluation = evaluate_policy(SingleObservationPolicy(policy), env, episodes=EVAL_EPISODES, seed=EVAL_SEED)
+    return {key: value for key, value in evaluation.items() if key != "returns"}
+
+
+def save_reward_run(model: RewardNet, path: str | os.PathLike, *, env_id: str, source: str) -> Path:
+    """A reward run directory holding only `model`: what `train ppo --reward` and `eval reward` read."""
+    config = RunConfig(kind="reward", env_id=env_id, source=source, reward=model.config.to_json())
+    with RunWriter(path, config=config.to_json(), tensorboard=False) as run:
+        run.save_weights(reward_tensors(model))
+        return run.finish({"env_id": env_id, "source": source})
