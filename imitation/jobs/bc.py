@@ -79,6 +79,7 @@ def bc_job(
     ):
         learner = BehaviouralCloning(policy, train, validation, config, evaluate=env_return if env is not None else None)
         run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
+        seconds = learner.clock.seconds  # training only, not the evaluation below
         run.save_weights(policy_tensors(learner.policy.cpu()))
         title = f"BC on {env_id or dataset.env_id or 'offline demos'}"
         plot_curve(
@@ -94,7 +95,7 @@ def bc_job(
             "epochs": len(run.history),
             "best_epoch": learner.best_epoch,
             "best_validation_loss": min((row["validation_loss"] for row in run.history), default=None),
-            "seconds": learner.clock.seconds,
+            "seconds": seconds,
             "samples_per_second": run.history[-1]["samples_per_second"],
             "eval": final_evaluation(learner.policy.cpu(), env) if env is not None else None,
         }

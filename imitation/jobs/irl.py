@@ -67,6 +67,7 @@ def tabular_irl_job(
     with training_run(out, run_config, x_axis="iteration", resume=resume) as run:
         learner = MaxEntIRL(mdp, occupancy_target, model, config)
         run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
+        seconds = learner.clock.seconds  # training only, not the evaluation below
         run.save_weights(reward_tensors(model))
         learned_reward = all_state_rewards(model, mdp.n_states).detach().double().numpy()
         returns = soft_optimal_returns(mdp, learned_reward, discount=config.discount)
@@ -93,7 +94,6 @@ def tabular_irl_job(
                 title=env_id,
             )
         last = run.history[-1]
-        seconds = learner.clock.seconds
         metrics = {
             "env_id": env_id,
             "method": config.method,
@@ -151,6 +151,7 @@ def gcl_job(
         try:
             learner = GuidedCostLearning(ppo, reward, transitions, config)
             run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
+            seconds = ppo.clock.seconds  # training only, not the evaluation below
         finally:
             ppo.close()
         run.save_weights(reward_tensors(reward) | policy_tensors(ppo.policy))
@@ -178,7 +179,7 @@ def gcl_job(
             "demo_episodes": len(dataset),
             "demo_return": float(np.mean([facts.episode_return for facts in dataset.episodes])),
             "steps": ppo.global_step,
-            "seconds": ppo.clock.seconds,
+            "seconds": seconds,
             "reward_loss": last["reward_loss"],
             "demo_accuracy": last["demo_accuracy"],
             "sample_accuracy": last["sample_accuracy"],

@@ -53,6 +53,7 @@ def ppo_job(
         learner = PPO(config, reward=reward)
         try:
             run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
+            seconds = learner.clock.seconds  # training only, not the evaluation below
         finally:
             learner.close()
         tensors = policy_tensors(learner.policy)
@@ -66,7 +67,6 @@ def ppo_job(
         )
         with closing(make_env(config.env_id)) as env:
             evaluation = final_evaluation(learner.policy.cpu(), env)
-        seconds = learner.clock.seconds
         metrics = {
             "env_id": config.env_id,
             "objective": config.objective,
