@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import asdict, dataclass, field
-from typing import Any, cast
+from typing import Any, Protocol, cast
 
 import gymnasium as gym
 import numpy as np
@@ -416,10 +416,22 @@ def make_policy(observation_space: gym.Space, action_space: gym.Space, **options
     return ActorCritic(config)
 
 
-class SingleObservationPolicy:
-    """Adapts an ActorCritic to the expert interface: one raw observation → one env action."""
+class Predictor(Protocol):
+    """What acts in an env from a batch of raw observations: an ActorCritic, or an expert read
+    from elsewhere (an SB3 zip's off-policy network)."""
 
-    def __init__(self, policy: ActorCritic, *, deterministic: bool = True) -> None:
+    observation_space: gym.Space
+    action_space: gym.Space
+
+    def predict(self, observations: Any, *, deterministic: bool = True) -> np.ndarray: ...
+
+    def eval(self) -> Any: ...
+
+
+class SingleObservationPolicy:
+    """Adapts a policy to the expert interface: one raw observation → one env action."""
+
+    def __init__(self, policy: Predictor, *, deterministic: bool = True) -> None:
         self.policy = policy.eval()
         self.deterministic = deterministic
 
@@ -462,6 +474,6 @@ def load_policy(path: str | os.PathLike) -> ActorCritic:
     return policy.eval()
 
 
-def check_policy_fits_env(policy: ActorCritic, env: gym.Env, where: str) -> None:
+def check_policy_fits_env(policy: Predictor, env: gym.Env, where: str) -> None:
     """One-line error when a saved policy was trained for other spaces than env's."""
     check_spaces_fit("policy's", policy.observation_space, policy.action_space, env, where=where)

@@ -11,7 +11,7 @@ import gymnasium as gym
 from imitation.envs.make import make_env
 from imitation.envs.tabular import TabularEnv
 from imitation.errors import ImitationError
-from imitation.experts.sb3 import load_sb3_policy
+from imitation.experts.sb3 import load_sb3_expert
 from imitation.experts.scripted import scripted_expert
 from imitation.experts.tabular import SoftOptimalExpert
 from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
@@ -30,17 +30,17 @@ def load_expert(spec: str, env: gym.Env, *, seed: int) -> Policy:
     policy, see `imitation.experts.tabular`); `random`: uniform actions from the
     action space, seeded with `seed` so recordings are reproducible; a run directory: its saved
     policy (PPO, BC, DAgger), acting deterministically; `sb3:PATH`: the policy in a
-    stable-baselines3 PPO/A2C zip, read without unpickling (see `imitation.experts.sb3`), acting
-    deterministically; `keyboard`: a human (see `imitation.experts.keyboard`; the env must come
-    from `make_env_for_expert`)."""
+    stable-baselines3 zip (PPO, A2C, SAC, TD3, TQC, DQN, QR-DQN), read without unpickling
+    (see `imitation.experts.sb3`), acting deterministically; `keyboard`: a human (see
+    `imitation.experts.keyboard`; the env must come from `make_env_for_expert`)."""
     if Path(spec).is_dir():
         policy = load_policy(spec)
         check_policy_fits_env(policy, env, f"--expert {spec}")
         return SingleObservationPolicy(policy)
     if spec.startswith("sb3:"):
-        policy = load_sb3_policy(spec.removeprefix("sb3:"))
-        check_policy_fits_env(policy, env, f"--expert {spec}")
-        return SingleObservationPolicy(policy)
+        expert, algorithm = load_sb3_expert(spec.removeprefix("sb3:"))
+        check_policy_fits_env(expert, env, f"--expert {spec} ({algorithm})")
+        return SingleObservationPolicy(expert)
     if spec == "scripted":
         if isinstance(env.unwrapped, TabularEnv):
             return SoftOptimalExpert(env, seed=seed)

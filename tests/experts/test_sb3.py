@@ -129,8 +129,6 @@ def _bad_zip(tmp_path: Path, case: str) -> Path:
         return _sb3_zip(path, *spaces, sb3_weights(4, 2, pi=[64, 64], vf=[256, 256]))
     if case == "weights do not fit spaces":
         return _sb3_zip(path, *spaces, sb3_weights(4, 3, pi=[64], vf=[64]))
-    if case == "gSDE":
-        return _sb3_zip(path, *spaces, sb3_weights(4, 2, pi=[64], vf=[64]), use_sde=True)
     if case == "policy.pth not a state dict":
         buffer = io.BytesIO()
         torch.save([torch.zeros(1)], buffer)
@@ -146,7 +144,6 @@ def _bad_zip(tmp_path: Path, case: str) -> Path:
         ("CNN weights", "features_extractor.cnn.0.weight"),
         ("actor and critic differ", "differ from critic hidden sizes [256, 256]"),
         ("weights do not fit spaces", "does not fit"),
-        ("gSDE", "gSDE"),
         ("policy.pth not a state dict", "not a state dict"),
     ],
 )
@@ -156,6 +153,19 @@ def test_bad_zips_give_one_line_errors_naming_the_file(tmp_path: Path, case: str
         load_sb3_policy(path)
     message = str(excinfo.value)
     assert "\n" not in message and message.startswith(str(path)) and fragment in message, message
+
+
+def test_a_gsde_policy_acts_by_its_mean(tmp_path: Path) -> None:
+    """gSDE's noise weights (a latent × actions matrix where a plain Gaussian has a vector) are not
+    needed to act as an expert: the action is the mean, action_net(latent), clipped to the bounds."""
+    weights = sb3_weights(3, 1, pi=[16], vf=[16], box=True)
+    weights["log_std"] = torch.randn(16, 1)
+    policy = load_sb3_policy(_sb3_zip(tmp_path / "sde.zip", *PENDULUM_SPACES, weights, use_sde=True))
+    observations = torch.randn(32, 3)
+    latent = torch.tanh(observations @ weights["mlp_extractor.policy_net.0.weight"].T + weights["mlp_extractor.policy_net.0.bias"])
+    mean = latent @ weights["action_net.weight"].T + weights["action_net.bias"]
+    expected = mean.clamp(-2.0, 2.0).numpy()
+    np.testing.assert_allclose(policy.predict(observations.numpy()), expected, rtol=1e-5, atol=1e-6)
 
 
 def test_record_with_sb3_expert(cartpole_zip: Path, tmp_path: Path) -> None:
