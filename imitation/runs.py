@@ -20,7 +20,8 @@ when Ctrl-C (or SIGTERM) stops them. The partial directory of a run interrupted,
 failed write (a full disk), is kept when it holds a checkpoint; any other failure removes it. A new
 run refuses to start over a kept one, and
 `RunWriter(..., resume=True)` reopens it: the logged rows are cut back to the checkpoint and
-the trainer continues from its state.
+the trainer continues from its state. A finished run keeps no checkpoint: nothing resumes it,
+so `finish()` removes it once the run is in place.
 """
 
 from __future__ import annotations
@@ -270,12 +271,27 @@ class RunWriter:
         return self.partial / name
 
     def finish(self, metrics: dict[str, Any]) -> Path:
+        """Write metrics.json and move the run into place; its checkpoint, needed only to resume
+        it, does not stay (see `_drop_checkpoint`)."""
         with writing(self.path):
             write_json(self.partial / METRICS_FILE, metrics)
             self._close_logs()
             replace_directory(self.partial, self.path)
+        self._drop_checkpoint()
         self._release()
         return self.path
+
+    def _drop_checkpoint(self) -> None:
+        """Remove the finished run's checkpoint once the run is in place (until then a crash
+        leaves a resumable partial run; the weights are never touched). It leaves the run in one
+        rename, to the partial name: free by now, under our lock, and cleared by the next run if
+        we die before deleting it. Best effort: a checkpoint left behind is only a duplicate."""
+        with suppress(OSError):
+            if (self.path / CHECKPOINT_DIR).is_dir() and not os.path.lexists(self.partial):
+                os.replace(self.path / CHECKPOINT_DIR, self.partial)
+            shutil.rmtree(self.partial, ignore_errors=True)
+        for name in (CHECKPOINT_DIR, CHECKPOINT_DIR + ".new", CHECKPOINT_DIR + ".old"):
+            shutil.rmtree(self.path / name, ignore_errors=True)
 
     def abort(self, *, keep_checkpoint: bool = False) -> bool:
         """Stop after a failure. The partial run is removed, unless `keep_checkpoint` and it holds

@@ -25,9 +25,10 @@ def test_turtle_bag_to_demos_to_offline_bc(testdata: Path, tmp_path: Path) -> No
     converted = last_json(run_cli("convert", str(testdata / "ros1/plotjuggler_example.bag"), "--from", "ros1",
                                   "--map", str(write_map(tmp_path, TURTLE_MAP)), "--out", str(demos), "--json"))
     assert converted["from"] == "ros1" and converted["episodes"] == 1 and converted["transitions"] == 202
-    assert converted["observation_space"] == "Box(float32, (5,))" and converted["action_space"] == "Box(float32, (2,))"
+    # turtlesim/Pose declares float32 fields, geometry_msgs/Twist float64 ones: each keeps its type.
+    assert converted["observation_space"] == "Box(float32, (5,))" and converted["action_space"] == "Box(float64, (2,))"
     info = last_json(run_cli("info", str(demos), "--json"))
-    assert info["env_id"] == "" and info["dt"] == pytest.approx(0.1) and "/time" in info["channels"]
+    assert info["env_id"] is None and info["dt"] == pytest.approx(0.1) and "/time" in info["channels"]
     run = tmp_path / "bc"
     trained = last_json(run_cli("train", "bc", "--demos", str(demos), "--epochs", "20", "--hidden", "32,32", "--out", str(run), "--json", timeout=300))
     # One recording: the last 20% of its steps are held out, and only the validation loss is reported.
@@ -126,3 +127,62 @@ def test_lerobot_round_trip_from_the_command_line(tmp_path: Path) -> None:
     original, restored = DemoFile(DATASETS / "MountainCar-v0.mcap"), DemoFile(tmp_path / "back.mcap")
     assert back["transitions"] == original.num_transitions and restored.env_id == "MountainCar-v0"
     assert [f.episode_return for f in restored.episodes] == [f.episode_return for f in original.episodes]
+
+
+FIXTURES = Path(__file__).resolve().parent / "fixtures" / "imitation"
+
+
+def test_info_says_how_the_end_flags_were_decided(tmp_path: Path) -> None:
+    """imitation's npz (written by imitation 0.3.2) with and without --env, and a recording: what
+    `convert` warns and what `info` prints and returns."""
+    decided, kept, recorded = tmp_path / "decided.mcap", tmp_path / "kept.mcap", tmp_path / "recorded.mcap"
+    converted = last_json(run_cli("convert", str(FIXTURES / "cartpole.npz"), "--env", "CartPole-v1", "--out", str(decided), "--json"))
+    assert (converted["terminated"], converted["truncated"]) == (5, 5) and converted["end_flags"]["decided"] == "time_limit"
+    info = last_json(run_cli("info", str(decided), "--json"))
+    assert info["end_flags"] == {"decided": "time_limit", "source_flag": "terminal", "env_id": "CartPole-v1", "max_episode_steps": 500,
+                                 "terminated": 5, "truncated": 5}
+    assert (info["terminated"], info["truncated"]) == (5, 5)
+    text = run_cli("info", str(decided)).stdout
+    assert "episodes:      10  (5 terminated, 5 truncated)" in text
+    assert "end flags:     decided from CartPole-v1's 500-step time limit" in text
+
+    result = run_cli("convert", str(FIXTURES / "cartpole.npz"), "--out", str(kept))
+    assert result.returncode == 0 and "10 episode(s) marked terminated may have ended at a time limit" in result.stderr
+    info = last_json(run_cli("info", str(kept), "--json"))
+    assert info["end_flags"]["decided"] == "source" and (info["terminated"], info["truncated"]) == (10, 0)
+    assert "end flags:     the source's `terminal`, kept as it is" in run_cli("info", str(kept)).stdout
+
+    assert run_cli("record", "--env", "CartPole-v1", "--expert", "random", "--episodes", "2", "--quiet", "--out", str(recorded)).returncode == 0
+    assert last_json(run_cli("info", str(recorded), "--json"))["end_flags"] == {"decided": "env"}
+    assert "end flags:     the env's own terminated/truncated signals" in run_cli("info", str(recorded)).stdout
+    # A file written before end flags were recorded still reads, and says it does not know.
+    assert last_json(run_cli("info", str(DATASETS / "CartPole-v1.mcap"), "--json"))["end_flags"] is None
+
+
+def test_a_bare_array_from_the_command_line(tmp_path: Path) -> None:
+    import gymnasium as gym
+    import numpy as np
+
+    env = gym.make("MountainCar-v0")
+    episodes, returns = [], []
+    for seed in range(3):
+        observation, _ = env.reset(seed=seed)
+        rows, done, total = [], False, 0.0
+        while not done:
+            action = 2 if observation[1] > 0 else 0
+            rows.append([*observation, action])
+            observation, reward, terminated, truncated, _ = env.step(action)
+            total, done = total + reward, terminated or truncated
+        episodes.append(np.array([*rows, [*observation, np.nan]]))
+        returns.append(total)
+    array = np.full((3, 201, 3), np.nan)
+    for k, rows in enumerate(episodes):
+        array[k, : len(rows)] = rows
+    np.save(tmp_path / "human.npy", array)
+    (tmp_path / "layout.yaml").write_text("observation: [0, 1]\naction: 2\ndiscrete_action: true\nrows: state\nreward: -1\n")
+    out = tmp_path / "human.mcap"
+    converted = last_json(run_cli("convert", str(tmp_path / "human.npy"), "--layout", str(tmp_path / "layout.yaml"), "--env", "MountainCar-v0",
+                                  "--out", str(out), "--json"))
+    assert converted["from"] == "array" and converted["warnings"] == []
+    assert [f.episode_return for f in DemoFile(out).episodes] == returns
+    assert_one_line_error(run_cli("convert", str(tmp_path / "human.npy"), "--out", str(tmp_path / "x.mcap")), "human.npy", "needs --layout")

@@ -693,7 +693,7 @@ def lerobot_seeds(work: Path) -> list[Files]:
     for index in range(keep):
         name = f"data/chunk-000/episode_{index:06d}.parquet"
         v21["ds/" + name] = (g1 / name).read_bytes()
-    v30 = _read_folder(TESTDATA / "lerobot" / "so101_v30", prefix="ds/")  # videos too: lerobot checks they are there
+    v30 = _read_folder(TESTDATA / "lerobot" / "so101_v30", prefix="ds/")  # videos too: the converter checks they are there
     return [v21, v30]
 
 

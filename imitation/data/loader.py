@@ -242,11 +242,20 @@ def split_episode_tails(transitions: Transitions, *, validation_fraction: float)
 class MinibatchLoader:
     """Minibatches of transitions, reshuffled every epoch from a seeded generator.
 
-    Indexing happens on the tensors' device, so once the data is on a GPU no batch crosses the bus.
+    An epoch is one pass over the data, or as many passes (each in its own order) as it takes to
+    reach `min_samples` samples. Indexing happens on the tensors' device, so once the data is on a
+    GPU no batch crosses the bus.
     """
 
     def __init__(
-        self, data: TransitionTensors, *, batch_size: int, shuffle: bool = True, seed: int = 0, drop_last: bool = False
+        self,
+        data: TransitionTensors,
+        *,
+        batch_size: int,
+        shuffle: bool = True,
+        seed: int = 0,
+        drop_last: bool = False,
+        min_samples: int = 0,
     ) -> None:
         if batch_size < 1:
             raise ImitationError(f"batch size must be positive, got {batch_size}")
@@ -254,6 +263,7 @@ class MinibatchLoader:
         self.batch_size = batch_size
         self.shuffle = shuffle
         self.drop_last = drop_last
+        self.passes = max(1, -(-min_samples // max(1, len(data))))
         self._generator = torch.Generator(device="cpu").manual_seed(seed)
 
     def generator_state(self) -> torch.Tensor:
@@ -264,16 +274,18 @@ class MinibatchLoader:
         self._generator.set_state(state)
 
     def __len__(self) -> int:
-        full, rest = divmod(len(self.data), self.batch_size)
+        full, rest = divmod(self.passes * len(self.data), self.batch_size)
         return full if self.drop_last or rest == 0 else full + 1
 
     def __iter__(self) -> Iterator[TransitionTensors]:
         count = len(self.data)
         if self.shuffle:
-            order = torch.randperm(count, generator=self._generator).to(self.data.device)
+            order = torch.cat([torch.randperm(count, generator=self._generator) for _ in range(self.passes)]).to(
+                self.data.device
+            )
         else:
-            order = torch.arange(count, device=self.data.device)
-        for start in range(0, count, self.batch_size):
+            order = torch.arange(count, device=self.data.device).repeat(self.passes)
+        for start in range(0, len(order), self.batch_size):
             index = order[start : start + self.batch_size]
             if self.drop_last and len(index) < self.batch_size:
                 break

@@ -11,11 +11,11 @@ from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
-from tqdm import tqdm
 
 from imitation.data.mcap.writer import DemoWriter
 from imitation.data.types import Episode, stack_samples
 from imitation.envs.rollout import Policy, play_episode
+from imitation.progress import progress_bar
 
 
 class RecordEpisodes(gym.Wrapper):
@@ -77,12 +77,10 @@ def run_episodes(
 ) -> list[float]:
     """Run `episodes` episodes of `policy`, episode i reset with seed `seed + i`; their returns."""
     returns: list[float] = []
-    # disable=None: a bar on a terminal, none in logs and pipes.
-    bar = tqdm(total=episodes, desc="recording", unit="ep", disable=None if progress else True, dynamic_ncols=True)
-    with bar:
+    with progress_bar(total=episodes, desc="recording", unit="episode", enabled=progress) as bar:
         for i in range(episodes):
             episode_return, _ = play_episode(env, policy, seed=seed + i)
             returns.append(episode_return)
-            bar.set_postfix(ret=f"{episode_return:.1f}", mean=f"{np.mean(returns):.1f}")
+            bar.set_postfix({"ret": f"{episode_return:.1f}", "mean": f"{np.mean(returns):.1f}"})
             bar.update()
     return returns

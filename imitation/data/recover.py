@@ -55,6 +55,7 @@ def recover_partial(
             dt=source.dt,
             source=source.source,
             metadata=source.user_metadata,
+            end_flags=source.end_flags,
             compression=compression,
             finite_only=False,
             temporary=out.with_name(f".{out.name}.recovering"),

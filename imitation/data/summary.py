@@ -1,5 +1,6 @@
-"""What `imitation info` reports about a demo file: counts, return and length statistics, spaces,
-channels, format version, and damage (how many complete episodes were salvaged)."""
+"""What `imitation info` reports about a demo file: counts, how the end flags were decided, return
+and length statistics, spaces, channels, format version, and damage (how many complete episodes
+were salvaged)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from imitation.data.convert.endings import describe_end_flags
 from imitation.data.mcap.reader import DemoFile
 from imitation.data.spaces import describe_space, space_from_json, space_to_json
 
@@ -30,11 +32,12 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "file": str(demo.path),
         "size_bytes": os.path.getsize(demo.path),
         "format_version": demo.format_version,
-        "env_id": demo.env_id,
+        "env_id": demo.env_id or None,  # JSON null, as in run directories, for demos with no env
         "episodes": len(demo),
         "transitions": demo.num_transitions,
         "terminated": sum(facts.terminated for facts in demo.episodes),
         "truncated": sum(facts.truncated for facts in demo.episodes),
+        "end_flags": demo.end_flags,
         "return": _stats(returns),
         "length": _stats(lengths),
         "observation_space": space_to_json(demo.observation_space),
@@ -60,6 +63,7 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"file:          {summary['file']} ({summary['size_bytes'] / 1e6:.2f} MB, format version {summary['format_version']})",
         f"env:           {summary['env_id'] or '- (none: recorded without a simulator)'}  (dt {summary['dt']:g} s)",
         f"episodes:      {summary['episodes']}  ({summary['terminated']} terminated, {summary['truncated']} truncated)",
+        f"end flags:     {describe_end_flags(summary['end_flags'])}",
         f"transitions:   {summary['transitions']}",
         f"return:        {stats_line(summary['return'])}",
         f"length:        {stats_line(summary['length'])}",

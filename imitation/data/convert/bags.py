@@ -4,11 +4,16 @@
   mcap-ros2-support from the `ros2msg` schemas the file carries.
 - ROS 1 `.bag` and rosbag2 sqlite (a directory with `metadata.yaml` and `.db3` files): read
   with the `rosbags` package, types from the definitions in the bag; a sqlite bag that carries
-  none (rosbag2 before Iron) is decoded with the message definitions of `ros_distro`.
+  none (rosbag2 before Iron) is decoded with the message definitions of `ros_distro` (checked
+  before any bag is opened, whatever the bag).
 
 A topic whose schema cannot be parsed (rosbag2's `*/_service_event` topics carry raw `.srv`
 text) or whose messages do not decode is kept in the listing with a `problem` and skipped by
 `messages()`, so the rest of the bag still converts.
+
+`field_type` reads a field's declared primitive type (`float64`, `int32`, ...) from the bag's
+own definitions, parsed by rosbags for every format, so that conversion keeps float64 fields
+float64 (decoded messages hold plain Python floats whatever the field's width).
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from typing import Any, Protocol
 
 import yaml
 
+from imitation.data.convert.fields import declared_type
 from imitation.data.convert.yaml_bounded import load_yaml
 from imitation.errors import ImitationError
 
@@ -90,6 +96,7 @@ class TopicInfo:
     first_ns: int | None = None
     last_ns: int | None = None
     problem: str | None = None  # why its messages cannot be decoded; None if they can
+    latched: bool = False  # ROS 1 `latching=1`, or ROS 2 durability transient_local
 
     @property
     def rate_hz(self) -> float | None:
@@ -108,11 +115,16 @@ class Bag(Protocol):
     def messages(self, topics: Iterable[str]) -> Generator[tuple[str, int, Any], None, None]:
         """(topic, log time ns, decoded message) of these topics, in log-time order."""
 
+    def field_type(self, topic: str, field: str) -> str | None:
+        """The primitive type the topic's definition declares for `field` (an array's element
+        type), e.g. `float64`; None where the definitions do not say."""
+
     def close(self) -> None: ...
 
 
 def open_bag(path: str | Path, kind: str, *, ros_distro: str = "latest") -> Bag:
     """Open a ROS 2 (`kind="ros2"`) or ROS 1 (`kind="ros1"`) bag; one-line errors otherwise."""
+    store = ros_distro_store(ros_distro)  # first, whatever the bag: only some bags use it
     path = Path(path)
     if not path.exists():
         raise ImitationError(f"{path}: no such file or directory")
@@ -120,7 +132,7 @@ def open_bag(path: str | Path, kind: str, *, ros_distro: str = "latest") -> Bag:
         if path.is_dir() or _starts_with(path, ROS1_MAGIC) is False:
             hint = "; a rosbag2 directory is a ROS 2 bag (--from ros2)" if path.is_dir() else ""
             raise ImitationError(f"{path}: not a ROS 1 bag (it does not start with '#ROSBAG V2.0'){hint}")
-        return RosbagsBag(path, "ros1 bag", ros_distro)
+        return RosbagsBag(path, "ros1 bag", store)
     if kind != "ros2":
         raise ImitationError(f"unknown bag kind {kind!r}")
     if path.is_file() and path.suffix == ".db3":
@@ -131,8 +143,23 @@ def open_bag(path: str | Path, kind: str, *, ros_distro: str = "latest") -> Bag:
         return McapBag(path, [path])
     storage, files = _rosbag2_directory(path)
     if storage == "sqlite3":
-        return RosbagsBag(path, "rosbag2 sqlite", ros_distro)
+        return RosbagsBag(path, "rosbag2 sqlite", store)
     return McapBag(path, files)
+
+
+def ros_distro_store(ros_distro: str) -> Any:
+    """rosbags' type store for `--ros-distro` (`latest`, or a ROS 2 distro: `humble`, ...).
+
+    Only rosbag2 sqlite bags recorded before Iron, which carry no message definitions, use it;
+    the name is checked before any bag is opened all the same, so that a misspelt one is refused
+    whatever the bag rather than ignored until a bag needs it."""
+    from rosbags.typesys import Stores
+
+    try:
+        return Stores(ros_distro if ros_distro == "latest" else f"ros2_{ros_distro}")
+    except ValueError:
+        names = ", ".join(s.value.removeprefix("ros2_") for s in Stores if s.value.startswith("ros2_"))
+        raise ImitationError(f"--ros-distro {ros_distro!r}: unknown (one of latest, {names})") from None
 
 
 def _is_file(path: Path) -> bool:
@@ -206,6 +233,8 @@ class McapBag:
         self._factory_type = DecoderFactory
         self._decoders: dict[str, Callable[[bytes], Any]] = {}
         self._topics: dict[str, TopicInfo] | None = None
+        self._schemas: dict[str, tuple[str, bytes]] = {}  # topic: (type name, ros2msg text)
+        self._fielddefs: dict[str, dict[str, Any] | None] = {}  # topic: rosbags' parse of its schema
 
     def topics(self) -> dict[str, TopicInfo]:
         if self._topics is not None:
@@ -217,6 +246,7 @@ class McapBag:
                 for channel in summary.channels.values() if summary else []:
                     schema = summary.schemas.get(channel.schema_id)
                     info = topics.setdefault(channel.topic, TopicInfo(channel.topic, schema.name if schema else "?"))
+                    info.latched = info.latched or _transient_local(channel.metadata.get("offered_qos_profiles"))
                     if info.problem is None and channel.topic not in self._decoders:
                         info.problem = self._prepare_decoder(channel, schema)
                 for schema, channel, message in reader.iter_messages(log_time_order=False):
@@ -244,6 +274,25 @@ class McapBag:
                         ) from None
                     yield channel.topic, message.log_time, decoded
 
+    def field_type(self, topic: str, field: str) -> str | None:
+        self.topics()  # the schemas are read with the listing
+        if topic not in self._fielddefs:
+            self._fielddefs[topic] = None
+            if topic in self._schemas:
+                from rosbags.typesys import get_types_from_msg
+
+                name, text = self._schemas[topic]
+                # A schema rosbags cannot parse leaves the types unknown (kept as float64).
+                with contextlib.suppress(Exception):
+                    self._fielddefs[topic] = dict(get_types_from_msg(text.decode(), name))
+        fielddefs = self._fielddefs[topic]
+        if fielddefs is None:
+            return None
+        name = self._schemas[topic][0]
+        # rosbags names types pkg/msg/Type; a schema may say pkg/Type
+        msgtype = name if name in fielddefs else next((t for t in fielddefs if t.split("/")[-1] == name.split("/")[-1]), name)
+        return declared_type(fielddefs, msgtype, field)
+
     def close(self) -> None:
         pass
 
@@ -266,6 +315,7 @@ class McapBag:
             return f"its schema {schema.name} cannot be parsed ({type(error).__name__}: {str(error).strip() or 'no detail'})"
         assert decoder is not None  # decoder_for returns None only for the encodings refused above
         self._decoders[channel.topic] = decoder
+        self._schemas[channel.topic] = (schema.name, schema.data)
         return None
 
     def _try_decode(self, topic: str, data: bytes) -> str | None:
@@ -282,7 +332,8 @@ class RosbagsBag:
     Types are registered connection by connection, so one unparsable definition costs its own
     topic only (rosbags' AnyReader would refuse the whole bag)."""
 
-    def __init__(self, path: Path, format: str, ros_distro: str) -> None:
+    def __init__(self, path: Path, format: str, store: Any) -> None:
+        """`store`: the rosbags type store (`ros_distro_store`) for connections without definitions."""
         from rosbags.interfaces import MessageDefinitionFormat
         from rosbags.rosbag1 import Reader as Reader1
         from rosbags.rosbag2 import Reader as Reader2
@@ -300,12 +351,7 @@ class RosbagsBag:
         self._problems: dict[str, str] = {}
         connections = list(self._reader.connections)
         if any(c.msgdef.format == MessageDefinitionFormat.NONE for c in connections):
-            store_name = ros_distro if ros_distro == "latest" else f"ros2_{ros_distro}"
-            try:
-                self._typestore.register(get_typestore(Stores(store_name)).fielddefs)
-            except ValueError:
-                names = ", ".join(s.value.removeprefix("ros2_") for s in Stores if s.value.startswith("ros2_"))
-                raise ImitationError(f"--ros-distro {ros_distro!r}: unknown (one of latest, {names})") from None
+            self._typestore.register(get_typestore(store).fielddefs)
         for connection in connections:
             if connection.msgdef.format == MessageDefinitionFormat.NONE:
                 continue
@@ -337,6 +383,7 @@ class RosbagsBag:
             topic = str(connection.topic)  # a damaged metadata.yaml may name a topic with a number or a list
             info = topics.setdefault(topic, TopicInfo(topic, str(connection.msgtype)))
             info.problem = info.problem or self._problems.get(topic)
+            info.latched = info.latched or _latched(connection)
         with _reading(self.path, f"this {self.format}"):
             for connection, time_ns, raw in self._reader.messages():
                 info = topics[str(connection.topic)]
@@ -367,5 +414,35 @@ class RosbagsBag:
                     ) from None
                 yield str(connection.topic), time_ns, decoded
 
+    def field_type(self, topic: str, field: str) -> str | None:
+        if topic in self._problems:
+            return None
+        msgtype = next((str(c.msgtype) for c in self._connections if str(c.topic) == topic), None)
+        return None if msgtype is None else declared_type(self._typestore.fielddefs, msgtype, field)
+
     def close(self) -> None:
         self._reader.close()
+
+
+def _latched(connection: Any) -> bool:
+    """A ROS 1 connection with `latching=1`, or a rosbag2 one offered as transient_local."""
+    ext = getattr(connection, "ext", None)
+    if getattr(ext, "latching", None) == 1:
+        return True
+    profiles = getattr(ext, "offered_qos_profiles", None)
+    if isinstance(profiles, str):
+        return _transient_local(profiles)
+    return any(getattr(getattr(qos, "durability", None), "name", None) == "TRANSIENT_LOCAL" for qos in profiles or [])
+
+
+def _transient_local(profiles: str | None) -> bool:
+    """Whether a rosbag2 `offered_qos_profiles` YAML text offers durability transient_local (1)."""
+    if not profiles:
+        return False
+    try:
+        parsed = load_yaml(profiles.encode())
+    except (yaml.YAMLError, ImitationError, RecursionError, ValueError, UnicodeError):
+        return False
+    return isinstance(parsed, list) and any(
+        isinstance(qos, dict) and qos.get("durability") in (1, "transient_local") for qos in parsed
+    )

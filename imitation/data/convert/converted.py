@@ -18,6 +18,7 @@ import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
+from imitation.data.convert.endings import SourceEnds
 from imitation.data.mcap.writer import DemoWriter
 from imitation.data.spaces import describe_space
 from imitation.data.types import Episode, first_nonfinite
@@ -36,6 +37,11 @@ class Converted:
     dt: float | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    # What the source says about its episodes' ends when it cannot tell time limits from
+    # terminations (endings.py settles the flags); None for sources that can.
+    ends: SourceEnds | None = None
+    max_episode_steps: int | None = None  # the env's time limit, once fitted to an env
+    end_flags: dict[str, Any] | None = None  # how the flags were decided: the demo file's `end_flags`
 
 
 def box_for(rows: np.ndarray) -> gym.spaces.Box:
@@ -85,6 +91,7 @@ def fit_to_env(converted: Converted, env_id: str) -> Converted:
 
     with make_env(env_id) as env:
         observation_space, action_space, dt = env.observation_space, env.action_space, control_period(env)
+        max_episode_steps = env.spec.max_episode_steps if env.spec is not None else None
     if isinstance(converted.observation_space, gym.spaces.Dict) or isinstance(converted.action_space, gym.spaces.Dict):
         raise ImitationError(f"--env {env_id}: demos with Dict spaces cannot be fitted to an env's spaces")
     episodes = []
@@ -105,6 +112,7 @@ def fit_to_env(converted: Converted, env_id: str) -> Converted:
         action_space=action_space,
         env_id=env_id,
         dt=converted.dt or dt,  # a recording's own rate wins over the simulator's step
+        max_episode_steps=max_episode_steps,
     )
 
 
@@ -137,6 +145,7 @@ def write_converted(converted: Converted, out: str | Path, *, progress: bool = T
         dt=converted.dt,
         source=converted.source,
         metadata=converted.metadata,
+        end_flags=converted.end_flags,
         flush_episodes=True,
     )
     with writer:
@@ -146,12 +155,15 @@ def write_converted(converted: Converted, out: str | Path, *, progress: bool = T
     return {
         "out": str(out),
         "source": converted.source,
-        "env_id": converted.env_id,
+        "env_id": converted.env_id or None,  # null for "no env", as in run directories' metrics.json
         "episodes": len(lengths),
         "transitions": int(sum(lengths)),
         "observation_space": describe_space(converted.observation_space),
         "action_space": describe_space(converted.action_space),
         "dt": converted.dt,
+        "terminated": sum(episode.terminated for episode in converted.episodes),
+        "truncated": sum(episode.truncated for episode in converted.episodes),
+        "end_flags": converted.end_flags,
         "warnings": converted.warnings,
     }
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import array
 import dataclasses
 import re
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -22,6 +22,12 @@ FieldPath = tuple["str | int", ...]
 _PART = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)$")
 _INDEX = re.compile(r"\[(\d+)\]")
 _SEQUENCES = (list, tuple, bytes, bytearray, array.array, np.ndarray)
+
+# ROS primitives whose every value a float32 holds exactly; every other numeric primitive
+# (float64, 32- and 64-bit integers) is kept as float64, exact for 64-bit integers up to 2^53.
+_FLOAT32_EXACT = frozenset({"bool", "byte", "char", "int8", "uint8", "int16", "uint16", "float32"})
+# rosbags' node kinds in a type's field definitions (rosbags.interfaces.Nodetype).
+_BASE, _NAME, _ARRAY, _SEQUENCE = 1, 2, 3, 4
 
 
 class FieldError(ValueError):
@@ -97,6 +103,39 @@ def read_field(message: Any, path: FieldPath) -> Any:
     return value
 
 
+def declared_type(fielddefs: Mapping[str, Any], msgtype: str, text: str) -> str | None:
+    """The primitive type (`float64`, `int32`, ...) that the message definitions declare for
+    field `text` of `msgtype` (an array's element type), or None if they do not say.
+    `fielddefs` is rosbags' form: {msgtype: (constants, [(name, (node kind, detail)), ...])}."""
+    try:
+        path = parse_field(text)
+    except FieldError:
+        return None
+    node: Any = (_NAME, msgtype)
+    for step in path:
+        kind, detail = node
+        if isinstance(step, int):
+            if kind not in (_ARRAY, _SEQUENCE):
+                return None
+            node = detail[0]
+            continue
+        definition = fielddefs.get(detail) if kind == _NAME else None
+        members = dict(definition[1]) if definition else {}
+        if step not in members:
+            return None
+        node = members[step]
+    kind, detail = node
+    if kind in (_ARRAY, _SEQUENCE):
+        kind, detail = detail[0]
+    return str(detail[0]) if kind == _BASE else None
+
+
+def value_dtype(primitive: str | None) -> np.dtype:
+    """The float dtype that holds every value of a ROS primitive exactly: float32 for float32
+    and integers of up to 16 bits, float64 for the rest and for fields of unknown type."""
+    return np.dtype(np.float32 if primitive in _FLOAT32_EXACT else np.float64)
+
+
 def resolve_numbers(message: Any, text: str) -> np.ndarray:
     """The numbers field `text` names in `message`; FieldError if it is not numeric."""
     path = parse_field(text)
@@ -116,9 +155,10 @@ def resolve_numbers(message: Any, text: str) -> np.ndarray:
     )
 
 
-def numeric_fields(message: Any, prefix: str = "") -> Iterator[tuple[str, int]]:
+def numeric_fields(message: Any, prefix: str = "", *, every_element: bool = True) -> Iterator[tuple[str, int]]:
     """(field path, number of values) of every numeric leaf of `message`: scalars have 1 value,
-    numeric arrays their length; arrays of messages are listed element by element."""
+    numeric arrays their length; arrays of messages are listed element by element, or by their
+    first element only (`every_element=False`: /tf_static's hundreds of transforms read as one)."""
     for name in message_fields(message) or []:
         value = getattr(message, name)
         path = f"{prefix}{name}"
@@ -126,8 +166,22 @@ def numeric_fields(message: Any, prefix: str = "") -> Iterator[tuple[str, int]]:
         if values is not None:
             yield path, len(values)
         elif message_fields(value) is not None:
-            yield from numeric_fields(value, path + ".")
+            yield from numeric_fields(value, path + ".", every_element=every_element)
         elif isinstance(value, (list, tuple)):
-            for index, item in enumerate(value):
+            for index, item in enumerate(value if every_element else value[:1]):
                 if message_fields(item) is not None:
-                    yield from numeric_fields(item, f"{path}[{index}].")
+                    yield from numeric_fields(item, f"{path}[{index}].", every_element=every_element)
+
+
+def message_arrays(message: Any, prefix: str = "") -> Iterator[tuple[str, int]]:
+    """(field path, length) of every array of messages in `message`, looking inside first elements."""
+    for name in message_fields(message) or []:
+        value = getattr(message, name)
+        path = f"{prefix}{name}"
+        if numbers(value) is not None:
+            continue
+        if message_fields(value) is not None:
+            yield from message_arrays(value, path + ".")
+        elif isinstance(value, (list, tuple)) and value and message_fields(value[0]) is not None:
+            yield path, len(value)
+            yield from message_arrays(value[0], f"{path}[0].")

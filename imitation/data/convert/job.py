@@ -1,4 +1,5 @@
-"""`imitation convert`: recognise the source, run its converter, fit an env, write the demo file."""
+"""`imitation convert`: recognise the source, run its converter, fit an env, settle the end flags,
+write the demo file."""
 
 from __future__ import annotations
 
@@ -7,9 +8,10 @@ from typing import Any
 
 from imitation.data.convert.bags import MCAP_MAGIC, ROS1_MAGIC
 from imitation.data.convert.converted import fit_to_env, write_converted
+from imitation.data.convert.endings import settle_ends
 from imitation.errors import ImitationError
 
-SOURCES = ("ros2", "ros1", "lerobot", "npz")
+SOURCES = ("ros2", "ros1", "lerobot", "npz", "array")
 
 
 def detect_source(path: str | Path) -> str:
@@ -38,6 +40,8 @@ def detect_source(path: str | Path) -> str:
         return "ros1"
     if head.startswith(b"PK") and path.suffix == ".npz":
         return "npz"
+    if head.startswith(b"\x93NUMPY"):
+        return "array"
     raise ImitationError(f"{path}: cannot tell its format (not MCAP, a ROS 1 bag or an npz archive); say it with --from")
 
 
@@ -57,12 +61,21 @@ def convert(
     *,
     source: str | None = None,
     map_path: str | Path | None = None,
+    layout_path: str | Path | None = None,
     env_id: str | None = None,
     ros_distro: str = "latest",
     progress: bool = True,
 ) -> dict[str, Any]:
     """Convert `path` into demo file `out`; returns what `imitation convert --json` prints."""
     kind = _source_kind(path, source)
+    if kind == "npz" and layout_path is not None and source is None:
+        kind = "array"  # an npz member described by a layout
+    if kind == "array" and layout_path is None:
+        raise ImitationError(
+            f"{path}: a bare array needs --layout LAYOUT.yaml saying what its rows and columns hold (docs/CONVERT.md)"
+        )
+    if kind != "array" and layout_path is not None:
+        raise ImitationError(f"--layout is for bare arrays (.npy, or an npz member); {path} is a {kind} source")
     if kind in ("ros2", "ros1"):
         if map_path is None:
             raise ImitationError(
@@ -87,6 +100,11 @@ def convert(
             from imitation.data.convert.lerobot import lerobot_to_episodes
 
             converted = lerobot_to_episodes(path, progress=progress)
+        elif kind == "array":
+            from imitation.data.convert.arrays import array_to_episodes, load_layout
+
+            assert layout_path is not None
+            converted = array_to_episodes(path, load_layout(layout_path))
         else:
             from imitation.data.convert.npz import npz_to_episodes
 
@@ -94,6 +112,8 @@ def convert(
     # An env named by --env or the map supplies the spaces; a LeRobot sidecar's are exact already.
     if env_id:
         converted = fit_to_env(converted, env_id)
+    # Sources that cannot tell a time limit from a termination: decide from the env's limit, or say so.
+    converted = settle_ends(converted)
     return {"from": kind, **write_converted(converted, out, progress=progress)}
 
 

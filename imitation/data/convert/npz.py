@@ -6,12 +6,15 @@ Two layouts are recognised by their keys:
   `episode_returns`, one row per step. It stores no final observation, so an episode of L rows
   becomes T = L - 1 steps: all L observations, the first L - 1 actions and rewards (the last
   action led to an observation nobody recorded). The file's own return is kept in the episode's
-  metadata as `source_return`. The file does not say why episodes ended: neither terminated nor
-  truncated.
+  metadata as `source_return`. The demo stops one step before its episode ended, so every episode
+  is truncated; the file does not say why its episodes ended, which `endings.settle_ends` decides
+  from the env's time limit when there is one (episode metadata `source_end`).
 - HumanCompatibleAI/imitation's flat trajectory format: `obs` (each trajectory's T+1 rows, one
   after the other), `acts`, `indices` (where each trajectory after the first starts in `acts`),
   `terminal` (one flag per trajectory), optional `rews`. Its `infos` is a pickled object array
   and is never read: the arrays are loaded with `allow_pickle=False`, which refuses object arrays.
+  imitation sets `terminal` at every trajectory end its rollouts saw `done`, time limits included,
+  so `endings.settle_ends` decides terminated or truncated from the env's time limit.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from imitation.data.convert.converted import Converted, box_for, cast_rows, infer_action_space
+from imitation.data.convert.endings import SourceEnds
 from imitation.data.types import Episode
 from imitation.errors import ImitationError
 from imitation.limits import check_zip_member
@@ -142,6 +146,7 @@ def _stable_baselines(path: Path, data: dict[str, np.ndarray]) -> Converted:
                 observations=obs[start:end],
                 actions=actions[start : end - 1],
                 rewards=rewards[start : end - 1],
+                truncated=True,  # its final observation is the one its last kept action led to, not where it ended
                 metadata=metadata,
             )
         )
@@ -152,6 +157,7 @@ def _stable_baselines(path: Path, data: dict[str, np.ndarray]) -> Converted:
         source=f"stable-baselines npz {path}",
         metadata={"converter": "npz", "layout": "stable-baselines", "file": str(path)},
         warnings=[f"{path}: the format stores no final observations; each episode's last action and reward were dropped"],
+        ends=SourceEnds(flag="episode_starts", steps=np.diff(bounds).tolist(), done=None, final_observation=False),
     )
 
 
@@ -198,4 +204,5 @@ def _imitation(path: Path, data: dict[str, np.ndarray]) -> Converted:
         source=f"imitation npz {path}",
         metadata={"converter": "npz", "layout": "imitation", "file": str(path)},
         warnings=[] if rewards is not None else [f"{path}: no rews array; rewards are zero"],
+        ends=SourceEnds(flag="terminal", steps=np.diff(act_bounds).tolist(), done=terminal.tolist(), final_observation=True),
     )

@@ -8,6 +8,10 @@ observations, the first T of them the actions, and the reward entry (if any) is 
 times 1…T (the reward that follows each action). So a span of S seconds gives floor(S·rate) + 1
 steps, and a bag with one message per topic still gives one. Episodes are `truncated`: a
 recording stops, it does not reach a terminal state.
+
+Values keep their precision: each field's dtype is the float that holds every value of the type
+its definition declares (float32 for float32 and small integers, float64 for float64 and wider
+integers), and the observation (action) space is float64 as soon as one of its fields is.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from tqdm import tqdm
 
 from imitation.data.convert.bags import Bag, TopicInfo
 from imitation.data.convert.converted import Converted
-from imitation.data.convert.fields import FieldError, parse_field, read_field, resolve_numbers
+from imitation.data.convert.fields import FieldError, parse_field, read_field, resolve_numbers, value_dtype
 from imitation.data.convert.maps import RecordingMap, Stream
 from imitation.data.convert.resample import NS, regular_grid, sample, split_at_gaps, split_at_markers
 from imitation.data.types import Episode
@@ -38,6 +42,7 @@ class _Column:
 
     stream: Stream
     widths: list[int]
+    dtype: np.dtype  # float32 if every field's declared type fits one exactly, else float64
     default: np.ndarray | None
     times: list[int]
     rows: list[np.ndarray]
@@ -85,6 +90,8 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
     warnings: list[str] = []
     n_obs = len(recording_map.observation)
     n_act = len(recording_map.action)
+    observation_dtype = np.result_type(*(c.dtype for c in columns[:n_obs]))
+    action_dtype = np.result_type(*(c.dtype for c in columns[n_obs : n_obs + n_act]))
     # Streams without a default have no value before their first sample: start the grid after it.
     first_values = [int(arrays[id(c)][0][0]) for c in columns if c.default is None]
     for index, (start, end) in enumerate(spans):
@@ -112,8 +119,8 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
             )
             for c in columns
         ]
-        observations = np.concatenate(values[:n_obs], axis=1).astype(np.float32)
-        actions = np.concatenate(values[n_obs : n_obs + n_act], axis=1)[:-1].astype(np.float32)
+        observations = np.concatenate(values[:n_obs], axis=1).astype(observation_dtype)
+        actions = np.concatenate(values[n_obs : n_obs + n_act], axis=1)[:-1].astype(action_dtype)
         rewards = values[-1][1:, 0] if recording_map.reward else np.zeros(len(grid) - 1)
         episodes.append(
             Episode(
@@ -132,8 +139,8 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
     assert isinstance(first.observations, np.ndarray) and isinstance(first.actions, np.ndarray)  # built as arrays above
     return Converted(
         episodes=episodes,
-        observation_space=gym.spaces.Box(-np.inf, np.inf, shape=(first.observations.shape[1],), dtype=np.float32),
-        action_space=gym.spaces.Box(-np.inf, np.inf, shape=(first.actions.shape[1],), dtype=np.float32),
+        observation_space=gym.spaces.Box(-np.inf, np.inf, shape=(first.observations.shape[1],), dtype=observation_dtype),
+        action_space=gym.spaces.Box(-np.inf, np.inf, shape=(first.actions.shape[1],), dtype=action_dtype),
         source=f"{bag.format} {bag.path}",
         env_id=recording_map.env_id or "",
         dt=1.0 / recording_map.rate_hz,
@@ -199,6 +206,7 @@ def _compile(bag: Bag, stream: Stream, recording_map: RecordingMap) -> _Column:
         if width == 0:
             raise ImitationError(f"{prefix}: field {text!r} is an empty array in the first message")
         widths.append(width)
+    dtype = np.result_type(*(value_dtype(bag.field_type(stream.topic, text)) for text in stream.fields))
     if recording_map.time == "header":
         try:
             read_field(first, _STAMP)
@@ -210,7 +218,7 @@ def _compile(bag: Bag, stream: Stream, recording_map: RecordingMap) -> _Column:
         if len(stream.default) not in (1, width):
             raise ImitationError(f"{prefix}: default has {len(stream.default)} values; the fields hold {width}")
         default = np.broadcast_to(np.asarray(stream.default, dtype=np.float64), (width,)).copy()
-    return _Column(stream, widths, default, [], [])
+    return _Column(stream, widths, dtype, default, [], [])
 
 
 def _time_of(message: Any, log_ns: int, recording_map: RecordingMap, topic: str) -> int:

@@ -247,6 +247,8 @@ class DemoFile:
         self.source: str = index.dataset.get("source", "")
         self.creator: str = index.dataset.get("creator", "")
         self.user_metadata: dict[str, Any] = json.loads(index.dataset.get("user_metadata", "{}"))
+        # How the terminated/truncated flags were decided; None in files that do not say (older ones).
+        self.end_flags: dict[str, Any] | None = json.loads(index.dataset.get("end_flags", "null"))
         self.episodes: list[EpisodeFacts] = index.episodes
         self.damage: str | None = index.damage
         self._chunk_starts = [chunk.start_time for chunk in index.chunks]
@@ -411,6 +413,12 @@ class DemoFile:
             json.loads(dataset.get("user_metadata", "{}"))
         except (ValueError, RecursionError) as error:
             raise DemoFileError(f"{self.path}: dataset metadata has bad user_metadata JSON ({error})") from None
+        try:
+            end_flags = json.loads(dataset.get("end_flags", "null"))
+        except (ValueError, RecursionError) as error:
+            end_flags = error
+        if not (end_flags is None or isinstance(end_flags, dict)):
+            raise DemoFileError(f"{self.path}: dataset metadata has bad end_flags (not a JSON object: {str(end_flags)[:100]})")
 
     def _read_summary(self, stream: Any) -> _Index:
         """The fast path: footer → summary (channels, chunk index, metadata index) → 2 records."""

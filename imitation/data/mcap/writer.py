@@ -88,6 +88,10 @@ class DemoWriter:
     also fsyncs it (power cuts too). bench/flush.py: on 10-step episodes a chunk per episode
     costs 1.7× the time and 1.7× the size, the fsync 3× the time again; on 500-step ones, 3 %.
 
+    `end_flags` says how the episodes' terminated/truncated flags were decided (`{"decided": "env"}`
+    for the env's own signals; converters say more, see imitation/data/convert/endings.py); files
+    written without it do not say.
+
     NaN and ±inf in float observations, actions or rewards are refused where they enter, with the
     episode and step named; `finite_only=False` stores them as they are (bit-exact round trips of
     any data), and learners then refuse the file when they load it.
@@ -103,6 +107,7 @@ class DemoWriter:
         dt: float | None = None,
         source: str = "",
         metadata: dict[str, Any] | None = None,
+        end_flags: dict[str, Any] | None = None,
         block_steps: int = DEFAULT_BLOCK_STEPS,
         flush_episodes: bool = False,
         durable: bool = False,
@@ -139,6 +144,8 @@ class DemoWriter:
             "creator": f"imitation-mcap {__version__}",
             "user_metadata": to_json_text(metadata or {}),
         }
+        if end_flags is not None:  # how the episodes' terminated/truncated flags were decided (FORMAT.md §3.1)
+            dataset["end_flags"] = to_json_text(end_flags)
         check_target(self.path)
         self._lock = OutputLock(self.path).acquire() if lock else None
         try:

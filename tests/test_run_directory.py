@@ -1,0 +1,96 @@
+"""A finished run directory keeps no checkpoint (issue 17): only resuming an interrupted run reads
+one, so `RunWriter.finish` removes it, after the run is in place and without ever leaving the
+finished directory without its weights. (Through the command line: tests/test_cli_ppo.py.)"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+import torch
+
+from imitation import runs
+from imitation.errors import WriteError
+from imitation.runs import RunWriter, has_checkpoint, read_checkpoint, read_run
+
+FINISHED = ["config.json", "metrics.json", "model.safetensors", "progress.csv"]
+
+
+def run_with_checkpoints(path: Path, weight: float) -> RunWriter:
+    """A run that logged a row, saved its weights and two checkpoints (the second replaces the first)."""
+    run = RunWriter(path, config={"kind": "test", "weight": weight}, tensorboard=False)
+    run.log({"step": 1.0, "loss": weight})
+    run.save_weights({"w": torch.full((3,), weight)})
+    for epoch in (1, 2):
+        run.save_checkpoint({"w": torch.full((3,), weight)}, {"epoch": epoch})
+    assert has_checkpoint(run.partial) and read_checkpoint(run.partial)[1]["trainer"] == {"epoch": 2}
+    return run
+
+
+def test_finish_removes_the_checkpoint_and_keeps_the_run(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    run_with_checkpoints(out, 1.0).finish({"done": True})
+    assert sorted(p.name for p in out.iterdir()) == FINISHED
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no partial run, no leftover beside it
+    config, weights = read_run(out)
+    assert config["weight"] == 1.0 and torch.equal(weights["w"], torch.ones(3))
+
+    # Replacing a finished run (the exchange path): the new run, again without a checkpoint.
+    run_with_checkpoints(out, 2.0).finish({"done": True})
+    assert sorted(p.name for p in out.iterdir()) == FINISHED
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+    assert torch.equal(read_run(out)[1]["w"], torch.full((3,), 2.0))
+
+
+def test_the_checkpoint_goes_only_once_the_finished_run_is_in_place(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    out = tmp_path / "run"
+    run_with_checkpoints(out, 1.0).finish({})
+    run = run_with_checkpoints(out, 2.0)
+    seen: list[tuple[list[str], bool]] = []
+    replace = os.replace
+
+    def watching(source, target) -> None:  # the moment the checkpoint leaves the run directory
+        if Path(source) == out / runs.CHECKPOINT_DIR:
+            seen.append((sorted(p.name for p in out.iterdir()), torch.equal(read_run(out)[1]["w"], torch.full((3,), 2.0))))
+        replace(source, target)
+
+    monkeypatch.setattr(runs.os, "replace", watching)
+    run.finish({})
+    monkeypatch.undo()
+    assert seen == [(["checkpoint", *FINISHED], True)], "the new run, weights and all, was in place first"
+    assert sorted(p.name for p in out.iterdir()) == FINISHED
+
+
+def test_a_failed_move_into_place_keeps_the_checkpoint_to_resume(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A failure before the run is in place (here the exchange itself) must not cost the checkpoint."""
+    out = tmp_path / "run"
+
+    def failing(new: Path, target: Path) -> None:
+        raise OSError(28, "No space left on device", str(target))
+
+    monkeypatch.setattr(runs, "replace_directory", failing)
+    with pytest.raises(WriteError, match="disk full.*keeps the run.s last checkpoint"):
+        with run_with_checkpoints(out, 1.0) as run:
+            run.finish({})
+    partial = tmp_path / "run.partial"
+    assert not out.exists() and has_checkpoint(partial) and read_checkpoint(partial)[1]["trainer"] == {"epoch": 2}
+
+
+def test_a_checkpoint_that_cannot_be_removed_does_not_fail_the_finished_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    out = tmp_path / "run"
+    run = run_with_checkpoints(out, 1.0)
+    replace = os.replace
+
+    def refusing(source, target) -> None:
+        if Path(source) == out / runs.CHECKPOINT_DIR:
+            raise PermissionError(13, "Permission denied", str(source))
+        replace(source, target)
+
+    monkeypatch.setattr(runs.os, "replace", refusing)
+    monkeypatch.setattr(runs.shutil, "rmtree", lambda path, ignore_errors=False: None)
+    assert run.finish({"done": True}) == out
+    monkeypatch.undo()
+    # Finished and readable; the checkpoint it could not drop is a harmless duplicate.
+    assert sorted(p.name for p in out.iterdir()) == ["checkpoint", *FINISHED]
+    assert read_run(out)[0]["weight"] == 1.0
