@@ -99,8 +99,8 @@ def cmd_convert(args: argparse.Namespace) -> int:
     from imitation.data.convert.job import convert, inspect
 
     if args.inspect or args.write_map:
-        if args.out or args.map or args.env:
-            args.parser.error("--inspect lists a bag's topics; it takes no --out, --map or --env")
+        if args.out or args.map or args.env or args.layout:
+            args.parser.error("--inspect lists a bag's topics; it takes no --out, --map, --layout or --env")
         report = inspect(args.source, source=args.source_kind, write_map=args.write_map, ros_distro=args.ros_distro)
         _print_warnings(report["warnings"])
         if args.json:
@@ -122,6 +122,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
         args.out,
         source=args.source_kind,
         map_path=args.map,
+        layout_path=args.layout,
         env_id=args.env,
         ros_distro=args.ros_distro,
         progress=not args.quiet,
@@ -207,9 +208,11 @@ def cmd_train_bc(args: argparse.Namespace) -> int:
     result = bc_job(
         args.demos, args.env, BCConfig(**_fields(args, "BCConfig")), args.out, progress=not args.quiet, resume=args.resume
     )
+    _print_warnings(result["warnings"])
     if args.json:
         _print_json(result)
-    elif result["offline"]:
+        return 0
+    if result["offline"]:
         print(
             f"trained BC offline (no --env, so no rollouts) on {result['train_transitions']} transitions for "
             f"{result['epochs']} epochs (best {result['best_epoch']}); validation loss {result['best_validation_loss']:.4f} "
@@ -222,7 +225,22 @@ def cmd_train_bc(args: argparse.Namespace) -> int:
             f"{result['best_epoch']}, validation loss {result['best_validation_loss']:.4f}); eval return "
             f"{evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f}; run: {result['run']}"
         )
+    if result["validation"] is not None:
+        print(_yardstick_line(result["validation"], result["baselines"], result["beats_baselines"]))
     return 0
+
+
+def _yardstick_line(scores: dict[str, float], baselines: dict[str, dict[str, float]], beats: dict[str, bool]) -> str:
+    """BC beside the trivial baselines, on the held-out transitions, in one line."""
+
+    def shown(values: dict[str, float]) -> str:
+        return ", ".join(f"{key.replace('_', ' ')} {value:.4g}" for key, value in values.items())
+
+    rows = "; ".join(
+        f"{name.replace('_', '-')} {shown(values)} ({'beaten' if beats[name] else 'NOT beaten'})"
+        for name, values in baselines.items()
+    )
+    return f"held-out: BC {shown(scores)}; baselines: {rows}"
 
 
 def cmd_train_dagger(args: argparse.Namespace) -> int:
@@ -315,8 +333,8 @@ def cmd_eval_policy(args: argparse.Namespace) -> int:
     if "normalized_return" in result:
         reference = result["reference"]
         print(
-            f"normalised return {result['normalized_return']:.3f} (0 = uniform random actions, "
-            f"{reference['random_return']:.2f}; 1 = the demos, {reference['expert_return']:.2f})"
+            f"normalised return {result['normalized_return']:.3f} (0 = {reference['random_return']:.2f}, 1 = "
+            f"{reference['expert_return']:.2f}: {reference['source']})"
         )
     if args.video:
         print(f"video of episode 0 (return {result['video']['return']:.2f}): {args.video}")
@@ -345,6 +363,8 @@ def cmd_eval_reward(args: argparse.Namespace) -> int:
             return "n/a" if value is None else f"{value:.3f}"
 
         print(f"  {name:>9} reward: EPIC {shown(epic)}, Pearson {shown(pearson)}, retrained normalised return {shown(score)}")
+    if result.get("coverage", {}).get("true_reward", "").startswith("constant"):
+        print(f"  note: the true reward is {result['coverage']['true_reward']}")
     print(f"report: {Path(result['out']) / 'report.md'}")
     return 0
 
@@ -558,16 +578,29 @@ def build_parser() -> argparse.ArgumentParser:
         "rosbag2 sqlite directory) need a map (YAML: topics and fields for the observation and action, rate, alignment, "
         "episodes; see docs/CONVERT.md); --inspect lists a bag's topics and numeric fields and --write-map writes a starter "
         "map. LeRobot datasets (v3.0, v2.1) and npz rollouts (stable-baselines GAIL, HumanCompatibleAI/imitation) convert "
-        "without a map. Video and image features are skipped with a warning.",
+        "without a map; a bare (episodes, steps, columns) array needs a layout (--layout). Video and image features are "
+        "skipped with a warning. With --env, end flags that the source cannot tell apart (a time limit or a terminal "
+        "state) are decided from the env's time limit.",
     )
     convert.add_argument(
-        "source", metavar="SRC", help="a .mcap bag or rosbag2 folder, a ROS 1 .bag, a LeRobot dataset root, or an .npz file"
+        "source",
+        metavar="SRC",
+        help="a .mcap bag or rosbag2 folder, a ROS 1 .bag, a LeRobot dataset root, an .npz file, or a .npy array",
     )
     convert.add_argument(
-        "--from", dest="source_kind", metavar="KIND", help="ros2, ros1, lerobot or npz (default: recognised from SRC)"
+        "--from",
+        dest="source_kind",
+        metavar="KIND",
+        help="ros2, ros1, lerobot, npz or array (default: recognised from SRC)",
     )
     convert.add_argument(
         "--map", metavar="MAP.yaml", help="for bags: which topics and fields form the observation and the action"
+    )
+    convert.add_argument(
+        "--layout",
+        metavar="LAYOUT.yaml",
+        help="for bare arrays (.npy, or an npz member) of shape (episodes, steps, columns): which columns are observation "
+        "and action, what rows hold, the padding, the reward (see docs/CONVERT.md)",
     )
     convert.add_argument("--out", metavar="F.mcap", help="output demo file (written atomically)")
     convert.add_argument(

@@ -27,6 +27,7 @@ def test_train_ppo_writes_a_complete_run_directory(ppo_run) -> None:
     assert {"mean_return", "std_return", "episodes"} <= set(result["eval"])
     names = {path.name for path in out.iterdir()}
     assert {"config.json", "model.safetensors", "metrics.json", "progress.csv", "learning_curve.png", "tb"} <= names
+    assert not {name for name in names if name.startswith("checkpoint")}, "only an interrupted run keeps its checkpoint"
     config = json.loads((out / "config.json").read_text())
     assert config["kind"] == "ppo" and config["ppo"]["n_envs"] == 8 and config["policy"]["hidden_sizes"] == [64, 64]
     rows = (out / "progress.csv").read_text().splitlines()

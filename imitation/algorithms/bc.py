@@ -57,6 +57,9 @@ class BCConfig:
     l2_coef: float = 0.0
     validation_fraction: float = 0.2
     patience: int = 50
+    # An epoch goes through at least this many samples (several passes over a small recording,
+    # each in its own order), so that a few hundred transitions get enough gradient steps.
+    epoch_samples: int = 0
     seed: int = 0
     device: str = "auto"
     threads: int = 1
@@ -143,7 +146,9 @@ class BehaviouralCloning:
         self.total = config.epochs
         self.evaluate, self.evaluate_every = evaluate, evaluate_every
         self.optimizer = torch.optim.Adam(policy.parameters(), lr=config.learning_rate)
-        self.loader = MinibatchLoader(self.train, batch_size=config.batch_size, seed=config.seed)
+        self.loader = MinibatchLoader(
+            self.train, batch_size=config.batch_size, seed=config.seed, min_samples=config.epoch_samples
+        )
         self.epochs = 0
         self.best_loss, self.best_epoch, self.best_state = float("inf"), 0, copy.deepcopy(policy.state_dict())
         self.samples = 0
@@ -162,7 +167,8 @@ class BehaviouralCloning:
         return f"epoch {self.epochs} of {self.total}"
 
     def progress(self, row: dict[str, float]) -> dict[str, str]:
-        return {"train": f"{row['train_loss']:.3f}", "val": f"{row['validation_loss']:.3f}", "ret": f"{row['return']:.1f}"}
+        shown = {"train": f"{row['train_loss']:.3f}", "val": f"{row['validation_loss']:.3f}"}
+        return shown | ({"ret": f"{row['return']:.1f}"} if np.isfinite(row["return"]) else {})
 
     def step(self) -> dict[str, float]:
         """One epoch of minibatch steps on the loss; then the validation loss, the best weights,

@@ -9,14 +9,26 @@ import gymnasium as gym
 import numpy as np
 
 
-def plot_curve(path: Path, history: list[dict[str, float]], *, x: str, ys: list[str], title: str) -> None:
-    """A learning-curve PNG of columns `ys` against `x` (non-finite points left out)."""
+def plot_curve(
+    path: Path,
+    history: list[dict[str, float]],
+    *,
+    x: str,
+    ys: list[str],
+    title: str,
+    references: dict[str, float] | None = None,
+) -> None:
+    """A learning-curve PNG of columns `ys` against `x` (non-finite points left out), with
+    `references` (e.g. baselines' values) as dashed horizontal lines."""
     plt = _pyplot()
     figure, axis = plt.subplots(figsize=(7, 4))
     for y in ys:
         points = [(row[x], row[y]) for row in history if y in row and row[y] is not None and np.isfinite(row[y])]
         if points:
             axis.plot(*zip(*points), label=y)
+    for index, (name, value) in enumerate((references or {}).items()):
+        if np.isfinite(value):
+            axis.axhline(value, linestyle="--", linewidth=1, color=f"C{len(ys) + index}", label=name)
     axis.set_xlabel(x)
     axis.set_title(title)
     axis.grid(alpha=0.3)

@@ -9,6 +9,11 @@ import numpy as np
 
 from imitation.envs.rollout import Policy, play_episode
 
+# Evaluation episodes start here, away from training and demo seeds; every run's final evaluation
+# and the random policy's reference return use them.
+EVAL_SEED = 10_000
+EVAL_EPISODES = 10
+
 
 def evaluate_policy(policy: Policy, env: gym.Env, *, episodes: int = 10, seed: int = 0) -> dict[str, Any]:
     """Run `episodes` episodes (episode i reset with seed `seed + i`); return statistics."""
@@ -29,17 +34,32 @@ def evaluate_policy(policy: Policy, env: gym.Env, *, episodes: int = 10, seed: i
     }
 
 
-def normalized_return(policy_stats: dict[str, Any], env: gym.Env, demos: list[str], *, seed: int) -> dict[str, Any]:
-    """The policy's mean return between a uniform random policy (0, same episodes and seeds) and
-    the demos' mean return (1)."""
+def reference_returns(env: gym.Env, demos: list[str]) -> dict[str, Any]:
+    """The two ends of a normalised return, computed one way everywhere: uniform random actions
+    (0) over EVAL_EPISODES episodes seeded EVAL_SEED + i, and the demos' mean return (1)."""
     from imitation.data.dataset import DemoDataset
     from imitation.experts.load import load_expert
 
-    expert_return = float(np.mean([facts.episode_return for facts in DemoDataset(demos).episodes]))
-    random_return = evaluate_policy(load_expert("random", env, seed=seed), env, episodes=policy_stats["episodes"], seed=seed)[
-        "mean_return"
-    ]
+    dataset = DemoDataset(demos)
+    random_policy = load_expert("random", env, seed=EVAL_SEED)
     return {
-        "normalized_return": (policy_stats["mean_return"] - random_return) / (expert_return - random_return),
-        "reference": {"expert_return": expert_return, "random_return": random_return, "demos": demos},
+        "expert_return": float(np.mean([facts.episode_return for facts in dataset.episodes])),
+        "random_return": evaluate_policy(random_policy, env, episodes=EVAL_EPISODES, seed=EVAL_SEED)["mean_return"],
+        "source": f"the demos' mean return ({len(dataset)} episodes); uniform random actions ({EVAL_EPISODES} episodes, "
+        f"seeds {EVAL_SEED}-{EVAL_SEED + EVAL_EPISODES - 1})",
+        "demos": [str(path) for path in demos],
+    }
+
+
+def normalized(value: float, random: float, expert: float) -> float:
+    """(R − R_random)/(R_expert − R_random): 0 for the random policy, 1 for the expert."""
+    return (value - random) / (expert - random)
+
+
+def normalized_return(policy_stats: dict[str, Any], env: gym.Env, demos: list[str]) -> dict[str, Any]:
+    """The policy's mean return between the two ends of `reference_returns`."""
+    reference = reference_returns(env, demos)
+    return {
+        "normalized_return": normalized(policy_stats["mean_return"], reference["random_return"], reference["expert_return"]),
+        "reference": reference,
     }

@@ -38,9 +38,14 @@ from imitation.envs.tabular import TabularMDP
 from imitation.envs.tabular_planning import soft_optimal_returns
 from imitation.evaluation.epic import EpicResult, TransitionBatch, epic_distance_sampled, epic_distance_tabular, torch_reward
 from imitation.evaluation.plots import plot_grid_maps, plot_return_distributions, plot_reward_scatter, plot_state_slices
+from imitation.evaluation.policy import normalized
 from imitation.rewards import RewardNet, all_state_rewards, constant_reward_like, random_reward_like
 
 CONTROLS = ("constant", "random")
+CONSTANT_TRUTH = (
+    "constant on the coverage batch: EPIC and Pearson are undefined (every reward is equally far from it); "
+    "only the retrained returns judge the reward"
+)
 TrueReward = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 
@@ -63,11 +68,7 @@ class Retraining:
     seeds: list[int]
     returns: dict[str, list[float]]
     runs: dict[str, list[str]]
-
-
-def normalized(value: float, random: float, expert: float) -> float:
-    """(R − R_random)/(R_expert − R_random): 0 for the random policy, 1 for the expert."""
-    return (value - random) / (expert - random)
+    estimated_seconds: float | None = None  # what the job expected the retraining to take
 
 
 def with_controls(model: RewardNet, *, seed: int) -> dict[str, RewardNet]:
@@ -152,10 +153,16 @@ def evaluate_sampled_reward(
     against `truth` when the env's true reward is known, and the true returns of the policies
     retrained on each; plots to folder `out`."""
     random_return, expert_return = references["random_return"], references["expert_return"]
+    true_values = truth(*coverage) if truth is not None else None
+    # A true reward that is the same for every transition (MountainCar's -1 per step) ranks nothing:
+    # every reward is equally far from it, so EPIC and Pearson are undefined, and only retraining judges.
+    constant_truth = true_values is not None and bool(
+        np.ptp(true_values) <= 1e-12 * max(1.0, float(np.abs(true_values).max()))
+    )
     lenses: dict[str, dict[str, Any]] = {}
     for name, reward in rewards.items():
         epic: EpicResult | None = None
-        if truth is not None:
+        if truth is not None and not constant_truth:
             epic = epic_distance_sampled(
                 torch_reward(reward),
                 truth,
@@ -178,9 +185,8 @@ def evaluate_sampled_reward(
         }
 
     plots: dict[str, str] = {}
-    if truth is not None:
+    if true_values is not None:
         plots["reward_scatter"] = "reward_scatter.png"
-        true_values = truth(*coverage)
         plot_reward_scatter(
             out / plots["reward_scatter"],
             true_values,
@@ -227,9 +233,12 @@ def evaluate_sampled_reward(
             "uniform_transitions": config.coverage_uniform,
             "mean_samples": config.mean_samples,
             "discount": discount,
-            "true_reward": "known" if truth is not None else "unknown for this env: no EPIC",
+            "true_reward": (
+                "unknown for this env: no EPIC" if truth is None else CONSTANT_TRUTH if constant_truth else "known"
+            ),
         },
         plots=plots,
+        estimated_seconds=retraining.estimated_seconds,
     )
 
 
@@ -245,6 +254,7 @@ def _results(
     seeds: list[Any],
     coverage: dict[str, Any],
     plots: dict[str, str],
+    estimated_seconds: float | None = None,
 ) -> dict[str, Any]:
     learned = lenses["learned"]
     return {
@@ -258,6 +268,7 @@ def _results(
             "seed_returns": learned.get("seed_returns", []),
             "seed_normalized": learned.get("seed_normalized", []),
             "seed_runs": learned.get("seed_runs", []),
+            "estimated_seconds": estimated_seconds,
         },
         "controls": {name: lenses[name] for name in CONTROLS},
         "references": references,
@@ -299,6 +310,8 @@ def reward_report(results: dict[str, Any], *, heading: str = "#", image_prefix: 
         ),
         "",
     ]
+    if results["coverage"].get("true_reward") == CONSTANT_TRUTH:
+        lines += [f"The true reward is {CONSTANT_TRUTH}.", ""]
     if retrain.get("seed_returns"):
         lines += [
             "Recovered reward, per seed: "

@@ -19,10 +19,10 @@ from imitation.data.loader import (
 )
 from imitation.envs.make import make_env
 from imitation.errors import ImitationError
+from imitation.evaluation.baselines import baseline_scores, policy_scores
 from imitation.evaluation.plots import plot_curve
-from imitation.evaluation.policy import evaluate_policy
+from imitation.evaluation.policy import EVAL_SEED, evaluate_policy
 from imitation.jobs.loop import run as run_learner
-from imitation.jobs.presets import EVAL_SEED
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
 from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy, policy_tensors
@@ -81,9 +81,15 @@ def bc_job(
         run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
         seconds = learner.clock.seconds  # training only, not the evaluation below
         run.save_weights(policy_tensors(learner.policy.cpu()))
+        yardstick = _yardstick(learner, train, validation, config, spaces.action_space)
         title = f"BC on {env_id or dataset.env_id or 'offline demos'}"
         plot_curve(
-            run.file("loss_curve.png"), run.history, x="epoch", ys=["train_loss", "validation_loss"], title=f"{title}: loss"
+            run.file("loss_curve.png"),
+            run.history,
+            x="epoch",
+            ys=["train_loss", "validation_loss"],
+            title=f"{title}: loss",
+            references={f"{name} baseline": value for name, value in yardstick["references"].items()},
         )
         if env is not None:
             plot_curve(run.file("return_curve.png"), run.history, x="epoch", ys=["return"], title=f"{title}: return")
@@ -97,10 +103,57 @@ def bc_job(
             "best_validation_loss": min((row["validation_loss"] for row in run.history), default=None),
             "seconds": seconds,
             "samples_per_second": run.history[-1]["samples_per_second"],
+            "stopped": yardstick["stopped"],
+            "validation": yardstick["validation"],
+            "baselines": yardstick["baselines"],
+            "beats_baselines": yardstick["beats"],
+            "warnings": yardstick["warnings"],
             "eval": final_evaluation(learner.policy.cpu(), env) if env is not None else None,
         }
         run.finish(metrics)
     return {"run": str(run.path), **metrics}
+
+
+def _yardstick(
+    learner: BehaviouralCloning,
+    train: TransitionTensors,
+    validation: TransitionTensors | None,
+    config: BCConfig,
+    action_space: Any,
+) -> dict[str, Any]:
+    """How the run ended, and the policy beside the trivial baselines on the held-out transitions
+    (`imitation.evaluation.baselines`): scores, which baselines it beats (lower NLL and lower squared
+    error or error rate), the baselines' values of the plotted loss, and what a user must be told."""
+    warnings = []
+    if learner.stopped:
+        stopped = f"no better validation loss for {config.patience} epochs (best at epoch {learner.best_epoch})"
+    else:
+        stopped = f"epoch limit ({config.epochs})"
+        if learner.best_epoch > config.epochs - max(1, config.epochs // 20):
+            warnings.append(
+                f"BC stopped at its epoch limit ({config.epochs}) while the validation loss was still improving "
+                f"(best at epoch {learner.best_epoch}): more epochs would likely fit better"
+            )
+    if validation is None or not len(validation):
+        return {"stopped": stopped, "validation": None, "baselines": {}, "beats": {}, "references": {}, "warnings": warnings}
+    scores = policy_scores(learner.policy.cpu(), validation.to("cpu"))
+    baselines = baseline_scores(train, validation, action_space)
+    beats = {name: all(scores[key] < value for key, value in baseline.items()) for name, baseline in baselines.items()}
+    loss = "mse" if config.loss == "mse" else "nll"
+    references = {name: baseline[loss] for name, baseline in baselines.items() if loss in baseline}
+    if beaten := [name for name, won in beats.items() if not won]:
+        warnings.append(
+            f"BC does not beat the {', '.join(beaten)} baseline{'s' if len(beaten) > 1 else ''} on the held-out transitions "
+            f"(NLL {scores['nll']:.4g} against {', '.join(f'{baselines[name]["nll"]:.4g}' for name in beaten)})"
+        )
+    return {
+        "stopped": stopped,
+        "validation": scores,
+        "baselines": baselines,
+        "beats": beats,
+        "references": references,
+        "warnings": warnings,
+    }
 
 
 def _split(

@@ -10,10 +10,9 @@ from imitation.algorithms.bc import policy_options
 from imitation.algorithms.dagger import DAgger, DAggerConfig
 from imitation.data.dataset import DemoDataset
 from imitation.evaluation.plots import plot_curve
-from imitation.evaluation.policy import evaluate_policy
+from imitation.evaluation.policy import EVAL_SEED, evaluate_policy
 from imitation.experts.load import load_expert, make_env_for_expert
 from imitation.jobs.loop import run as run_learner
-from imitation.jobs.presets import EVAL_SEED
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
 from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy, policy_tensors

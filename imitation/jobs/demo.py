@@ -29,6 +29,7 @@ from imitation.bundled import bundled_datasets
 from imitation.data.summary import summarize
 from imitation.envs.make import make_env
 from imitation.errors import ImitationError
+from imitation.evaluation.policy import EVAL_EPISODES, EVAL_SEED
 from imitation.evaluation.report import write_report
 from imitation.evaluation.reward import reward_report
 from imitation.evaluation.video import record_video
@@ -37,7 +38,7 @@ from imitation.jobs.dagger import dagger_job
 from imitation.jobs.evaluate_policy import eval_policy_job
 from imitation.jobs.evaluate_reward import RewardEvaluationConfig, evaluate_reward
 from imitation.jobs.irl import gcl_job, tabular_irl_job
-from imitation.jobs.presets import EVAL_EPISODES, EVAL_SEED, ppo_settings, preset
+from imitation.jobs.presets import ppo_settings, preset
 from imitation.jobs.run_config import RunConfig
 from imitation.policies import SingleObservationPolicy, load_policy
 from imitation.runs import read_run

@@ -28,7 +28,8 @@ def eval_policy_job(
     """Evaluate run directory `run`'s policy on `episodes` episodes of `env_id` (episode i reset
     with seed `seed + i`), deterministically unless `stochastic`. The return is also normalised
     between a random policy (0) and `demos` (default: those the run learnt from) when there are
-    any; `video` writes episode 0 as .mp4 or .gif."""
+    any, the references `eval reward` uses too (`reference_returns`); `video` writes episode 0 as
+    .mp4 or .gif."""
     policy = load_policy(run)
     config, _ = read_run(run)
     actor = SingleObservationPolicy(policy, deterministic=not stochastic)
@@ -37,7 +38,7 @@ def eval_policy_job(
         result = evaluate_policy(actor, env, episodes=episodes, seed=seed)
         demos = demos if demos is not None else RunConfig.from_json(config).existing_demos()
         if demos:
-            result |= normalized_return(result, env, demos, seed=seed)
+            result |= normalized_return(result, env, demos)
     if video is not None:
         result["video"] = {"path": str(video), **record_video(env_id, actor, video, seed=seed)}
     return {"run": str(run), "env_id": env_id, "deterministic": not stochastic, **result}

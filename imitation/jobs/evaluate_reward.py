@@ -4,7 +4,10 @@ plots, report.md and the retrained runs) to one output directory."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
+import sys
+import time
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import closing
 from dataclasses import dataclass
@@ -15,9 +18,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch
-from tqdm import tqdm
 
-from imitation.algorithms.ppo import PPOConfig
+from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import load_transitions
 from imitation.data.spaces import check_spaces_fit
@@ -27,7 +29,7 @@ from imitation.envs.tabular import TabularEnv
 from imitation.envs.true_rewards import true_reward
 from imitation.errors import ConfigError, ImitationError
 from imitation.evaluation.epic import TransitionBatch, coverage_samples
-from imitation.evaluation.policy import evaluate_policy
+from imitation.evaluation.policy import EVAL_SEED, reference_returns
 from imitation.evaluation.report import write_report
 from imitation.evaluation.reward import (
     Retraining,
@@ -39,13 +41,13 @@ from imitation.evaluation.reward import (
 )
 from imitation.experts.load import load_expert
 from imitation.jobs.ppo import ppo_job
-from imitation.jobs.presets import EVAL_SEED, ppo_settings, preset
+from imitation.jobs.presets import ppo_settings, preset
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.policies import SingleObservationPolicy, load_policy
+from imitation.progress import progress_bar
 from imitation.rewards import RewardNet, load_reward
 from imitation.runs import RunWriter, read_run
 
-REFERENCE_EPISODES = 10
 ROLLOUT_EPISODES = 4  # per policy, for the coverage batch
 
 
@@ -113,14 +115,8 @@ def _evaluate_continuous(
     dataset = DemoDataset(demo_paths)
     check_spaces_fit("demos'", dataset.observation_space, dataset.action_space, env, where=str(demo_paths[0]))
     demos = load_transitions(dataset, next_observations=True)
-    expert_return = float(np.mean([facts.episode_return for facts in dataset.episodes]))
-    random_policy = load_expert("random", env, seed=config.seed)
-    random_return = evaluate_policy(random_policy, env, episodes=REFERENCE_EPISODES, seed=EVAL_SEED)["mean_return"]
-    references = {
-        "expert_return": expert_return,
-        "random_return": random_return,
-        "source": f"demos' mean return ({len(dataset)} episodes); uniform random actions ({REFERENCE_EPISODES} episodes)",
-    }
+    references = reference_returns(env, demo_paths)
+    random_policy = load_expert("random", env, seed=config.seed)  # for the coverage batch's rollouts
 
     rewards = with_controls(model, seed=config.seed)
     settings = ppo_settings(env_id, env.action_space, learned_reward=True)
@@ -180,8 +176,17 @@ def _retrain(
         for seed in seeds:
             ppo_config = PPOConfig(env_id=env_id, total_steps=steps, seed=seed, device="cpu", **settings)
             jobs.append((name, ppo_config, out / "retrain" / f"{name}-seed{seed}", source))
-    bar = tqdm(total=len(jobs), desc="retrain", unit="run", disable=None if progress else True, dynamic_ncols=True)
-    with bar, ProcessPoolExecutor(max_workers=min(config.jobs, len(jobs)), mp_context=get_context("spawn")) as pool:
+    workers = min(config.jobs, len(jobs))
+    retraining.estimated_seconds = _estimate_seconds(jobs[0][1], rewards["learned"], len(jobs), workers)
+    if progress:
+        print(
+            f"[eval reward] retraining PPO from scratch: {len(rewards)} rewards × {len(seeds)} seed(s) × {steps:,} steps, "
+            f"{workers} at a time; about {retraining.estimated_seconds / 60:.0f} min at the speed measured here",
+            file=sys.stderr,
+            flush=True,
+        )
+    bar = progress_bar(total=len(jobs), desc="retrain", unit="run", enabled=progress)
+    with bar, ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
         futures = [
             (name, pool.submit(_train_ppo_quietly, ppo_config, path, source)) for name, ppo_config, path, source in jobs
         ]
@@ -191,6 +196,22 @@ def _retrain(
             retraining.runs[name].append(str(Path(result["run"]).relative_to(out)))
             bar.update()
     return retraining
+
+
+def _estimate_seconds(config: PPOConfig, reward: RewardNet, runs: int, workers: int) -> float:
+    """How long `runs` retrainings take, `workers` at a time: two PPO updates on the reward, timed
+    here (the first, which starts the environments and warms up, is left out), scaled up. Side by
+    side runs share the machine's cores, so more workers than cores do not go faster."""
+    probe = PPO(dataclasses.replace(config, total_steps=2 * config.n_envs * config.n_steps), reward=reward)
+    try:
+        probe.step()
+        started = time.perf_counter()
+        probe.step()
+        per_step = (time.perf_counter() - started) / (config.n_envs * config.n_steps)
+    finally:
+        probe.close()
+    parallel = max(1, min(workers, os.cpu_count() or 1))
+    return per_step * config.total_steps * runs / parallel
 
 
 def _train_ppo_quietly(config: PPOConfig, out: Path, source: dict[str, Any]) -> dict[str, Any]:

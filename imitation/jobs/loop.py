@@ -9,7 +9,8 @@ intervals. `run` steps it until it is done and owns everything around the steps:
 - Ctrl-C (and SIGTERM, which the CLI routes to the same handler) is deferred to the end of the
   current step, where a checkpoint is saved and `TrainingInterrupted` raised; a second Ctrl-C
   stops at once;
-- logging and progress: each step's row goes to `log` and to a progress bar.
+- logging and progress: each step's row goes to `log` and to a progress bar on a terminal, or
+  to a line every 30 seconds when stderr is a log (`progress_bar`).
 
 A checkpoint is a pair (tensors, state): tensors go to a safetensors file, everything else to
 JSON (`imitation.checkpoints` has the helpers learners build theirs with); nothing is pickled.
@@ -23,9 +24,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from tqdm import tqdm
-
 from imitation.checkpoints import CheckpointData, Tensors, snapshot
+from imitation.progress import progress_bar
 
 Row = dict[str, float]
 
@@ -111,22 +111,15 @@ def run(
     if checkpoints is not None and checkpoints.resume is not None:
         learner.load_state_dict(checkpoints.resume)
     rows: list[Row] = []
-    bar = tqdm(
-        total=learner.total,
-        initial=learner.completed,
-        desc=learner.name,
-        unit=learner.unit,
-        disable=None if progress else True,
-        dynamic_ncols=True,
-    )
+    bar = progress_bar(total=learner.total, initial=learner.completed, desc=learner.name, unit=learner.unit, enabled=progress)
     with bar, StopAtBoundary(enabled=checkpoints is not None) as stop:
         while not learner.done:
             row = learner.step()
             rows.append(row)
             if log is not None:
                 log(row)
+            bar.set_postfix(learner.progress(row), refresh=False)
             bar.update()
-            bar.set_postfix(learner.progress(row))
             if learner.done or checkpoints is None:
                 continue
             interrupted = stop.requested

@@ -16,9 +16,6 @@ import gymnasium as gym
 from imitation.algorithms.ppo import PPOConfig
 from imitation.envs.make import make_env
 
-EVAL_SEED = 10_000  # evaluation episodes start here, away from training and demo seeds
-EVAL_EPISODES = 10
-
 
 @dataclass(frozen=True)
 class EnvPreset:

@@ -42,6 +42,7 @@ def record_job(
             dt=control_period(env),
             source=f"imitation record --expert {expert_spec}",
             metadata={"expert": expert_spec, "seed": seed},
+            end_flags={"decided": "env"},  # RecordEpisodes keeps the env's own terminated/truncated
             durable=True,
             compression=compression,
         )

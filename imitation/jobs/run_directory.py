@@ -14,9 +14,8 @@ import gymnasium as gym
 from imitation.data.dataset import DemoDataset
 from imitation.data.spaces import check_spaces_fit
 from imitation.errors import ImitationError
-from imitation.evaluation.policy import evaluate_policy
+from imitation.evaluation.policy import EVAL_EPISODES, EVAL_SEED, evaluate_policy
 from imitation.jobs.loop import Checkpointing, TrainingInterrupted
-from imitation.jobs.presets import EVAL_EPISODES, EVAL_SEED
 from imitation.jobs.run_config import RunConfig
 from imitation.policies import ActorCritic, SingleObservationPolicy
 from imitation.rewards import RewardNet, reward_tensors

@@ -95,3 +95,52 @@ def test_bad_input_is_one_line(tmp_path) -> None:
     wrong_env = run_cli("eval", "reward", str(run), "--env", "CartPole-v1")
     assert wrong_env.returncode == 1 and wrong_env.stderr.count("\n") == 1 and "observation space" in wrong_env.stderr, wrong_env.stderr
     assert not (run / "eval-reward").exists() and not (run / "eval-reward.partial").exists()
+
+
+def test_a_constant_true_reward_gets_no_epic_and_says_why(tmp_path) -> None:
+    """MountainCar pays -1 every step: no reward can be nearer to or further from that than
+    another, so EPIC and Pearson are undefined and `eval reward` says so instead of scoring."""
+    env = make_env("MountainCar-v0")
+    run = save_reward_run(make_reward_model(env.observation_space, env.action_space), tmp_path / "reward", env_id="MountainCar-v0", source="test")
+    result = run_cli(
+        "eval", "reward", str(run), "--env", "MountainCar-v0", "--demos", str(DATASETS / "MountainCar-v0.mcap"), "--retrain-steps", "0",
+        "--out", str(tmp_path / "eval"), "--quiet",
+    )
+    assert result.returncode == 0, result.stderr
+    assert "EPIC n/a, Pearson n/a" in result.stdout and "note: the true reward is constant on the coverage batch" in result.stdout
+    metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+    assert metrics["epic"] is None and metrics["coverage"]["true_reward"].startswith("constant")
+    assert all(control["epic"] is None for control in metrics["controls"].values())
+    assert "The true reward is constant" in (tmp_path / "eval" / "report.md").read_text()
+
+
+def test_eval_reward_says_how_long_it_will_take_and_reports_progress_to_a_log(tmp_path) -> None:
+    """stderr is a pipe here, as in a batch job: an estimate first, then progress lines."""
+    run = true_cartpole_reward(tmp_path / "true-reward")
+    result = run_cli(
+        "eval", "reward", str(run), "--env", CARTPOLE, "--demos", str(DATASETS / "CartPoleFixedHorizon-v0.mcap"), "--retrain-steps", "512",
+        "--seeds", "1", "--out", str(tmp_path / "eval"), "--json", timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "[eval reward] retraining PPO from scratch: 3 rewards × 1 seed(s) × 512 steps, 2 at a time; about" in result.stderr
+    assert "[retrain] run 3/3" in result.stderr
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["retrain"]["estimated_seconds"] > 0
+
+
+def test_eval_policy_and_eval_reward_normalise_with_one_reference(tmp_path) -> None:
+    """The random-policy reference is computed one way, and both outputs name it."""
+    run = true_cartpole_reward(tmp_path / "true-reward")
+    demos = str(DATASETS / "CartPoleFixedHorizon-v0.mcap")
+    reward = run_cli("eval", "reward", str(run), "--env", CARTPOLE, "--demos", demos, "--retrain-steps", "512", "--seeds", "1",
+                     "--out", str(tmp_path / "eval"), "--json", "--quiet", timeout=300)
+    assert reward.returncode == 0, reward.stderr
+    reward_reference = json.loads(reward.stdout.strip().splitlines()[-1])["references"]
+    retrained = tmp_path / "eval" / "retrain" / "learned-seed0"
+    policy = run_cli("eval", "policy", str(retrained), "--env", CARTPOLE, "--episodes", "3", "--seed", "7", "--demos", demos)
+    assert policy.returncode == 0, policy.stderr
+    policy_json = run_cli("eval", "policy", str(retrained), "--env", CARTPOLE, "--episodes", "3", "--seed", "7", "--demos", demos, "--json")
+    policy_reference = json.loads(policy_json.stdout.strip().splitlines()[-1])["reference"]
+    assert policy_reference["random_return"] == reward_reference["random_return"]
+    assert policy_reference["source"] == reward_reference["source"]
+    assert "uniform random actions (10 episodes, seeds 10000-10009)" in policy.stdout

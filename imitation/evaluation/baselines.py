@@ -1,0 +1,102 @@
+"""Trivial baselines beside a behavioural-cloning result, scored on the same held-out transitions:
+what a cloned policy must beat before its loss means anything.
+
+- constant: one action distribution for every state, fitted to the training actions (a
+  Gaussian with their per-dimension mean and std; for discrete actions their class frequencies);
+- hold: the episode's previous action, for actions that are a command stream held between
+  changes (a teleoperator's key, a velocity command); the Gaussian around it has the training
+  set's residual std per dimension; the first step of an episode falls back to `constant`;
+- copy_state: the current observation as the action, where the two have one shape and so may
+  share units (joint targets beside joint positions), with the training residuals' std.
+
+Each is scored as the policy is: the mean negative log-likelihood of the held-out actions and the
+mean squared error of its point prediction (summed over action dimensions); for discrete actions
+the error rate instead of the squared error. Hold and copy-state score Box actions only.
+"""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from imitation.data.loader import TransitionTensors
+from imitation.policies import ActorCritic
+
+Scores = dict[str, float]
+# A floor on fitted standard deviations: a dimension that never moves in the training data would
+# otherwise make any held-out change infinitely unlikely.
+MIN_STD = 1e-3
+
+
+def _gaussian_nll(residuals: np.ndarray, std: np.ndarray) -> float:
+    return float((0.5 * (residuals / std) ** 2 + np.log(std) + 0.5 * math.log(2 * math.pi)).sum(-1).mean())
+
+
+def _box_scores(predictions: np.ndarray, actions: np.ndarray, std: np.ndarray) -> Scores:
+    residuals = actions - predictions
+    return {"nll": _gaussian_nll(residuals, std), "mse": float((residuals**2).sum(-1).mean())}
+
+
+def _rows(tensor: torch.Tensor) -> np.ndarray:
+    return tensor.cpu().numpy().reshape(len(tensor), -1).astype(np.float64)
+
+
+def _previous_actions(actions: np.ndarray, episodes: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """a_{t-1} of the same episode for every row (rows in episode and time order); `first` where there is none."""
+    previous = np.empty_like(actions)
+    previous[1:] = actions[:-1]
+    starts = np.ones(len(actions), dtype=bool)
+    starts[1:] = episodes[1:] != episodes[:-1]
+    previous[starts] = first
+    return previous
+
+
+def baseline_scores(train: TransitionTensors, validation: TransitionTensors, action_space: gym.Space) -> dict[str, Scores]:
+    """The baselines that apply to this data, each scored on `validation` (see the module docstring)."""
+    # Arrays, not dicts: behavioural cloning refuses Dict spaces before it gets here.
+    assert isinstance(train.actions, torch.Tensor) and isinstance(validation.actions, torch.Tensor)
+    if isinstance(action_space, gym.spaces.Discrete):
+        counts = np.bincount(train.actions.cpu().numpy().reshape(-1) - int(action_space.start), minlength=int(action_space.n))
+        frequencies = (counts + 1) / (counts.sum() + len(counts))  # add-one: a class unseen in training is not impossible
+        held = validation.actions.cpu().numpy().reshape(-1) - int(action_space.start)
+        return {
+            "constant": {
+                "nll": float(-np.log(frequencies[held]).mean()),
+                "error_rate": float((held != frequencies.argmax()).mean()),
+            }
+        }
+    if not isinstance(action_space, gym.spaces.Box):
+        return {}
+    train_actions, held = _rows(train.actions), _rows(validation.actions)
+    mean, std = train_actions.mean(0), np.maximum(train_actions.std(0), MIN_STD)
+    scores = {"constant": _box_scores(np.broadcast_to(mean, held.shape), held, std)}
+    train_episodes, held_episodes = train.episode_index.cpu().numpy(), validation.episode_index.cpu().numpy()
+    train_previous = _previous_actions(train_actions, train_episodes, mean)
+    hold_std = np.maximum((train_actions - train_previous).std(0), MIN_STD)
+    scores["hold"] = _box_scores(_previous_actions(held, held_episodes, mean), held, hold_std)
+    if isinstance(train.observations, torch.Tensor) and isinstance(validation.observations, torch.Tensor):
+        train_states, held_states = _rows(train.observations), _rows(validation.observations)
+        if train_states.shape[1] == train_actions.shape[1]:
+            copy_std = np.maximum((train_actions - train_states).std(0), MIN_STD)
+            scores["copy_state"] = _box_scores(held_states, held, copy_std)
+    return scores
+
+
+def policy_scores(policy: ActorCritic, validation: TransitionTensors) -> Scores:
+    """The policy on `validation`, scored as the baselines are: its NLL of the held-out actions, and
+    the squared error of its mean (Box) or the error rate of its most likely action (Discrete)."""
+    observations, actions = validation.observations, validation.actions
+    assert isinstance(observations, torch.Tensor) and isinstance(actions, torch.Tensor)  # BC refuses Dict spaces
+    with torch.no_grad():
+        features = policy.encode(observations)
+        distribution = policy.distribution(features)
+        nll = float(-policy.log_prob(distribution, policy.from_env_action(actions)).mean())
+        if policy.is_continuous:
+            held = actions.reshape(len(validation), -1).float()
+            return {"nll": nll, "mse": float(((distribution.mean - held) ** 2).sum(-1).mean())}
+        chosen, _, _ = policy.act(features, deterministic=True)
+        wrong = (chosen.reshape(len(validation), -1) != policy.from_env_action(actions).reshape(len(validation), -1)).any(-1)
+        return {"nll": nll, "error_rate": float(wrong.float().mean())}
