@@ -7,6 +7,7 @@ why the command line cannot."""
 
 from __future__ import annotations
 
+import base64
 import dataclasses
 import io
 import json
@@ -400,6 +401,36 @@ def _npz_case(builder: str, name: str, *extra, **changes) -> Callable[[Inputs], 
     return lambda i: _convert(getattr(i, builder)(name, **changes), *extra)
 
 
+# A bare (episodes, steps, [position, velocity, action]) array as MountainCar demos are shipped:
+# rows hold s_t and a_t, the row after the last action the final state, NaN padding after it.
+ARRAY = np.array([[[-0.5, 0.0, 2], [-0.49, 0.01, 2], [-0.48, 0.01, np.nan], [np.nan] * 3],
+                  [[-0.5, 0.0, 0], [-0.51, -0.01, 0], [-0.52, -0.01, 0], [-0.53, -0.01, np.nan]]])
+LAYOUT = {"observation": [0, 1], "action": [2], "discrete_action": True, "rows": "state", "reward": -1}
+
+
+def _array_case(name: str, *extra, data: np.ndarray | None = None, layout: dict | str | None = None, **changes) -> Callable[[Inputs], list]:
+    """`convert NAME.npy --layout NAME.yaml --env MountainCar-v0`, the array or layout changed."""
+    def build(i: Inputs) -> list:
+        path = i.path(f"{name}.npy")
+        np.save(path, ARRAY if data is None else data)
+        text = layout if isinstance(layout, str) else yaml.safe_dump({**LAYOUT, **(layout or {}), **changes})
+        env = [] if "--no-env" in extra else ["--env", "MountainCar-v0"]
+        return _convert(path, "--layout", i.text(f"{name}.yaml", text), *env, *(e for e in extra if e != "--no-env"))
+
+    return build
+
+
+def _cut_npy(i: Inputs) -> list:
+    path = i.path("cut.npy")
+    np.save(path, ARRAY)
+    path.write_bytes(path.read_bytes()[:-40])
+    return _convert(path, "--layout", i.text("cut.yaml", yaml.safe_dump(LAYOUT)))
+
+
+def _two_arrays(i: Inputs) -> list:
+    return _convert(i.npz("two.npz", demos=ARRAY, seeds=np.arange(2)), "--layout", i.text("two.yaml", yaml.safe_dump(LAYOUT)))
+
+
 def _index_field(offset: int, value: bytes) -> Callable[[bytearray, int, int], None]:
     """Overwrite bytes of the first chunk index: at `offset` into its body (negative: from its end)."""
     def patch(data: bytearray, summary_start: int, chunk: int) -> None:
@@ -446,11 +477,30 @@ def _damaged_mcap_bag(i: Inputs) -> list:
     return _convert(path, "--from", "ros2", "--inspect", out=None)
 
 
-def _lerobot_v30_without_data(i: Inputs) -> list:
-    root = i.folder("v30")
-    shutil.copytree(TESTDATA / "lerobot" / "so101_v30", root, dirs_exist_ok=True)
-    shutil.rmtree(root / "data")
-    return _convert(root, "--from", "lerobot", out=None) + ["--out", i.root / "v30.mcap"]
+def _lerobot_v30(name: str, edit: Callable[[Path], object]) -> Callable[[Inputs], list]:
+    """The SO-101 v3.0 dataset (without its video, which the converter does not need), edited."""
+    def build(i: Inputs) -> list:
+        root = i.folder(name)
+        shutil.copytree(TESTDATA / "lerobot" / "so101_v30", root, dirs_exist_ok=True, ignore=shutil.ignore_patterns("videos"))
+        edit(root)
+        return _convert(root, "--from", "lerobot", out=None) + ["--out", i.root / f"{name}.mcap"]
+
+    return build
+
+
+def _v30_data_file(root: Path) -> Path:
+    return root / "data" / "chunk-000" / "file-000.parquet"
+
+
+def _v30_without_rows(root: Path) -> None:
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(_v30_data_file(root))
+    pq.write_table(table.slice(0, 0), _v30_data_file(root))
+
+
+def _cut_in_half(path: Path) -> None:
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
 
 
 def _checkpoint_case(name: str, **files) -> Callable[[Inputs], list]:
@@ -535,6 +585,7 @@ CASE_LIST = [
     case("demo-17", lambda i: _bc([DATASETS / "CartPole-v1.mcap", DATASETS / "Pendulum-v1.mcap"], "--out", i.root / "d17")),
     case("demo-18", lambda i: _bc([DATASETS / "CartPole-v1.mcap", i.demo_with("pend-as-cp.mcap", "Pendulum-v1.mcap", dataset=lambda d: d | {"env_id": "CartPole-v1"})])),
     case("demo-21", lambda i: _bc(i.episodes_file("empty.mcap", [], "CartPole-v1.mcap"))),
+    case("demo-24", lambda i: _bc(i.demo_with("flags.mcap", dataset=lambda d: d | {"end_flags": "[1]"}))),
     case("demo-d1", lambda i: _bc(i.path("tiny.mcap").write_bytes(b"\x89MCAP0\r\n" + b"\0" * 10) and i.root / "tiny.mcap")),
     case("demo-d5", lambda i: _bc(i.flipped_summary("summary.mcap"))),
     case("demo-d14", lambda i: ["info", i.cut_at_record("cut-body.mcap", 20)]),
@@ -638,12 +689,11 @@ CASE_LIST = [
     case("sb3-4", lambda i: _sb3(i.sb3_zip("list.zip", weights=[torch.zeros(1)]))),
     case("sb3-5", lambda i: _sb3(i.sb3_zip("data-not-json.zip", members={"data": b"{", "policy.pth": _pth()}))),
     case("sb3-6", lambda i: _sb3(i.sb3_zip("data-list.zip", members={"data": b"[]", "policy.pth": _pth()}))),
-    case("sb3-7", lambda i: _sb3(i.sb3_zip("sde.zip", data={"use_sde": True}))),
     case("sb3-8", lambda i: _sb3(i.sb3_zip("image.zip", observation=gym.spaces.Box(0, 255, (8, 8, 3), np.uint8)))),
     case("sb3-9", lambda i: _sb3(i.sb3_zip("no-space.zip", data={"observation_space": {}}))),
     case("sb3-10", lambda i: _sb3(i.sb3_zip("unreadable-space.zip", data={"action_space": {":type:": "<class 'gymnasium.spaces.discrete.Discrete'>"}}))),
     case("sb3-11", lambda i: _sb3(i.sb3_zip("multi.zip", action=gym.spaces.MultiDiscrete([2, 2])))),
-    case("sb3-12", lambda i: _sb3(i.sb3_zip("cnn.zip", weights={"features_extractor.cnn.0.weight": torch.zeros(1)}))),
+    case("sb3-12", lambda i: _sb3(i.sb3_zip("cnn.zip", weights=sb3_weights(4, 2, pi=[8], vf=[8]) | {"features_extractor.cnn.0.weight": torch.zeros(1)}))),
     case("sb3-13", lambda i: _sb3(i.sb3_zip("shared.zip", weights={"mlp_extractor.shared_net.0.weight": torch.zeros(8, 4), "mlp_extractor.shared_net.0.bias": torch.zeros(8),
                                                                      "mlp_extractor.policy_net.0.weight": torch.zeros(8, 8), "mlp_extractor.policy_net.0.bias": torch.zeros(8)}))),
     case("sb3-14", lambda i: _sb3(i.sb3_zip("sizes.zip", weights={"mlp_extractor.policy_net.0.weight": torch.zeros(8, 4), "mlp_extractor.policy_net.0.bias": torch.zeros(8),
@@ -652,6 +702,18 @@ CASE_LIST = [
     case("sb3-16", lambda i: _sb3(i.sb3_zip("kwargs.zip", data={"policy_kwargs": {":type:": "<class 'dict'>", ":serialized:": "bm90IGEgcGlja2xl"}}))),
     case("sb3-18", lambda i: _sb3(i.sb3_zip("elu.zip", data={"policy_kwargs": {":type:": "<class 'dict'>", ":serialized:": _pickled_elu()}}))),
     case("sb3-19", lambda i: _sb3(i.sb3_zip("misfit.zip", action=gym.spaces.Discrete(3)))),
+    case("sb3-21", lambda i: _sb3(i.sb3_zip("recurrent.zip", data={"policy_class": _policy_class("sb3_contrib.ppo_recurrent.policies", "RecurrentActorCriticPolicy")}))),
+    case("sb3-22", lambda i: _sb3(i.sb3_zip("class.zip", data={"policy_class": {":type:": "<class 'abc.ABCMeta'>", ":serialized:": "!!", "__module__": "x"}}))),
+    case("sb3-23", lambda i: _sb3(i.sb3_zip("sac-cnn.zip", weights=_layers("actor.latent_pi.", [4, 8]), data={"policy_class": _policy_class("stable_baselines3.sac.policies", "CnnPolicy")}))),
+    case("sb3-25", lambda i: _sb3(i.sb3_zip("sac-discrete.zip", weights=_layers("actor.latent_pi.", [4, 8]), data={"policy_class": _policy_class("stable_baselines3.sac.policies", "SACPolicy")}))),
+    case("sb3-26", lambda i: _sb3(i.sb3_zip("dqn-inputs.zip", weights=_layers("q_net.q_net.", [3, 8, 2])))),
+    case("sb3-27", lambda i: _sb3(i.sb3_zip("dqn-outputs.zip", weights=_layers("q_net.q_net.", [4, 8, 3])))),
+    case("sb3-28", lambda i: _sb3(i.sb3_zip("dqn-layers.zip", weights={"q_net.q_net.1.weight": torch.zeros(2, 4), "q_net.q_net.1.bias": torch.zeros(2)}))),
+    case("sb3-29", lambda i: _sb3(i.sb3_zip("sac-clip.zip", weights=_layers("actor.latent_pi.", [4, 8]) | _layers("actor.mu.", [8, 1]), observation=gym.spaces.Box(-1, 1, (4,), np.float32),
+                                          action=gym.spaces.Box(-1, 1, (1,), np.float32), data={"policy_kwargs": {"clip_mean": -1}}))),
+    case("sb3-30", lambda i: _sb3(i.sb3_zip("sac-mean.zip", weights=_layers("actor.latent_pi.", [4, 8]) | _layers("actor.mu.", [8, 8, 1]), action=gym.spaces.Box(-1, 1, (1,), np.float32)))),
+    case("sb3-31", lambda i: _sb3(i.sb3_zip("dqn-bias.zip", weights={"q_net.q_net.0.weight": torch.zeros(2, 4)}))),
+    case("sb3-32", lambda i: _sb3(i.sb3_zip("dqn-chain.zip", weights=_layers("q_net.q_net.", [4, 8]) | {"q_net.q_net.2.weight": torch.zeros(2, 5), "q_net.q_net.2.bias": torch.zeros(2)}))),
     # convert
     case("conv-1", lambda i: _convert(i.root / "absent.npz")),
     case("conv-2", lambda i: _convert(i.text("notes.txt", "hello"))),
@@ -676,6 +738,27 @@ CASE_LIST = [
     case("npz-9", _npz_case("imitation_npz", "n9.npz", indices=np.array([1, 2]))),
     case("npz-10", _npz_case("imitation_npz", "n10.npz", indices=np.array([9]))),
     case("npz-11", _npz_case("imitation_npz", "n11.npz", rews=np.ones(4))),
+    case("ends-1", _npz_case("imitation_npz", "long.npz", "--env", "CartPole-v1", obs=np.zeros((504, 4), np.float32), acts=np.zeros(502, np.int64),
+                             indices=np.array([1]), terminal=np.array([True, True]), rews=np.ones(502))),
+    case("ends-2", _array_case("no-env", "--no-env")),
+    case("arr-1", lambda i: _convert(i.npz("a1.npz", demos=ARRAY), "--layout", i.root / "absent.yaml")),
+    case("arr-2", _array_case("deep", layout="[" * 5000 + "]" * 5000)),
+    case("arr-3", _array_case("list", layout="- observation\n- action\n")),
+    case("arr-4", _array_case("stride", stride=2)),
+    case("arr-5", _array_case("rows", rows="after")),
+    case("arr-5", _array_case("padding", padding="zeros"), variant="padding"),
+    case("arr-6", _array_case("both", action=[1])),
+    case("arr-7", _array_case("next", rows="next_state", final_state="row")),
+    case("arr-8", _two_arrays),
+    case("arr-9", _array_case("flat", data=ARRAY[0])),
+    case("arr-10", _cut_npy),
+    case("arr-11", _array_case("col7", observation=[0, 7])),
+    case("arr-12", _array_case("names", columns=["position", "velocity"])),
+    case("arr-13", _array_case("empty", data=np.full((2, 4, 3), np.nan))),
+    case("arr-14", _array_case("half", data=np.where(ARRAY == 2, 0.5, ARRAY))),
+    case("arr-15", _array_case("hole", data=np.concatenate([ARRAY[:, :2], np.full((2, 1, 3), np.nan), ARRAY[:, 2:]], axis=1))),
+    case("arr-16", lambda i: _convert(_npy(i), "--env", "MountainCar-v0")),
+    case("arr-17", lambda i: _convert(i.sb_npz("a17.npz"), "--from", "npz", "--layout", i.text("a17.yaml", yaml.safe_dump(LAYOUT)))),
     # LeRobot
     case("lerobot-1", lambda i: _convert(i.folder("not-lerobot"), "--from", "lerobot", out=None) + ["--out", i.root / "l1.mcap"]),
     case("lerobot-2", lambda i: _convert(_replace(i.lerobot("l2"), "meta/info.json", "{"), "--from", "lerobot", out=None) + ["--out", i.root / "l2.mcap"], testdata=True),
@@ -684,7 +767,10 @@ CASE_LIST = [
     case("lerobot-6", _lerobot_case("l6", info=lambda d: d | {"features": {k: v for k, v in d["features"].items() if not k.startswith("observation.")}}), testdata=True),
     case("lerobot-7", _lerobot_case("l7", info=lambda d: d | {"features": {k: v for k, v in d["features"].items() if k != "action"}}), testdata=True),
     case("lerobot-8", _lerobot_case("l8", info=lambda d: d | {"codebase_version": "v9.9"}), testdata=True),
-    case("lerobot-9", _lerobot_v30_without_data, testdata=True),
+    case("lerobot-3", _lerobot_v30("v30-no-rows", _v30_without_rows), testdata=True),
+    case("lerobot-20", _lerobot_v30("v30-no-data", lambda root: shutil.rmtree(root / "data")), testdata=True),
+    case("lerobot-21", _lerobot_v30("v30-cut", lambda root: _cut_in_half(_v30_data_file(root))), testdata=True),
+    case("lerobot-11", _lerobot_v30("v30-no-listing", lambda root: shutil.rmtree(root / "meta" / "episodes")), testdata=True, variant="v3.0"),
     case("lerobot-11", lambda i: _convert(_remove(i.lerobot("l11"), "meta/episodes.jsonl"), "--from", "lerobot", out=None) + ["--out", i.root / "l11.mcap"], testdata=True),
     case("lerobot-12", _lerobot_case("l12", episodes='{"tasks": []}\n'), testdata=True),
     case("lerobot-13", _lerobot_case("l13", drop=("data/chunk-000/episode_000001.parquet",)), testdata=True),
@@ -700,6 +786,8 @@ CASE_LIST = [
     case("bag-8", _rosbag2_metadata("bag8", "rosbag2_bagfile_information: {storage_identifier: mcap, relative_file_paths: [gone.mcap]}")),
     case("bag-9", lambda i: _convert(i.text("fake.bag", "#ROSBAG V2.0\ngarbage"), "--from", "ros1", "--inspect", out=None)),
     case("bag-10", _damaged_mcap_bag, testdata=True),
+    # A ROS 1 bag carries its own definitions and never uses the distro's: the name is checked all the same.
+    case("bag-11", lambda i: _convert(TURTLE, "--map", i.turtle_map("b11.yaml"), "--ros-distro", "hunble"), testdata=True, expect="'hunble'"),
     # maps (against PlotJuggler's turtlesim bag)
     case("map-1", lambda i: _convert(TURTLE, "--map", i.root / "absent.yaml"), testdata=True),
     case("map-2", lambda i: _convert(TURTLE, "--map", i.text("bad.yaml", "a: [")), testdata=True),
@@ -732,6 +820,9 @@ CASE_LIST = [
     case("ros-5", lambda i: _convert(TESTDATA / "ros2" / "rosbag2_tests" / "talker", "--map", i.text("r5.yaml", yaml.safe_dump(
         {"rate_hz": 10, "observation": [{"topic": "/rosout", "fields": ["level"]}], "action": [{"topic": "/parameter_events", "fields": ["stamp.sec"]}]})),
         out=None) + ["--out", i.root / "r5.mcap"], testdata=True),
+    case("ros-7", lambda i: _convert(TESTDATA / "ros1" / "plotjuggler_rosbag2_sqlite", "--from", "ros2", "--map", i.text("r7.yaml", yaml.safe_dump(
+        {"rate_hz": 25, "observation": [{"topic": "/imu", "fields": ["orientation.x"]}], "action": [{"topic": "/battery", "fields": ["cell_temperature"]}]}))),
+        testdata=True),
     case("ros-8", lambda i: _convert(TURTLE, "--map", i.turtle_map("r8.yaml", action=[{"topic": "/turtle1/cmd_vel", "fields": ["linear.x", "angular.z"], "default": [0.0, 0.0, 0.0]}])), testdata=True),
     case("ros-10", _map_case("r10.yaml", time="header"), testdata=True),
     # export
@@ -753,6 +844,22 @@ CASES = {entry_id: c for c in CASE_LIST for entry_id in c.ids}
 
 class _Opaque:
     """Pickled by torch.save as a class reference: a weights-only load refuses it."""
+
+
+def _policy_class(module: str, name: str) -> dict:
+    """The `policy_class` entry SB3 writes: a pickle of the class reference (read by its opcodes,
+    never run) and the class's readable `__module__`."""
+    payload = b"\x80\x02c" + f"{module}\n{name}\n".encode() + b"q\x00."
+    return {":type:": "<class 'abc.ABCMeta'>", ":serialized:": base64.b64encode(payload).decode(), "__module__": module}
+
+
+def _layers(prefix: str, sizes: list[int]) -> dict:
+    """An MLP's Linear layers as SB3 names them: PREFIX{0,2,4,...}.weight/bias for these widths."""
+    layers = {}
+    for index, (inputs, outputs) in enumerate(zip(sizes[:-1], sizes[1:])):
+        layers[f"{prefix}{2 * index}.weight"] = torch.zeros(outputs, inputs)
+        layers[f"{prefix}{2 * index}.bias"] = torch.zeros(outputs)
+    return layers
 
 
 def _pth() -> bytes:
