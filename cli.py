@@ -411,6 +411,7 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "l2_coef": "--l2",
             "validation_fraction": "--validation",
             "patience": "--patience",
+            "epoch_samples": "--epoch-samples",
             "seed": "--seed",
             "device": "--device",
         },
@@ -677,30 +678,35 @@ def build_parser() -> argparse.ArgumentParser:
         help="gymnasium environment id (for spaces and evaluation); without it BC trains "
         "offline on the demos' own spaces and reports the validation loss only",
     )
-    bc.add_argument("--epochs", type=int, default=300, metavar="N", help="maximum epochs (default: 300)")
-    bc.add_argument("--batch-size", type=int, default=256, metavar="B", help="minibatch size (default: 256)")
-    bc.add_argument("--lr", type=_finite, default=1e-3, help="Adam learning rate (default: 1e-3)")
+    # No argparse defaults here: a flag not given leaves BCConfig's default, which the help names
+    # (tests/test_cli.py holds the two equal).
+    bc.add_argument("--epochs", type=int, metavar="N", help="maximum epochs (default: 300)")
+    bc.add_argument("--batch-size", type=int, metavar="B", help="minibatch size (default: 256)")
+    bc.add_argument("--lr", type=_finite, help="Adam learning rate (default: 0.001)")
+    bc.add_argument("--hidden", type=_hidden_sizes, metavar="256,256", help="MLP layer widths (default: 256,256)")
     bc.add_argument(
-        "--hidden", type=_hidden_sizes, default=[256, 256], metavar="256,256", help="MLP layer widths (default: 256,256)"
-    )
-    bc.add_argument("--activation", choices=["tanh", "relu"], default="relu", help="hidden-layer activation (default: relu)")
-    bc.add_argument(
-        "--loss", choices=["nll", "mse"], default="nll", help="nll (log-likelihood) or mse (continuous actions only)"
-    )
-    bc.add_argument("--entropy", type=_finite, default=0.0, metavar="C", help="entropy bonus coefficient (default: 0)")
-    bc.add_argument("--l2", type=_finite, default=0.0, metavar="C", help="L2 penalty on the policy weights (default: 0)")
-    bc.add_argument(
-        "--validation", type=_finite, default=0.2, metavar="F", help="fraction of episodes held out (default: 0.2)"
+        "--activation",
+        choices=["auto", "tanh", "relu"],
+        help="hidden-layer activation (default: auto: tanh below 1000 training transitions, relu from there)",
     )
     bc.add_argument(
-        "--patience",
+        "--loss", choices=["nll", "mse"], help="nll (log-likelihood) or mse (continuous actions only) (default: nll)"
+    )
+    bc.add_argument("--entropy", type=_finite, metavar="C", help="entropy bonus coefficient (default: 0.0)")
+    bc.add_argument("--l2", type=_finite, metavar="C", help="L2 penalty on the policy weights (default: 0.0001)")
+    bc.add_argument("--validation", type=_finite, metavar="F", help="fraction of episodes held out (default: 0.2)")
+    bc.add_argument(
+        "--patience", type=int, metavar="N", help="epochs without a better validation loss before stopping (default: 50)"
+    )
+    bc.add_argument(
+        "--epoch-samples",
         type=int,
-        default=50,
         metavar="N",
-        help="epochs without a better validation loss before stopping (default: 50)",
+        help="the fewest samples an epoch goes through: small recordings are passed over several times per epoch "
+        "(default: 4096)",
     )
-    bc.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
-    bc.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
+    bc.add_argument("--seed", type=int, metavar="S", help="seed (default: 0)")
+    bc.add_argument("--device", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
     _add_run_output(bc)
     _add_resume(bc)
     bc.set_defaults(handler=cmd_train_bc)

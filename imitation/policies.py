@@ -100,6 +100,10 @@ class PolicyConfig:
     shared_trunk: bool = False
     normalize_observations: bool = False
     log_std_init: float = 0.0
+    # Box actions: the Gaussian's head works in standardised units (fixed statistics, fitted to
+    # the training actions by BC and saved with the weights), so every action dimension is learnt
+    # at one scale whatever its units.
+    normalize_actions: bool = False
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -115,8 +119,9 @@ class PolicyConfig:
             isinstance(config.activation, str)
             and isinstance(config.shared_trunk, bool)
             and isinstance(config.normalize_observations, bool)
+            and isinstance(config.normalize_actions, bool)
         ):
-            raise TypeError("activation must be a name, shared_trunk and normalize_observations true or false")
+            raise TypeError("activation must be a name, shared_trunk and normalize_observations/actions true or false")
         if (
             isinstance(config.log_std_init, bool)
             or not isinstance(config.log_std_init, (int, float))
@@ -233,6 +238,8 @@ class ActorCritic(nn.Module):
     action_start: torch.Tensor
     action_low: torch.Tensor
     action_high: torch.Tensor
+    action_mean: torch.Tensor  # with normalize_actions
+    action_scale: torch.Tensor
 
     def __init__(self, config: PolicyConfig) -> None:
         super().__init__()
@@ -274,6 +281,9 @@ class ActorCritic(nn.Module):
             self.log_std = nn.Parameter(torch.full((action_dim,), float(config.log_std_init)))
             self.register_buffer("action_low", torch.as_tensor(self.action_space.low, dtype=torch.float32).reshape(-1))
             self.register_buffer("action_high", torch.as_tensor(self.action_space.high, dtype=torch.float32).reshape(-1))
+            if config.normalize_actions:
+                self.register_buffer("action_mean", torch.zeros(action_dim))
+                self.register_buffer("action_scale", torch.ones(action_dim))
         else:
             raise ImitationError(
                 f"policies take Discrete, MultiDiscrete or Box actions, not {type(self.action_space).__name__}"
@@ -295,6 +305,17 @@ class ActorCritic(nn.Module):
         if self.obs_rms is not None:
             self.obs_rms.update(observations.reshape(observations.shape[0], -1))
 
+    def fit_action_normalizer(self, actions: torch.Tensor) -> None:
+        """Standardise the Gaussian head's units by these actions' mean and std per dimension (a
+        dimension that never moves keeps scale 1). Nothing to do without `normalize_actions`."""
+        if not (self.is_continuous and self.config.normalize_actions):
+            return
+        with torch.no_grad():
+            flat = actions.reshape(actions.shape[0], -1).double()
+            std = flat.std(0, unbiased=False)
+            self.action_mean.copy_(flat.mean(0))
+            self.action_scale.copy_(torch.where(std > 1e-6, std, torch.ones_like(std)))
+
     # -- the policy -------------------------------------------------------------------------------
 
     def distribution(self, features: torch.Tensor) -> Distribution:
@@ -305,8 +326,10 @@ class ActorCritic(nn.Module):
         """π(·|s) from the action head's output (the Gaussian's σ from `log_std`, by default the policy's own)."""
         # No argument validation: it costs more than the network on small batches.
         if self.is_continuous:
-            log_std = self.log_std if log_std is None else log_std
-            return Normal(parameters, log_std.exp().expand_as(parameters), validate_args=False)
+            std = (self.log_std if log_std is None else log_std).exp().expand_as(parameters)
+            if self.config.normalize_actions:  # the head's units are standardised: back to the env's
+                return Normal(self.action_mean + self.action_scale * parameters, self.action_scale * std, validate_args=False)
+            return Normal(parameters, std, validate_args=False)
         if self.action_sizes is not None:
             return MultiCategorical(parameters, self.action_sizes)
         return Categorical(logits=parameters, validate_args=False)

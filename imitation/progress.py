@@ -27,7 +27,7 @@ class ProgressLines:
         self.total, self.count, self.desc, self.unit, self.every = total, initial, desc, unit, every
         self.stream = stream if stream is not None else sys.stderr
         self.started = self.last = time.monotonic()
-        self.first = initial
+        self.first = self.shown = initial
         self.postfix = ""
 
     def set_postfix(self, values: dict[str, str], refresh: bool = True) -> None:
@@ -40,11 +40,12 @@ class ProgressLines:
             self.last = now
             self._line(now)
 
-    def _line(self, now: float) -> None:
+    def _line(self, now: float, *, final: bool = False) -> None:
+        self.shown = self.count
         spent = now - self.started
         done = self.count - self.first
         left = spent / done * (self.total - self.count) if done else float("nan")
-        eta = f", about {_duration(left)} left" if self.count < self.total and left == left else ""
+        eta = f", about {_duration(left)} left" if self.count < self.total and left == left and not final else ""
         figures = f": {self.postfix}" if self.postfix else ""
         print(
             f"[{self.desc}] {self.unit} {self.count}/{self.total}{figures} ({_duration(spent)} so far{eta})",
@@ -53,7 +54,9 @@ class ProgressLines:
         )
 
     def close(self) -> None:
-        pass
+        """The last line, when the work ended before its total (an early stop) or between lines."""
+        if self.count != self.shown:
+            self._line(time.monotonic(), final=True)
 
     def __enter__(self) -> ProgressLines:
         return self

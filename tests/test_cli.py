@@ -125,3 +125,26 @@ def test_bc_on_demos_a_policy_cannot_take_names_the_file(tmp_path) -> None:
     episode = Episode(observations={"a": np.zeros((4, 2), np.float32)}, actions=np.zeros(3, np.int64), rewards=np.zeros(3), truncated=True)
     demos = write_episodes(tmp_path / "dict.mcap", [episode], env_id="", observation_space=space, action_space=gym.spaces.Discrete(2))
     assert_one_line_error(run_cli("train", "bc", "--demos", str(demos), "--out", str(tmp_path / "r")), f"{demos}: policies take Box or Discrete observations")
+
+
+def test_train_bc_help_names_the_configs_own_defaults() -> None:
+    """`train bc` flags have no argparse defaults (an absent flag leaves BCConfig's), so the help
+    text is the one place a default is repeated: it must say what BCConfig does."""
+    import dataclasses
+    import re
+
+    from cli import FLAGS, build_parser
+
+    from imitation.algorithms.bc import BCConfig
+
+    parser = build_parser()
+    bc = parser._subparsers._group_actions[0].choices["train"]._subparsers._group_actions[0].choices["bc"]
+    helps = {option: action.help for action in bc._actions for option in action.option_strings}
+    defaults = {f.name: f.default if f.default is not dataclasses.MISSING else f.default_factory() for f in dataclasses.fields(BCConfig)}
+    for field, flag in FLAGS["train bc"]["BCConfig"].items():
+        shown = re.search(r"\(default: ([^):]+)", helps[flag])
+        assert shown is not None, flag
+        value = defaults[field]
+        expected = ",".join(map(str, value)) if isinstance(value, list) else str(value)
+        assert shown[1] == expected, (flag, shown[1], expected)
+        assert bc.get_default(flag.lstrip("-").replace("-", "_")) is None, flag

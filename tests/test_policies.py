@@ -212,3 +212,35 @@ def test_action_spaces_without_a_head_are_refused() -> None:
         make_policy(BOX4, gym.spaces.MultiBinary(3))
     with pytest.raises(ImitationError, match=r"MultiDiscrete actions of one dimension, not of shape \(2, 2\)"):
         make_policy(BOX4, gym.spaces.MultiDiscrete([[2, 3], [4, 5]]))
+
+
+def test_normalised_actions_are_a_gaussian_in_the_envs_units(tmp_path) -> None:
+    """With normalize_actions, the head works in standardised units: π(·|s) = N(m + s·μ_θ(s), (s·σ)²)
+    with m, s the training actions' mean and std per dimension (a still dimension keeps s = 1);
+    log-probabilities, sampling and the saved policy all speak the env's units."""
+    space = gym.spaces.Box(-np.inf, np.inf, (3,), np.float32)
+    policy = make_policy(gym.spaces.Box(-1, 1, (2,), np.float32), space, hidden_sizes=[8], normalize_actions=True)
+    actions = torch.tensor([[10.0, -3.0, 7.0], [14.0, -1.0, 7.0], [12.0, -2.0, 7.0]])
+    policy.fit_action_normalizer(actions)
+    assert torch.allclose(policy.action_mean, torch.tensor([12.0, -2.0, 7.0]))
+    assert torch.allclose(policy.action_scale, torch.tensor([np.sqrt(8 / 3), np.sqrt(2 / 3), 1.0], dtype=torch.float32))
+    features = policy.encode(torch.randn(5, 2))
+    head = policy.action_head(policy.actor_trunk(features))
+    distribution = policy.distribution(features)
+    assert torch.allclose(distribution.mean, policy.action_mean + policy.action_scale * head)
+    assert torch.allclose(distribution.stddev, policy.action_scale * policy.log_std.exp())
+    expected = torch.distributions.Normal(policy.action_mean + policy.action_scale * head, policy.action_scale * policy.log_std.exp())
+    assert torch.allclose(policy.log_prob(distribution, actions[:1].expand(5, 3)), expected.log_prob(actions[:1]).sum(-1))
+    plain = make_policy(gym.spaces.Box(-1, 1, (2,), np.float32), space, hidden_sizes=[8])
+    plain.fit_action_normalizer(actions)  # nothing to fit: its head works in the env's units
+    assert not hasattr(plain, "action_mean")
+
+    from imitation.policies import load_policy, policy_tensors
+    from imitation.runs import RunWriter as Writer
+
+    with Writer(tmp_path / "run", config={"kind": "bc", "env_id": None, "policy": policy.config.to_json()}, tensorboard=False) as run:
+        run.save_weights(policy_tensors(policy))
+        run.finish({})
+    loaded = load_policy(tmp_path / "run")
+    observations = np.random.default_rng(0).normal(size=(4, 2)).astype(np.float32)
+    assert np.allclose(loaded.predict(observations), policy.eval().predict(observations))

@@ -45,21 +45,25 @@ LOSSES = ("nll", "mse")
 
 @dataclass(kw_only=True)
 class BCConfig:
-    # The bundled Pendulum demos (whose expert's switching law is the hard part to fit) need the
-    # wider ReLU network and early stopping (bench/RESULTS.md).
+    # The defaults beat the trivial baselines on the real robot logs and clone the bundled
+    # experts (bench/RESULTS.md): a wide network, early stopping, a little weight decay.
     epochs: int = 300
     batch_size: int = 256
     learning_rate: float = 1e-3
     hidden_sizes: list[int] = field(default_factory=lambda: [256, 256])
-    activation: str = "relu"
+    # "auto": tanh below SMALL_DATA training transitions, ReLU from there. A few hundred
+    # transitions leave most of the state space between and beyond them, where tanh's bounded
+    # units extrapolate to bounded outputs and ReLU's grow without bound; with more data ReLU's
+    # sharper fits (an expert's switching law) pay off.
+    activation: str = "auto"
     loss: str = "nll"
     entropy_coef: float = 0.0
-    l2_coef: float = 0.0
+    l2_coef: float = 1e-4
     validation_fraction: float = 0.2
     patience: int = 50
     # An epoch goes through at least this many samples (several passes over a small recording,
     # each in its own order), so that a few hundred transitions get enough gradient steps.
-    epoch_samples: int = 0
+    epoch_samples: int = 4096
     seed: int = 0
     device: str = "auto"
     threads: int = 1
@@ -142,6 +146,8 @@ class BehaviouralCloning:
             policy.obs_rms.reset_parameters()
             assert isinstance(self.train.observations, torch.Tensor)  # a policy takes no Dict observations
             policy.update_normalizer(self.train.observations)
+        assert isinstance(self.train.actions, torch.Tensor)  # nor Dict actions
+        policy.fit_action_normalizer(self.train.actions)
         self.config = config
         self.total = config.epochs
         self.evaluate, self.evaluate_every = evaluate, evaluate_every
@@ -261,6 +267,18 @@ def fit(learner: BehaviouralCloning) -> list[dict[str, float]]:
     return rows
 
 
-def policy_options(config: BCConfig) -> dict[str, Any]:
-    """The ActorCritic options a BC run uses (normalised observations, the configured MLP)."""
-    return {"hidden_sizes": list(config.hidden_sizes), "activation": config.activation, "normalize_observations": True}
+SMALL_DATA = 1000  # training transitions below which "auto" picks tanh (see BCConfig.activation)
+
+
+def policy_options(config: BCConfig, transitions: int | None = None) -> dict[str, Any]:
+    """The ActorCritic options a BC run uses: normalised observations and Box actions, the
+    configured MLP, "auto" resolved for `transitions` training transitions (unknown: ReLU)."""
+    activation = config.activation
+    if activation == "auto":
+        activation = "tanh" if transitions is not None and transitions < SMALL_DATA else "relu"
+    return {
+        "hidden_sizes": list(config.hidden_sizes),
+        "activation": activation,
+        "normalize_observations": True,
+        "normalize_actions": True,
+    }

@@ -51,12 +51,12 @@ def bc_job(
     elif dataset.num_transitions == 0:
         raise ImitationError(f"{dataset.files[0].path}: the demos hold no transitions (no episode, or only empty ones)")
     spaces = env if env is not None else dataset
+    train, validation, split = _split(dataset, config, offline=env is None)
     try:
-        policy = make_policy(spaces.observation_space, spaces.action_space, **policy_options(config))
+        policy = make_policy(spaces.observation_space, spaces.action_space, **policy_options(config, len(train)))
     except ImitationError as error:
         raise ImitationError(f"{f'--env {env_id}' if env is not None else dataset.files[0].path}: {error}") from None
     config.validate(policy.is_continuous)
-    train, validation, split = _split(dataset, config, offline=env is None)
 
     def env_return(candidate: ActorCritic) -> float:
         assert env is not None  # passed to the learner only with an env
