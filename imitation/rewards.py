@@ -182,6 +182,11 @@ def flat_batch(tensor: torch.Tensor, leading_dims: int) -> torch.Tensor:
 
 def all_state_rewards(model: RewardNet, n_states: int) -> torch.Tensor:
     """r_θ(s) for every state s (the model maps a state index to its features itself)."""
+    if model.config.inputs != "s":
+        raise ImitationError(
+            "a tabular MDP's state rewards need a reward of the state alone (inputs 's'); "
+            f"this one takes {model.config.inputs!r}"
+        )
     states = torch.arange(n_states)
     return model(states, states, states)
 

@@ -187,15 +187,13 @@ class MaxEntIRL:
         gradient_norm = float(torch.cat(gradients).norm())
         error = float(np.abs(self.occupancy - self.demo_occupancy).max())
         # The negative log-likelihood (dual): log Z = E_ρ₀[V_0] minus the demos' score μ̃ᵀr.
-        row = {
-            "iteration": float(iteration),
-            "loss": float(mdp.initial @ values - self.demo_occupancy @ rewards.detach().numpy()),
-            "occupancy_error": error,
-            "gradient_norm": gradient_norm,
-        }
-        if not (np.isfinite(row["loss"]) and np.isfinite(gradient_norm)):
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow shows as a non-finite loss, checked below
+            loss = float(mdp.initial @ values - self.demo_occupancy @ rewards.detach().numpy())
+        row = {"iteration": float(iteration), "loss": loss, "occupancy_error": error, "gradient_norm": gradient_norm}
+        if not (np.isfinite(loss) and np.isfinite(gradient_norm)):
             raise ImitationError(
-                f"{config.method} IRL iteration {iteration}: the loss is {row['loss']} (diverged; try a lower learning rate)"
+                f"{config.method} IRL iteration {iteration}: the loss is {loss} and the gradient norm {gradient_norm} "
+                "(diverged; try a lower learning rate)"
             )
         self.iterations = iteration
         self.converged = error <= config.tolerance

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -20,7 +21,7 @@ from imitation.envs.tabular_planning import (
     DenseDynamics, Dynamics, SparseDynamics, _logsumexp, _logsumexp_rows, expected_return, soft_optimal_policy, soft_value_iteration,
     state_visitation,
 )
-from imitation.errors import ImitationError
+from imitation.errors import ConfigError, ImitationError
 from imitation.experts.load import load_expert
 from imitation.jobs.loop import run
 from imitation.rewards import all_state_rewards, make_reward_model
@@ -239,6 +240,12 @@ def test_unvisited_high_states_keep_their_zero_and_bad_states_are_named() -> Non
         demo_visitation(episodes_to_transitions([dataclasses.replace(episode, observations=np.array([0, 7, 1]))]), n_states=5, horizon=2, discount=1.0)
     with pytest.raises(ImitationError, match="demo episode 1: observation 9 is not a state"):
         demo_visitation([episode, dataclasses.replace(episode, observations=np.array([9, 1, 1]))], n_states=5, horizon=2, discount=1.0)
+    # State indices run 0 … S - 1: S itself is out, as an episode's state or a final next-observation.
+    one_past = dataclasses.replace(episode, observations=np.array([0, 1, 5]))
+    with pytest.raises(ImitationError, match="demo episode 0: observation 5 is not a state of an MDP with 5 states"):
+        demo_visitation([one_past], n_states=5, horizon=2, discount=1.0)
+    with pytest.raises(ImitationError, match="transitions: observation 5 is not a state of an MDP with 5 states"):
+        demo_visitation(episodes_to_transitions([one_past]), n_states=5, horizon=2, discount=1.0)
 
 
 def test_demo_episodes_of_the_wrong_length_are_refused(tmp_path) -> None:
@@ -276,3 +283,123 @@ def test_discounted_visitation_is_the_gradient_of_the_soft_start_value(horizon: 
     if horizon is not None:
         undiscounted = state_visitation(dynamics, mdp.initial, policy, horizon=horizon, discount=1.0)
         assert np.abs(undiscounted - visitation).max() > 0.1
+
+
+def _stay_or_swap(horizon: int = 1, initial: tuple[float, float] = (1.0, 0.0)) -> TabularMDP:
+    """Two states, action 0 stays and action 1 swaps, start in s0 (by default); one-hot features."""
+    transition = np.array([[[1.0, 0.0], [0.0, 1.0]], [[0.0, 1.0], [1.0, 0.0]]])
+    return TabularMDP(
+        transition=transition, initial=np.array(initial), features=np.eye(2), reward=np.array([0.0, 1.0]), horizon=horizon
+    )
+
+
+def _linear_model(
+    mdp: TabularMDP, weights: list[float], bias: float = 0.0, dtype: torch.dtype = torch.float32
+) -> torch.nn.Module:
+    """r(s) = w·x(s) + b with the weights given."""
+    model = _model(mdp).to(dtype)
+    with torch.no_grad():
+        model.net[0].weight.copy_(torch.tensor([weights], dtype=torch.float64))
+        model.net[0].bias.fill_(bias)
+    return model
+
+
+@pytest.mark.parametrize(("changes", "field"), [
+    ({"iterations": 0}, "iterations"),
+    ({"learning_rate": 0.0}, "learning_rate"),
+    ({"learning_rate": 1e30}, "learning_rate"),
+    ({"learning_rate": float("nan")}, "learning_rate"),
+    ({"method": "soft"}, "method"),
+])
+def test_config_out_of_range_is_refused_naming_the_field(changes: dict, field: str) -> None:
+    with pytest.raises(ConfigError, match=f"^{field} ") as raised:
+        MaxEntIRLConfig(**changes).validate()
+    assert raised.value.owner == "MaxEntIRLConfig"
+
+
+def test_config_at_the_edges_of_its_ranges_is_accepted() -> None:
+    MaxEntIRLConfig(iterations=1, learning_rate=1e29).validate()
+    MaxEntIRLConfig(learning_rate=1e-30).validate()
+
+
+def test_one_iteration_by_hand() -> None:
+    """Stay-or-swap, H = 1, r = (0, 1), demos D̃ = (1, 1). By hand (test_backward_pass_by_hand):
+    V_0(s0) = log(1 + e), D = (1 + 1/(1+e), e/(1+e)); so the loss ρ₀·V_0 - D̃·r = log(1 + e) - 1, the
+    error max |D - D̃| = 1/(1+e), and the gradient of (D - D̃)·r_θ is 1/(1+e)·(1, -1) for w and 0 for
+    the bias. A fresh learner has not converged and has no policy or occupancy yet; a one-iteration
+    run takes no Adam step, so the reward stays the one the row was computed for."""
+    mdp = _stay_or_swap()
+    model = _linear_model(mdp, [0.0, 1.0])
+    learner = MaxEntIRL(mdp, np.array([1.0, 1.0]), model, MaxEntIRLConfig(iterations=1, learning_rate=0.5))
+    assert learner.converged is False and learner.policy is None and learner.occupancy is None and not learner.done
+    row = learner.step()
+    p = 1 / (1 + np.e)
+    expected = {"iteration": 1.0, "loss": np.log(1 + np.e) - 1, "occupancy_error": p, "gradient_norm": np.sqrt(2) * p}
+    assert row == pytest.approx(expected, rel=1e-6)
+    np.testing.assert_allclose(learner.occupancy, [1 + p, 1 - p], rtol=1e-6)
+    assert learner.done and not learner.converged
+    np.testing.assert_array_equal(all_state_rewards(model, 2).detach().numpy(), [0.0, 1.0])
+    assert learner.progress(row) == {"error": f"{p:.2e}", "loss": f"{np.log(1 + np.e) - 1:.3f}"}
+
+
+def test_visitation_matched_exactly_converges_even_at_zero_tolerance() -> None:
+    """r = 0: the uniform policy visits (1, 0) then (½, ½), D = (1.5, 0.5) exactly; demos with that
+    visitation are matched at the first iteration, error 0 ≤ tolerance 0."""
+    mdp = _stay_or_swap()
+    learner = MaxEntIRL(mdp, np.array([1.5, 0.5]), _linear_model(mdp, [0.0, 0.0]), MaxEntIRLConfig(tolerance=0.0))
+    assert run(learner)[-1]["occupancy_error"] == 0.0
+    assert learner.converged and learner.done and learner.completed == 1
+
+
+def test_overflowing_reward_stops_as_diverged_without_numpy_warnings() -> None:
+    """A float64 reward near the largest double overflows the soft values (r + V = inf, then
+    inf - inf in π = exp(Q - V)): the run stops with the divergence error, and numpy's overflow
+    warnings stay silent. (Demos and start spread so that D̃·r and ρ₀·V themselves raise no warning.)"""
+    mdp = _stay_or_swap(horizon=3, initial=(0.5, 0.5))
+    learner = MaxEntIRL(mdp, np.array([0.5, 3.5]), _linear_model(mdp, [1e308, 0.0], dtype=torch.float64), MaxEntIRLConfig())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ImitationError, match="iteration 1: the loss is .*diverged"):
+            learner.step()
+
+
+def test_a_non_finite_gradient_alone_stops_the_run() -> None:
+    """Features of 3e38 with w = (1e-38, 0): r = (3, 0) and the loss are finite, but the float32
+    gradient (D - D̃)·x overflows to ±inf; the run stops there rather than step Adam with it."""
+    mdp = dataclasses.replace(_stay_or_swap(), features=np.eye(2) * 3e38)
+    learner = MaxEntIRL(mdp, np.array([0.0, 2.0]), _linear_model(mdp, [1e-38, 0.0]), MaxEntIRLConfig())
+    with pytest.raises(ImitationError, match=r"iteration 1: the loss is -?\d[\d.e+-]* and the gradient norm (inf|nan) \(diverged"):
+        learner.step()
+
+
+def test_checkpoint_counter_from_a_fresh_start_to_a_finished_run_and_no_further() -> None:
+    """The checkpoint holds the next iteration, 1 (fresh) … iterations + 1 (finished); outside that
+    range the checkpoint is refused, naming the counter and the range."""
+    mdp = _stay_or_swap()
+
+    def learner() -> MaxEntIRL:
+        return MaxEntIRL(mdp, np.array([1.0, 1.0]), _linear_model(mdp, [0.0, 1.0]), MaxEntIRLConfig(iterations=3))
+
+    tensors, state = learner().state_dict()
+    assert state["iteration"] == 1
+    for next_iteration, completed in [(1, 0), (4, 3)]:
+        resumed = learner()
+        resumed.load_state_dict((tensors, state | {"iteration": next_iteration}))
+        assert resumed.completed == completed and resumed.done == (completed == 3)
+    for bad in (0, 5):
+        with pytest.raises(ImitationError, match=rf"the checkpoint's next iteration is {bad}, outside 1\.\.4 for this run"):
+            learner().load_state_dict((tensors, state | {"iteration": bad}))
+
+
+def test_states_given_as_a_column_count_as_a_flat_array() -> None:
+    """Observations shaped (T + 1, 1), as a Box(1,) of state indices gives them, are flattened:
+    the same visitation as from the flat array, from episodes and from transitions alike."""
+    flat = Episode(
+        observations=np.array([0, 1, 1]), actions=np.array([0, 0]), rewards=np.zeros(2), terminated=False, truncated=True
+    )
+    column = dataclasses.replace(flat, observations=flat.observations[:, None])
+    expected = [1, 2, 0, 0, 0]
+    np.testing.assert_allclose(demo_visitation([column], n_states=5, horizon=2, discount=1.0), expected)
+    np.testing.assert_allclose(demo_visitation([column], n_states=5, horizon=2, discount=0.5), [1, 0.5 + 0.25, 0, 0, 0])
+    from_transitions = demo_visitation(episodes_to_transitions([column]), n_states=5, horizon=2, discount=1.0)
+    np.testing.assert_allclose(from_transitions, expected)
