@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import gymnasium as gym
 import numpy as np
@@ -10,7 +11,15 @@ import pytest
 import torch
 
 from imitation.errors import ImitationError
-from imitation.policies import load_policy, make_policy, policy_tensors
+from imitation.policies import (
+    PolicyConfig,
+    RunningMeanStd,
+    SingleObservationPolicy,
+    check_layer_widths,
+    load_policy,
+    make_policy,
+    policy_tensors,
+)
 from imitation.runs import RunWriter
 
 BOX4 = gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)
@@ -102,24 +111,34 @@ def test_gaussian_env_actions_are_clipped_to_the_bounds() -> None:
 
 def test_env_action_log_prob_is_the_censored_gaussian_at_the_bounds_and_the_density_inside() -> None:
     torch.manual_seed(0)
-    policy = make_policy(BOX4, gym.spaces.Box(np.array([-2.0, -1.0]), np.array([2.0, 1.0]), dtype=np.float32), hidden_sizes=[8], log_std_init=-0.5)
+    policy = make_policy(
+        BOX4,
+        gym.spaces.Box(np.array([-2.0, -1.0]), np.array([2.0, 1.0]), dtype=np.float32),
+        hidden_sizes=[8],
+        log_std_init=-0.5,
+    )
     features = torch.randn(3, 4)
     distribution = policy.distribution(features)
     mean, sigma = distribution.mean, distribution.stddev
     actions = torch.tensor([[2.0, 0.3], [-2.0, -1.0], [0.5, 1.0]])
     normal = torch.distributions.Normal(mean, sigma)
-    expected = torch.stack([
-        torch.log(1 - normal.cdf(torch.tensor([2.0, 1.0])))[0, 0] + normal.log_prob(actions)[0, 1],  # high bound: P(a ≥ 2)
-        torch.log(normal.cdf(torch.tensor([-2.0, -1.0])))[1].sum(),  # both at the low bound: P(a ≤ low)
-        normal.log_prob(actions)[2, 0] + torch.log(1 - normal.cdf(torch.tensor([2.0, 1.0])))[2, 1],
-    ])
+    expected = torch.stack(
+        [
+            torch.log(1 - normal.cdf(torch.tensor([2.0, 1.0])))[0, 0] + normal.log_prob(actions)[0, 1],  # high bound: P(a ≥ 2)
+            torch.log(normal.cdf(torch.tensor([-2.0, -1.0])))[1].sum(),  # both at the low bound: P(a ≤ low)
+            normal.log_prob(actions)[2, 0] + torch.log(1 - normal.cdf(torch.tensor([2.0, 1.0])))[2, 1],
+        ]
+    )
     assert torch.allclose(policy.env_action_log_prob(distribution, actions), expected, atol=1e-5)
     # Inside the bounds it is the policy's own log-density.
     inside = torch.tensor([[0.1, -0.2], [1.9, 0.99], [-1.5, 0.0]])
     assert torch.allclose(policy.env_action_log_prob(distribution, inside), policy.log_prob(distribution, inside))
     discrete = make_policy(BOX4, gym.spaces.Discrete(3, start=1), hidden_sizes=[8])
     categorical = discrete.distribution(features)
-    assert torch.allclose(discrete.env_action_log_prob(categorical, torch.tensor([1, 3, 2])), discrete.log_prob(categorical, torch.tensor([0, 2, 1])))
+    assert torch.allclose(
+        discrete.env_action_log_prob(categorical, torch.tensor([1, 3, 2])),
+        discrete.log_prob(categorical, torch.tensor([0, 2, 1])),
+    )
 
 
 def test_discrete_observations_are_one_hot_over_the_whole_space() -> None:
@@ -181,7 +200,9 @@ def test_multi_discrete_samples_follow_each_components_probabilities() -> None:
     assert action.shape == (20_000, 2)
     first = torch.bincount(action[:, 0], minlength=3) / 20_000
     second = torch.bincount(action[:, 1], minlength=2) / 20_000
-    assert torch.allclose(first, torch.tensor([0.6, 0.3, 0.1]), atol=0.015) and torch.allclose(second, torch.tensor([0.2, 0.8]), atol=0.015)
+    assert torch.allclose(first, torch.tensor([0.6, 0.3, 0.1]), atol=0.015) and torch.allclose(
+        second, torch.tensor([0.2, 0.8]), atol=0.015
+    )
     sampled = policy.distribution(features[:5]).sample(torch.Size([7]))
     assert sampled.shape == (7, 5, 2)
     deterministic, _, _ = policy.act(features[:3], deterministic=True)
@@ -229,7 +250,9 @@ def test_normalised_actions_are_a_gaussian_in_the_envs_units(tmp_path) -> None:
     distribution = policy.distribution(features)
     assert torch.allclose(distribution.mean, policy.action_mean + policy.action_scale * head)
     assert torch.allclose(distribution.stddev, policy.action_scale * policy.log_std.exp())
-    expected = torch.distributions.Normal(policy.action_mean + policy.action_scale * head, policy.action_scale * policy.log_std.exp())
+    expected = torch.distributions.Normal(
+        policy.action_mean + policy.action_scale * head, policy.action_scale * policy.log_std.exp()
+    )
     assert torch.allclose(policy.log_prob(distribution, actions[:1].expand(5, 3)), expected.log_prob(actions[:1]).sum(-1))
     plain = make_policy(gym.spaces.Box(-1, 1, (2,), np.float32), space, hidden_sizes=[8])
     plain.fit_action_normalizer(actions)  # nothing to fit: its head works in the env's units
@@ -238,9 +261,111 @@ def test_normalised_actions_are_a_gaussian_in_the_envs_units(tmp_path) -> None:
     from imitation.policies import load_policy, policy_tensors
     from imitation.runs import RunWriter as Writer
 
-    with Writer(tmp_path / "run", config={"kind": "bc", "env_id": None, "policy": policy.config.to_json()}, tensorboard=False) as run:
+    with Writer(
+        tmp_path / "run", config={"kind": "bc", "env_id": None, "policy": policy.config.to_json()}, tensorboard=False
+    ) as run:
         run.save_weights(policy_tensors(policy))
         run.finish({})
     loaded = load_policy(tmp_path / "run")
     observations = np.random.default_rng(0).normal(size=(4, 2)).astype(np.float32)
     assert np.allclose(loaded.predict(observations), policy.eval().predict(observations))
+
+
+LAYER_WIDTHS_MESSAGE = "hidden_sizes must be a list of layer widths in [1, 2^20], got "
+
+
+@pytest.mark.parametrize("widths", [[], [1], [2**20], [1] * 64], ids=["none", "one", "2^20", "64 layers"])
+def test_layer_widths_from_1_to_2_to_the_20_in_at_most_64_layers_are_accepted(widths) -> None:
+    check_layer_widths(widths)
+
+
+@pytest.mark.parametrize(
+    "widths",
+    [(8, 8), "64", [1] * 65, [0], [2**20 + 1], [True], [8, "8"], [8.0]],
+    ids=["a tuple", "a string", "65 layers", "zero", "above 2^20", "a boolean", "a string width", "a float width"],
+)
+def test_layer_widths_read_from_a_file_are_refused_unless_a_short_list_of_widths(widths) -> None:
+    with pytest.raises(ValueError, match=re.escape(LAYER_WIDTHS_MESSAGE + str(widths)[:80]) + "$"):
+        check_layer_widths(widths)
+
+
+def test_a_refused_layer_width_list_is_quoted_up_to_80_characters() -> None:
+    widths = [2**21] * 20
+    with pytest.raises(ValueError, match=re.escape(LAYER_WIDTHS_MESSAGE + str(widths)[:80]) + "$"):
+        check_layer_widths(widths)
+
+
+# (observation space, action space, options, the weight-matrix numbers of both trunks and the
+# action and value heads, counted by hand)
+PLANNED = {
+    "separate trunks": (BOX4, gym.spaces.Discrete(3), {"hidden_sizes": [5, 6, 7]}, 2 * (4 * 5 + 5 * 6 + 6 * 7) + 7 * (3 + 1)),
+    "shared trunk": (
+        BOX4,
+        gym.spaces.Discrete(3),
+        {"hidden_sizes": [5, 6, 7], "shared_trunk": True},
+        4 * 5 + 5 * 6 + 6 * 7 + 7 * (3 + 1),
+    ),
+    "no hidden layer": (gym.spaces.Discrete(6), gym.spaces.Box(-1, 1, (2,), np.float32), {"hidden_sizes": []}, 6 * (2 + 1)),
+    "multi-discrete": (BOX4, gym.spaces.MultiDiscrete([3, 2]), {"hidden_sizes": [5]}, 2 * 4 * 5 + 5 * (5 + 1)),
+}
+
+
+@pytest.mark.parametrize(("observations", "actions", "options", "planned"), PLANNED.values(), ids=PLANNED.keys())
+def test_a_truncated_policy_weights_file_is_refused_before_the_network_is_built(
+    tmp_path, observations, actions, options, planned
+) -> None:
+    """The config's network needs at least its weight matrices: a file with fewer numbers (here
+    a one-layer policy's action head, 2 × 1 weights and 2 biases) is refused with both counts,
+    before anything that size is allocated."""
+    from imitation.data.spaces import space_to_json
+
+    config = PolicyConfig(observation_space=space_to_json(observations), action_space=space_to_json(actions), **options)
+    tiny = make_policy(gym.spaces.Box(-1, 1, (1,), np.float32), gym.spaces.Discrete(2), hidden_sizes=[])
+    weights = {name: t for name, t in policy_tensors(tiny).items() if "action_head" in name}
+    run = RunWriter(tmp_path / "run", config={"kind": "bc", "policy": config.to_json()}, tensorboard=False)
+    run.save_weights(weights)
+    path = run.finish({})
+    expected = f"{path}: its config describes a network of at least {planned} weights, but its weights file holds 4 numbers"
+    with pytest.raises(ImitationError, match=re.escape(expected)):
+        load_policy(path)
+
+
+def test_the_observation_count_stays_exact_past_float32s_2_to_the_24() -> None:
+    """A long PPO run folds in more than 2^24 observations: the count (float64) keeps counting."""
+    stats = RunningMeanStd((1,))
+    stats.count.fill_(2**24)
+    stats.update(torch.ones(1, 1))
+    assert stats.count.item() == 2**24 + 1
+
+
+def test_a_reset_normaliser_forgets_everything_seen() -> None:
+    """After reset_parameters the statistics are a fresh normaliser's, so the next fit is the new data's alone."""
+    stats, fresh = RunningMeanStd((2,)), RunningMeanStd((2,))
+    stats.update(torch.randn(50, 2) * 7 + 3)
+    stats.reset_parameters()
+    for name, tensor in fresh.state_dict().items():
+        assert torch.equal(stats.state_dict()[name], tensor), name
+    data = torch.tensor([[1.0, 2.0], [3.0, 6.0]])
+    stats.update(data)
+    fresh.update(data)
+    assert torch.equal(stats.var, fresh.var) and torch.equal(stats.mean, fresh.mean)
+
+
+def test_the_single_observation_expert_returns_python_ints_for_discrete_actions() -> None:
+    expert = SingleObservationPolicy(make_policy(BOX4, gym.spaces.Discrete(3, start=2), hidden_sizes=[4]))
+    action = expert(np.zeros(4, np.float32))
+    assert type(action) is int and action in (2, 3, 4)
+    box = SingleObservationPolicy(make_policy(BOX4, gym.spaces.Box(-1, 1, (2,), np.float32), hidden_sizes=[4]))
+    assert box(np.zeros(4, np.float32)).shape == (2,)
+
+
+def test_a_stochastic_single_observation_expert_samples_its_policy() -> None:
+    """deterministic=False draws from π(·|s): with π = (½, ½) both actions come up, where the mode would repeat one."""
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[4])
+    with torch.no_grad():
+        policy.action_head.weight.zero_()
+        policy.action_head.bias.zero_()
+    sampled = {SingleObservationPolicy(policy, deterministic=False)(np.zeros(4, np.float32)) for _ in range(40)}
+    assert sampled == {0, 1}
+    assert {SingleObservationPolicy(policy)(np.zeros(4, np.float32)) for _ in range(5)} == {0}

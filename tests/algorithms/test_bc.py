@@ -3,6 +3,8 @@ and short runs on the bundled demos clone the expert."""
 
 from __future__ import annotations
 
+import copy
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -10,13 +12,15 @@ import torch
 from support import DATASETS
 
 from imitation.algorithms.bc import BCConfig, BehaviouralCloning, bc_loss, policy_options
+from imitation.checkpoints import snapshot
 from imitation.data.loader import TransitionTensors, load_transitions, transitions_to_torch
 from imitation.data.mcap.reader import DemoFile
 from imitation.envs.make import make_env
-from imitation.errors import ImitationError
+from imitation.errors import ConfigError, ImitationError
 from imitation.evaluation.policy import evaluate_policy
 from imitation.jobs.loop import run
 from imitation.policies import SingleObservationPolicy, make_policy
+from imitation.runs import read_checkpoint, save_checkpoint
 
 BOX4 = gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)
 
@@ -24,8 +28,13 @@ BOX4 = gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)
 def batch_of(observations: torch.Tensor, actions: torch.Tensor) -> TransitionTensors:
     n = len(observations)
     return TransitionTensors(
-        observations=observations, actions=actions, rewards=torch.zeros(n), next_observations=None,
-        terminated=torch.zeros(n, dtype=torch.bool), truncated=torch.zeros(n, dtype=torch.bool), episode_index=torch.zeros(n, dtype=torch.long),
+        observations=observations,
+        actions=actions,
+        rewards=torch.zeros(n),
+        next_observations=None,
+        terminated=torch.zeros(n, dtype=torch.bool),
+        truncated=torch.zeros(n, dtype=torch.bool),
+        episode_index=torch.zeros(n, dtype=torch.long),
     )
 
 
@@ -60,7 +69,9 @@ def test_early_stopping_keeps_the_best_epoch() -> None:
     train = batch_of(torch.randn(64, 4), torch.randint(0, 2, (64,)))
     validation = batch_of(torch.randn(64, 4), torch.randint(0, 2, (64,)))
     policy = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[64, 64])
-    learner = BehaviouralCloning(policy, train, validation, BCConfig(epochs=200, patience=5, batch_size=16, learning_rate=1e-2))
+    learner = BehaviouralCloning(
+        policy, train, validation, BCConfig(epochs=200, patience=5, batch_size=16, learning_rate=1e-2)
+    )
     history = run(learner)
     assert len(history) < 200
     best = min(history, key=lambda row: row["validation_loss"])
@@ -112,3 +123,131 @@ def test_acceptance_pendulum_normalised_return() -> None:
     trained = learner.policy
     learned = evaluate_policy(SingleObservationPolicy(trained), env, episodes=10, seed=0)["mean_return"]
     assert (learned - random_return) / (expert_return - random_return) >= 0.9
+
+
+@pytest.mark.parametrize(
+    ("settings", "field"),
+    [
+        ({"epochs": 1, "batch_size": 1, "patience": 1, "learning_rate": 1e-29}, None),  # the smallest allowed
+        ({"epochs": 0}, "epochs"),
+        ({"batch_size": 0}, "batch_size"),
+        ({"patience": 0}, "patience"),
+        ({"learning_rate": 0.0}, "learning_rate"),
+        ({"learning_rate": 1e30}, "learning_rate"),  # the bound itself is out
+        ({"learning_rate": float("nan")}, "learning_rate"),
+    ],
+)
+def test_bc_config_accepts_counts_from_one_and_a_learning_rate_strictly_between_zero_and_1e30(
+    settings: dict, field: str | None
+) -> None:
+    config = BCConfig(**settings)
+    if field is None:
+        config.validate(continuous=True)
+    else:
+        with pytest.raises(ConfigError, match=f"^{field} must be"):
+            config.validate(continuous=True)
+
+
+def learnable_batch(n: int, seed: int) -> TransitionTensors:
+    """Action 1 exactly when the first observation is positive: a rule a small MLP learns fast."""
+    observations = torch.randn(n, 4, generator=torch.Generator().manual_seed(seed))
+    return batch_of(observations, (observations[:, 0] > 0).long())
+
+
+def test_without_validation_the_lowest_training_loss_picks_the_weights_kept() -> None:
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[16])
+    initial = copy.deepcopy(policy.state_dict())
+    learner = BehaviouralCloning(
+        policy,
+        learnable_batch(64, 0),
+        None,
+        BCConfig(epochs=4, patience=4, batch_size=16, epoch_samples=64, learning_rate=1e-2),
+    )
+    history = run(learner)
+    assert all(np.isnan(row["validation_loss"]) for row in history)
+    assert learner.best_epoch == min(history, key=lambda row: row["train_loss"])["epoch"] > 0
+    assert learner.best_loss == pytest.approx(min(row["train_loss"] for row in history))
+    assert any(not torch.equal(learner.policy.state_dict()[name], tensor) for name, tensor in initial.items()), (
+        "trained weights kept"
+    )
+
+
+def test_a_validation_loss_that_stops_changing_is_no_improvement_and_ends_the_run_after_patience_epochs() -> None:
+    """A learning rate of 1e-29 moves no float32 weight, so every epoch's validation loss equals
+    the first's exactly: a tie is not a new best, and the run stops `patience` epochs later."""
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[8])
+    config = BCConfig(epochs=10, patience=2, batch_size=16, epoch_samples=32, learning_rate=1e-29)
+    learner = BehaviouralCloning(policy, learnable_batch(32, 0), learnable_batch(16, 1), config)
+    history = run(learner)
+    assert len({row["validation_loss"] for row in history}) == 1
+    assert (len(history), learner.best_epoch) == (3, 1)
+
+
+def test_evaluate_gets_the_policy_in_eval_mode_every_few_epochs_and_at_the_last() -> None:
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[8])
+    calls = []
+
+    def evaluate(evaluated) -> float:
+        calls.append((evaluated is policy, evaluated.training))
+        return 7.0
+
+    config = BCConfig(epochs=3, patience=3, batch_size=16, epoch_samples=16)
+    learner = BehaviouralCloning(policy, learnable_batch(16, 0), None, config, evaluate=evaluate, evaluate_every=2)
+    history = run(learner)
+    np.testing.assert_array_equal([row["return"] for row in history], [np.nan, 7.0, 7.0])
+    assert calls == [(True, False), (True, False)]
+    assert learner.progress(history[1]) == {"train": f"{history[1]['train_loss']:.3f}", "val": "nan", "ret": "7.0"}
+
+
+def test_bc_checkpoint_round_trip_restores_every_field_and_refuses_counters_outside_the_run(tmp_path) -> None:
+    """Through the files, as a run does: the weights, the best weights so far (kept apart from the
+    current ones), the best loss (inf before the first epoch, written as null), the counters and
+    the clock come back; a next epoch outside 1 … epochs + 1 is refused, and so is a checkpoint
+    of something else, as one line naming BC."""
+    train, validation = learnable_batch(64, 0), learnable_batch(32, 1)
+    config = BCConfig(epochs=4, patience=4, batch_size=16, epoch_samples=64, hidden_sizes=[8], learning_rate=0.05)
+
+    def learner(seed: int) -> BehaviouralCloning:
+        torch.manual_seed(seed)
+        return BehaviouralCloning(make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[8]), train, validation, config)
+
+    def through_files(original: BehaviouralCloning, folder: str):
+        (tmp_path / folder).mkdir()
+        save_checkpoint(tmp_path / folder, *snapshot(*original.state_dict()))
+        return read_checkpoint(tmp_path / folder)
+
+    fresh = learner(0)
+    restored = learner(1)
+    restored.load_state_dict(through_files(fresh, "fresh"))
+    assert (restored.best_loss, restored.best_epoch, restored.epochs, restored.samples) == (float("inf"), 0, 0, 0)
+
+    original = learner(0)
+    for _ in range(2):
+        original.step()
+    original.best_state = {name: tensor + 1.0 for name, tensor in original.best_state.items()}  # unlike the current weights
+    checkpoint = through_files(original, "trained")
+    restored = learner(1)
+    restored.load_state_dict(checkpoint)
+    for name, tensor in original.policy.state_dict().items():
+        assert torch.equal(restored.policy.state_dict()[name], tensor), name
+    assert restored.best_state.keys() == original.best_state.keys()
+    for name, tensor in original.best_state.items():
+        assert torch.equal(restored.best_state[name], tensor), name
+    assert np.isfinite(original.best_loss)
+    assert (restored.best_loss, restored.best_epoch, restored.epochs, restored.samples) == (
+        original.best_loss,
+        original.best_epoch,
+        2,
+        original.samples,
+    )
+    tensors, state = checkpoint
+    for epoch in (1, 5):  # the first epoch, and a finished run
+        learner(1).load_state_dict((tensors, state | {"epoch": epoch}))
+    for epoch in (0, 6):
+        with pytest.raises(ImitationError, match=f"the checkpoint's next epoch is {epoch}, outside 1..5"):
+            learner(1).load_state_dict((tensors, state | {"epoch": epoch}))
+    with pytest.raises(ImitationError, match="does not fit this BC run"):
+        learner(1).load_state_dict(({}, {}))

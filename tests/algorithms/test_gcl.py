@@ -16,6 +16,7 @@ from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import load_transitions, transitions_to_torch
 from imitation.envs.rollout import Rollout
+from imitation.errors import ConfigError
 from imitation.jobs.loop import run
 from imitation.jobs.presets import ppo_settings
 from imitation.policies import make_policy
@@ -285,3 +286,65 @@ def test_log_probabilities_of_a_pool_longer_than_one_chunk_are_those_of_one_pass
     with torch.no_grad():
         expected = policy.env_action_log_prob(policy.distribution(policy.encode(observations)), actions)
     assert torch.allclose(_env_action_log_probs(policy, observations, actions), expected, atol=1e-6)
+
+
+@pytest.mark.parametrize(("changes", "field"), [
+    ({"learning_rate": 0.0}, "learning_rate"),
+    ({"learning_rate": 1e30}, "learning_rate"),
+    ({"learning_rate": float("nan")}, "learning_rate"),
+    ({"policy_entropy": -0.1}, "policy_entropy"),
+    ({"policy_entropy": float("inf")}, "policy_entropy"),
+    ({"policy_entropy": float("nan")}, "policy_entropy"),
+    ({"objective": "adversarial"}, "objective"),
+])
+def test_config_out_of_range_is_refused_naming_the_field(changes: dict, field: str) -> None:
+    with pytest.raises(ConfigError, match=f"^{field} ") as raised:
+        GCLConfig(**changes).validate()
+    assert raised.value.owner == "GCLConfig"
+
+
+def test_config_at_the_edges_of_its_ranges_is_accepted() -> None:
+    """α = 0 (no entropy term: PPO optimises r_θ alone) and a learning rate just under the bound."""
+    GCLConfig(policy_entropy=0.0, learning_rate=1e29).validate()
+
+
+def test_without_annealing_every_reward_step_runs_at_the_configured_learning_rate() -> None:
+    learner, _, _ = _two_rollouts_under_two_policies(learning_rate=0.02, anneal_lr=False)
+    assert learner.learned == 2
+    assert [group["lr"] for group in learner.optimizer.param_groups] == [0.02]
+
+
+def test_a_fresh_reward_learner_round_trips_its_state_before_any_rollout() -> None:
+    """A checkpoint taken before the first rollout (no pool, no samplers yet) restores as such."""
+    env = gym.make(ENV_ID)
+    demos = transitions_to_torch(
+        load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True)
+    )
+
+    def fresh() -> RewardLearner:
+        torch.manual_seed(0)
+        reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8])
+        return RewardLearner(reward, demos, GCLConfig(), updates=2)
+
+    tensors, state = fresh().state_dict()
+    assert state["samplers"] == 0 and state["sampler_policy"] is None and state["learned"] == 0
+    assert not any(name.startswith(("pool.", "sampler.")) for name in tensors)
+    restored = fresh()
+    restored.load_state_dict((tensors, state))
+    assert restored.pool is None and restored.samplers == [] and restored.learned == 0
+    assert torch.equal(restored.demo_log_mass, torch.full((len(demos),), -float("inf")))
+
+
+def test_progress_adds_the_demo_accuracy_to_ppos_columns() -> None:
+    env = gym.make(ENV_ID)
+    demos = transitions_to_torch(
+        load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True)
+    )
+    ppo = PPO(PPOConfig(env_id=ENV_ID, total_steps=256, **ppo_settings(ENV_ID)))
+    try:
+        reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8])
+        learner = GuidedCostLearning(ppo, reward, demos, GCLConfig())
+        row = {"return": 12.34, "steps_per_second": 1500.4, "demo_accuracy": 0.876}
+        assert learner.progress(row) == {"ret": "12.3", "sps": "1500", "demo_acc": "0.88"}
+    finally:
+        ppo.close()

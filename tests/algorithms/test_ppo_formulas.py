@@ -134,3 +134,16 @@ def test_reward_scaling_divides_by_the_running_std_of_the_discounted_return() ->
         np.testing.assert_allclose(scaled, expected, rtol=2e-3)
         assert t != 190 or scaled.tolist() == [-10.0, 10.0]
         returns[dones] = 0.0
+
+
+def test_reward_scaling_stays_finite_after_a_long_run_of_zero_rewards() -> None:
+    """A sparse reward (0 until the first success) drives the returns' running variance from its
+    prior 1 down to 1e-4 / (1e-4 + n): below the 1e-8 guard after 2·10⁴ returns. The scaled
+    rewards stay 0 meanwhile, and the first success is clipped to 10, not NaN."""
+    scaler = RewardScaler(n_envs=1000, gamma=GAMMA)
+    for _ in range(20):
+        assert not scaler(np.zeros(1000), np.zeros(1000, dtype=bool)).any()
+    assert scaler.stats.var.item() < 1e-8
+    rewards = np.zeros(1000)
+    rewards[0] = 1.0
+    assert scaler(rewards, np.zeros(1000, dtype=bool))[:2].tolist() == [10.0, 0.0]

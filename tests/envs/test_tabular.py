@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -9,8 +11,17 @@ import pytest
 import imitation.envs  # noqa: F401  (registers the ids)
 from imitation.envs.rollout import play_episode
 from imitation.envs.tabular import TabularMDP, cliff_world, gridworld, random_mdp, tabular_mdp_of
-from imitation.envs.tabular_planning import Dynamics, expected_return, soft_optimal_policy
-from imitation.errors import ImitationError
+from imitation.envs.tabular_planning import (
+    DenseDynamics,
+    Dynamics,
+    SparseDynamics,
+    check_horizon,
+    expected_return,
+    soft_optimal_policy,
+    soft_optimal_returns,
+    soft_value_iteration,
+)
+from imitation.errors import ConfigError, ImitationError
 from imitation.experts.load import load_expert
 
 TABULAR_IDS = ["imitation/GridWorld8x8-v0", "imitation/GridWorld8x8Slippery-v0", "imitation/CliffWorld-v0", "imitation/RandomMDP-v0"]
@@ -70,3 +81,91 @@ def test_malformed_mdp_and_non_tabular_env_are_refused() -> None:
         TabularMDP(transition=good.transition * 0.5, initial=good.initial, features=good.features, reward=good.reward, horizon=30)
     with pytest.raises(ImitationError, match="not a tabular MDP"):
         tabular_mdp_of(gym.make("CartPole-v1"), where="--method mce")
+
+
+def _stay_or_swap(reward: np.ndarray, horizon: int) -> TabularMDP:
+    """Two states, action 0 stays and action 1 swaps, start in s0, γ = 1."""
+    transition = np.array([[[1.0, 0.0], [0.0, 1.0]], [[0.0, 1.0], [1.0, 0.0]]])
+    return TabularMDP(transition=transition, initial=np.array([1.0, 0.0]), features=np.eye(2), reward=reward, horizon=horizon)
+
+
+def test_soft_optimal_returns_by_hand() -> None:
+    """Stay-or-swap with r = (1, 2), H = 2: the return is r(s0) + E[r(s_1)] = 2 + π_0(swap|s0), and
+    V_1(s1) - V_1(s0) = r(s1) - r(s0) (both add the same log Σ_a), so π_0(swap|s0) = σ(γ (r(s1) - r(s0))).
+    At γ = 0.5 (not the MDP's 1): a learned r' = (0, 2) earns 2 + σ(1), the true one 2 + σ(0.5), the
+    uniform policy 2.5."""
+    mdp = _stay_or_swap(np.array([1.0, 2.0]), horizon=2)
+    returns = soft_optimal_returns(mdp, np.array([0.0, 2.0]), discount=0.5)
+    sigmoid = lambda x: 1 / (1 + np.exp(-x))  # noqa: E731
+    learned, expert = 2 + sigmoid(1.0), 2 + sigmoid(0.5)
+    assert returns == pytest.approx({
+        "learned_policy_return": learned,
+        "expert_return": expert,
+        "random_return": 2.5,
+        "normalized_return": (learned - 2.5) / (expert - 2.5),
+    }, rel=1e-12)
+    # The policies behind them: soft-optimal for the reward and discount given, the MDP's by default.
+    assert soft_optimal_policy(mdp, np.array([0.0, 2.0]), discount=0.5)[0, 0, 1] == pytest.approx(sigmoid(1.0))
+    assert soft_optimal_policy(mdp)[0, 0, 1] == pytest.approx(sigmoid(1.0))
+
+
+@pytest.mark.parametrize("discount", [0.0, -0.5, 1.5, float("nan")])
+def test_discount_outside_zero_to_one_is_refused(discount: float) -> None:
+    with pytest.raises(ConfigError, match=r"discount must be in \(0, 1\]"):
+        check_horizon(10, discount)
+
+
+def _ring(n_states: int, n_actions: int, width: int) -> np.ndarray:
+    """P[s, a, ·] uniform over the `width` states s + a, …, s + a + width - 1 (mod S)."""
+    transition = np.zeros((n_states, n_actions, n_states))
+    for a in range(n_actions):
+        for k in range(width):
+            transition[np.arange(n_states), a, (np.arange(n_states) + a + k) % n_states] = 1.0 / width
+    return transition
+
+
+@pytest.mark.parametrize(("n_states", "width", "kind"), [
+    (256, 3, DenseDynamics),  # up to 256 states: dense
+    (257, 3, SparseDynamics),
+    (264, 33, SparseDynamics),  # 33 successors = 264 // 8: still sparse
+    (264, 34, DenseDynamics),  # more than an eighth of the states: dense
+])
+def test_dynamics_are_sparse_only_for_many_states_with_few_successors(n_states: int, width: int, kind: type) -> None:
+    """Either way P is the same: Σ_{s'} P v and Σ_{s, a} m P agree with the dense products; the
+    sparse form keeps just the `width` successors of each (s, a)."""
+    transition = _ring(n_states, 2, width)
+    dynamics = Dynamics.of(transition)
+    assert type(dynamics) is kind
+    if kind is SparseDynamics:
+        assert dynamics.successors.shape == dynamics.probabilities.shape == (n_states, 2, width)
+    rng = np.random.default_rng(0)
+    values, mass = rng.normal(size=n_states), rng.random((n_states, 2))
+    np.testing.assert_allclose(dynamics.expectation(values), np.einsum("sat,t->sa", transition, values), rtol=1e-12)
+    np.testing.assert_allclose(dynamics.propagate(mass), np.einsum("sa,sat->t", mass, transition), rtol=1e-12)
+
+
+def test_single_action_sparse_dynamics_keep_the_action_axis() -> None:
+    """With one action the (S, 1) shape of log Σ_{s'} P exp v must survive (S, 1) + (S,) broadcasting
+    to (S, S) otherwise), and so must the soft-optimal policy's (H, S, 1)."""
+    transition = _ring(300, 1, 2)
+    dynamics = Dynamics.of(transition)
+    assert isinstance(dynamics, SparseDynamics)
+    values = np.random.default_rng(0).normal(size=300)
+    logs = dynamics.log_expectation_of_exp(values)
+    assert logs.shape == (300, 1)
+    np.testing.assert_allclose(logs, np.log(np.einsum("sat,t->sa", transition, np.exp(values))), rtol=1e-12)
+    policy, start_values = soft_value_iteration(dynamics, values, horizon=3, discount=1.0, method="maxent")
+    assert policy.shape == (3, 300, 1) and np.allclose(policy, 1.0) and start_values.shape == (300,)
+
+
+def test_maxent_backup_over_impossible_successors_warns_nothing() -> None:
+    """log P(s'|s, a) is -inf where P is 0, on purpose (exp(-inf) = 0): no 'divide by zero' warning."""
+    grid = gridworld()
+    sparse_transition = _ring(300, 2, 3)
+    sparse_transition[0, 0] = np.eye(300)[5]  # fewer successors than the width: zero-padded
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        soft_value_iteration(Dynamics.of(grid.transition), grid.reward, horizon=3, discount=1.0, method="maxent")
+        sparse = Dynamics.of(sparse_transition)
+        assert isinstance(sparse, SparseDynamics)
+        sparse.log_expectation_of_exp(np.zeros(300))

@@ -13,7 +13,7 @@ from imitation.data.types import Transitions
 from imitation.envs.tabular import random_mdp
 from imitation.errors import ImitationError
 from imitation.evaluation.epic import (
-    TransitionBatch, canonicalize_sampled, canonicalize_tabular, coverage_samples, epic_distance_sampled,
+    EpicResult, TransitionBatch, canonicalize_sampled, canonicalize_tabular, coverage_samples, epic_distance_sampled,
     epic_distance_tabular, pearson_distance, tabulate, torch_reward, uniform_space_samples,
 )
 from imitation.rewards import all_state_rewards, make_reward_model
@@ -122,7 +122,8 @@ def test_two_state_example_worked_by_hand() -> None:
 
 def test_pearson_distance_values() -> None:
     assert pearson_distance(1.0) == 0.0 and pearson_distance(-1.0) == 1.0 and pearson_distance(0.0) == pytest.approx(np.sqrt(0.5))
-    assert pearson_distance(1.0 + 1e-12) == 0.0
+    # Round-off past either end of [-1, 1] is clipped: the distance stays within [0, 1].
+    assert pearson_distance(1.0 + 1e-12) == 0.0 and pearson_distance(-1.0 - 1e-12) == 1.0
 
 
 def test_coverage_weights_count_like_repeated_transitions() -> None:
@@ -506,3 +507,13 @@ def test_one_transition_is_a_batch_and_rollouts_without_next_states_are_named() 
     demos = _transitions(states, np.zeros(4, np.int64), states)
     with pytest.raises(ImitationError, match="the rollouts need next observations"):
         coverage_samples(env, demos, _transitions(states, np.zeros(4, np.int64), None), n_uniform=1)
+
+
+def test_integer_reward_tables_are_compared_as_floats() -> None:
+    """An int8 table is read as float64: 20² or 100² would wrap around in int8 arithmetic, and
+    two constant rewards (no preference either) must still be at distance 0."""
+    constant_a, constant_b = np.full(3, 20, dtype=np.int8), np.full((3, 2), 100, dtype=np.int8)
+    assert epic_distance_tabular(constant_a, constant_b, 3, 2, 0.9) == EpicResult(epic=0.0, pearson=1.0)
+    varied = np.array([0, 20, 100], dtype=np.int8)
+    as_floats = epic_distance_tabular(varied.astype(float), constant_b.astype(float), 3, 2, 0.9)
+    assert epic_distance_tabular(varied, constant_b, 3, 2, 0.9) == as_floats
