@@ -16,6 +16,7 @@ from imitation.policies import (
     RunningMeanStd,
     SingleObservationPolicy,
     check_layer_widths,
+    check_policy_fits_env,
     load_policy,
     make_policy,
     policy_tensors,
@@ -241,15 +242,18 @@ def test_normalised_actions_are_a_gaussian_in_the_envs_units(tmp_path) -> None:
     log-probabilities, sampling and the saved policy all speak the env's units."""
     space = gym.spaces.Box(-np.inf, np.inf, (3,), np.float32)
     policy = make_policy(gym.spaces.Box(-1, 1, (2,), np.float32), space, hidden_sizes=[8], normalize_actions=True)
-    actions = torch.tensor([[10.0, -3.0, 7.0], [14.0, -1.0, 7.0], [12.0, -2.0, 7.0]])
+    # Four actions of three numbers (a non-square batch), and σ = 1/2 so that s·σ differs from s/σ.
+    actions = torch.tensor([[10.0, -3.0, 7.0], [14.0, -1.0, 7.0], [12.0, -2.0, 7.0], [12.0, -2.0, 7.0]])
     policy.fit_action_normalizer(actions)
     assert torch.allclose(policy.action_mean, torch.tensor([12.0, -2.0, 7.0]))
-    assert torch.allclose(policy.action_scale, torch.tensor([np.sqrt(8 / 3), np.sqrt(2 / 3), 1.0], dtype=torch.float32))
+    assert torch.allclose(policy.action_scale, torch.tensor([np.sqrt(2), np.sqrt(1 / 2), 1.0], dtype=torch.float32))
+    with torch.no_grad():
+        policy.log_std.fill_(math.log(0.5))
     features = policy.encode(torch.randn(5, 2))
     head = policy.action_head(policy.actor_trunk(features))
     distribution = policy.distribution(features)
     assert torch.allclose(distribution.mean, policy.action_mean + policy.action_scale * head)
-    assert torch.allclose(distribution.stddev, policy.action_scale * policy.log_std.exp())
+    assert torch.allclose(distribution.stddev, (policy.action_scale * 0.5).expand(5, 3))
     expected = torch.distributions.Normal(
         policy.action_mean + policy.action_scale * head, policy.action_scale * policy.log_std.exp()
     )
@@ -369,3 +373,37 @@ def test_a_stochastic_single_observation_expert_samples_its_policy() -> None:
     sampled = {SingleObservationPolicy(policy, deterministic=False)(np.zeros(4, np.float32)) for _ in range(40)}
     assert sampled == {0, 1}
     assert {SingleObservationPolicy(policy)(np.zeros(4, np.float32)) for _ in range(5)} == {0}
+
+
+@pytest.mark.parametrize(
+    ("data", "error", "message"),
+    [
+        ([], TypeError, "the policy config is a list, not an object"),
+        (
+            {"activation": 1},
+            TypeError,
+            "activation must be a name, shared_trunk and normalize_observations/actions true or false",
+        ),
+        ({"shared_trunk": "yes"}, TypeError, "activation must be a name"),
+        ({"normalize_observations": 1}, TypeError, "activation must be a name"),
+        ({"normalize_actions": "no"}, TypeError, "activation must be a name"),
+        ({"log_std_init": True}, ValueError, "log_std_init must be a finite number, got True"),
+        ({"log_std_init": "0.5"}, ValueError, "log_std_init must be a finite number, got '0.5'"),
+        ({"log_std_init": math.nan}, ValueError, "log_std_init must be a finite number, got nan"),
+        ({"log_std_init": -math.inf}, ValueError, "log_std_init must be a finite number, got -inf"),
+    ],
+    ids=["list", "activation", "shared_trunk", "normalize_observations", "normalize_actions", "bool", "str", "nan", "-inf"],
+)
+def test_a_policy_config_read_from_a_file_refuses_each_malformed_field_naming_it(data, error, message) -> None:
+    valid = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[4]).config.to_json() | {"log_std_init": -1}
+    assert PolicyConfig.from_json(valid).to_json() == valid
+    with pytest.raises(error, match=f"^{re.escape(message)}"):
+        PolicyConfig.from_json(data if not isinstance(data, dict) else valid | data)
+
+
+def test_a_policy_for_other_spaces_than_the_envs_is_refused_in_one_line_naming_where_and_whose() -> None:
+    policy = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[4])
+    env = gym.make("Pendulum-v1")
+    with pytest.raises(ImitationError, match=re.escape("here: the policy's observation space Box(float32, (4,)) does not")):
+        check_policy_fits_env(policy, env, where="here")
+    check_policy_fits_env(make_policy(env.observation_space, env.action_space, hidden_sizes=[4]), env, where="here")

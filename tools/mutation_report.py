@@ -106,8 +106,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     print(f"{'module':40} {'generated':>9} {'killed':>7} {'equiv.':>7} {'surviving':>9} {'other':>6} {'score':>7}")
     for module, row in sorted(table.items()):
-        other = row["generated"] - row["killed"] - row.get("equivalent", 0) - row.get("surviving", 0)
-        print(f"{module:40} {row['generated']:9d} {row['killed']:7d} {row.get('equivalent', 0):7d} {row.get('surviving', 0):9d} {other:6d} {row['score']:7.1%}")
+        other = row["generated"] - row.get("killed", 0) - row.get("equivalent", 0) - row.get("surviving", 0)
+        print(f"{module:40} {row['generated']:9d} {row.get('killed', 0):7d} {row.get('equivalent', 0):7d} {row.get('surviving', 0):9d} {other:6d} {row['score']:7.1%}")
     total = {key: sum(row.get(key, 0) for row in table.values()) for key in ("generated", "killed", "equivalent")}
     print(f"{'all':40} {total['generated']:9d} {total['killed']:7d} {total['equivalent']:7d} {'':>9} {'':>6} {total['killed'] / max(1, total['generated'] - total['equivalent']):7.1%}")
     for module, row in sorted(table.items()):

@@ -4,6 +4,8 @@ and short runs on the bundled demos clone the expert."""
 from __future__ import annotations
 
 import copy
+import math
+import time
 
 import gymnasium as gym
 import numpy as np
@@ -11,7 +13,7 @@ import pytest
 import torch
 from support import DATASETS
 
-from imitation.algorithms.bc import BCConfig, BehaviouralCloning, bc_loss, policy_options
+from imitation.algorithms.bc import SMALL_DATA, BCConfig, BehaviouralCloning, bc_loss, policy_options
 from imitation.checkpoints import snapshot
 from imitation.data.loader import TransitionTensors, load_transitions, transitions_to_torch
 from imitation.data.mcap.reader import DemoFile
@@ -251,3 +253,104 @@ def test_bc_checkpoint_round_trip_restores_every_field_and_refuses_counters_outs
             learner(1).load_state_dict((tensors, state | {"epoch": epoch}))
     with pytest.raises(ImitationError, match="does not fit this BC run"):
         learner(1).load_state_dict(({}, {}))
+
+
+@pytest.mark.parametrize(
+    ("transitions", "activation"),
+    [(None, "relu"), (0, "tanh"), (SMALL_DATA - 1, "tanh"), (SMALL_DATA, "relu"), (10 * SMALL_DATA, "relu")],
+)
+def test_policy_options_resolve_auto_to_tanh_below_small_data_and_normalise_both_sides(
+    transitions: int | None, activation: str
+) -> None:
+    config = BCConfig(hidden_sizes=[32, 16])
+    assert policy_options(config, transitions) == {
+        "hidden_sizes": [32, 16],
+        "activation": activation,
+        "normalize_observations": True,
+        "normalize_actions": True,
+    }
+    assert policy_options(BCConfig(activation="elu"), transitions)["activation"] == "elu"  # a named one stays
+
+
+def test_a_continuous_policy_takes_the_mse_loss_and_gets_its_action_normaliser_fitted_to_the_training_actions() -> None:
+    torch.manual_seed(0)
+    box2 = gym.spaces.Box(-np.inf, np.inf, (2,), np.float32)
+    policy = make_policy(BOX4, box2, hidden_sizes=[8], normalize_actions=True)
+    actions = torch.tensor([[1.0, 10.0], [3.0, 10.0], [5.0, 10.0], [7.0, 10.0], [9.0, 10.0]])
+    BehaviouralCloning(policy, batch_of(torch.randn(5, 4), actions), None, BCConfig(loss="mse", epochs=1))
+    assert torch.allclose(policy.action_mean, torch.tensor([5.0, 10.0]))
+    assert torch.allclose(policy.action_scale, torch.tensor([math.sqrt(8.0), 1.0]))  # a still dimension keeps 1
+    discrete = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[8])
+    with pytest.raises(ConfigError, match="mse is for continuous"):
+        BehaviouralCloning(discrete, learnable_batch(4, 0), None, BCConfig(loss="mse", epochs=1))
+
+
+def test_an_epoch_goes_through_at_least_epoch_samples_in_whole_passes_and_reports_samples_per_second() -> None:
+    """24 transitions and epoch_samples 40: two passes (48 samples, three batches of 16) an epoch;
+    the rate is the samples so far over the training seconds so far."""
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[8])
+    config = BCConfig(epochs=2, patience=2, batch_size=16, epoch_samples=40)
+    learner = BehaviouralCloning(policy, learnable_batch(24, 0), None, config)
+    started = time.perf_counter()
+    rows = [learner.step(), learner.step()]
+    elapsed = time.perf_counter() - started
+    assert learner.state_dict()[1]["samples"] == 96
+    assert 0 < elapsed < 1  # so that samples · seconds cannot pass for samples / seconds
+    assert rows[1]["samples_per_second"] >= 96 / elapsed
+    assert rows[0]["samples_per_second"] >= 48 / elapsed
+
+
+def test_the_seed_decides_the_minibatch_order() -> None:
+    """BC draws nothing else at random once the policy is built: from the same weights and data,
+    the same seed repeats an epoch exactly and another seed shuffles it differently."""
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[8])
+    data = learnable_batch(64, 0)
+
+    def one_epoch(seed: int) -> dict[str, torch.Tensor]:
+        config = BCConfig(epochs=1, batch_size=8, epoch_samples=64, learning_rate=0.05, seed=seed)
+        learner = BehaviouralCloning(copy.deepcopy(policy), data, None, config)
+        learner.step()
+        return learner.policy.state_dict()
+
+    first, again, other = one_epoch(1), one_epoch(1), one_epoch(0)
+    assert all(torch.equal(first[name], again[name]) for name in first)
+    assert not all(torch.equal(first[name], other[name]) for name in first)
+
+
+def test_evaluate_runs_every_five_epochs_by_default_and_progress_shows_no_return_without_one() -> None:
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[8])
+    config = BCConfig(epochs=7, patience=7, batch_size=16, epoch_samples=16)
+    learner = BehaviouralCloning(policy, learnable_batch(16, 0), None, config, evaluate=lambda p: 3.0)
+    history = run(learner)
+    assert [row["epoch"] for row in history if np.isfinite(row["return"])] == [5.0, 7.0]
+    assert learner.progress(history[0]) == {"train": f"{history[0]['train_loss']:.3f}", "val": "nan"}
+
+
+@pytest.mark.parametrize(
+    ("action_space", "options"),
+    [
+        (gym.spaces.Discrete(2), {}),
+        (gym.spaces.MultiDiscrete([2, 3]), {}),
+        (gym.spaces.Box(-1, 1, (2,), np.float32), {}),
+        (gym.spaces.Box(-1, 1, (2,), np.float32), {"normalize_actions": True}),
+    ],
+    ids=["categorical", "multi-categorical", "gaussian", "normalised gaussian"],
+)
+def test_a_diverging_run_stops_with_one_line_naming_the_epoch_whatever_the_head(action_space, options) -> None:
+    """A learning rate of 1e29 throws the weights to ±1e29 in one Adam step, so the next batch's
+    distribution has non-finite parameters: that is the loss check's to report (torch's argument
+    validation, were it on, would raise its own ValueError first)."""
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, action_space, hidden_sizes=[8], activation="relu", **options)
+    observations = torch.randn(64, 4, generator=torch.Generator().manual_seed(0))
+    action_space.seed(0)
+    actions = torch.from_numpy(np.stack([action_space.sample() for _ in range(64)]))
+    config = BCConfig(epochs=3, batch_size=16, epoch_samples=64, learning_rate=1e29, l2_coef=0.0)
+    learner = BehaviouralCloning(policy, batch_of(observations, actions), None, config)
+    with pytest.raises(
+        ImitationError, match=r"^BC epoch 1: the loss is (nan|inf|-inf) \(diverged; try a lower learning rate\)$"
+    ):
+        run(learner)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import copy
 import math
+import multiprocessing
 import re
 import time
 import warnings
@@ -17,10 +18,19 @@ import pytest
 import torch
 from torch.distributions import Normal, kl_divergence
 
-from imitation.algorithms.ppo import PPO, PPOConfig, RewardScaler, UpdateBatch, check_finite_step, compute_gae, ppo_update
+from imitation.algorithms.ppo import (
+    PPO,
+    PPOConfig,
+    RewardScaler,
+    UpdateBatch,
+    check_finite_step,
+    compute_gae,
+    make_vector_env,
+    ppo_update,
+)
 from imitation.checkpoints import snapshot, unprefixed
 from imitation.envs.rollout import Rollout
-from imitation.errors import ImitationError
+from imitation.errors import ConfigError, ImitationError
 from imitation.policies import ActorCritic, PolicyConfig
 
 
@@ -374,3 +384,233 @@ def test_explained_variance_of_returns_that_do_not_vary_is_hugely_negative() -> 
         learner.close()
     expected = 1.0 - torch.var(1.0 - values).item() / 1e-8
     assert expected < -10.0 and row["explained_variance"] == pytest.approx(expected, rel=1e-3)
+
+
+class Chain(gym.Env):
+    """Five states in a row (Discrete observations), moved left or right by the action and
+    rewarded by the state's number; reaching the right end terminates, the time limit truncates."""
+
+    observation_space = gym.spaces.Discrete(5)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self.state = int(self.np_random.integers(0, 4))
+        return self.state, {}
+
+    def step(self, action):
+        self.state = min(max(self.state + 2 * int(action) - 1, 0), 4)
+        return self.state, float(self.state), self.state == 4, False, {}
+
+
+class NonFiniteDrift(Drift):
+    """Drift whose env copy 1 (told apart by the seed of its first reset: copy i gets seed + i)
+    returns a NaN observation or reward at its step `at`, counting across episodes."""
+
+    def __init__(self, what: str, at: int) -> None:
+        super().__init__()
+        self.what, self.at, self.copy, self.steps = what, at, None, 0
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is not None:
+            self.copy = seed
+        return super().reset(seed=seed, options=options)
+
+    def step(self, action):
+        observation, reward, terminated, truncated, info = super().step(action)
+        self.steps += 1
+        if self.copy == 1 and self.steps == self.at:
+            if self.what == "reward":
+                reward = float("nan")
+            else:
+                observation[1] = np.nan
+        return observation, reward, terminated, truncated, info
+
+
+gym.register("TestPPOChain-v0", entry_point=Chain, max_episode_steps=4)
+for name, what, at in [("Observation", "observation", 11), ("Reward", "reward", 11), ("FinalObservation", "observation", 10)]:
+    gym.register(f"TestPPONaN{name}-v0", entry_point=NonFiniteDrift, kwargs=dict(what=what, at=at), max_episode_steps=4)
+
+
+@pytest.mark.parametrize("env_id", ["TestPPODrift-v0", "TestPPODriftDiscrete-v0", "TestPPOChain-v0"])
+def test_a_rollout_is_what_hand_stepped_copies_of_the_envs_see(env_id: str) -> None:
+    """Every field of the rollout against copies of the envs stepped by hand with the rollout's
+    env actions (copy i reset with seed i, then reset unseeded where an episode ends): states in
+    the envs' own dtype (integers for Discrete observations), the true final state where an
+    episode ended, rewards, terminated/truncated, log π_k(a|s), and the episodes' returns."""
+    config = tiny_config(env_id=env_id)
+    learner = PPO(config)
+    try:
+        rollout = learner.collect_rollout()
+    finally:
+        learner.close()
+    policy = learner.policy
+    discrete_observations = env_id == "TestPPOChain-v0"
+    dtype = torch.int64 if discrete_observations else torch.float32
+    assert rollout.observations.dtype == rollout.next_observations.dtype == dtype
+    assert rollout.terminated.any() and rollout.truncated.any()
+
+    envs = [gym.make(env_id) for _ in range(N_ENVS)]
+    observations = [env.reset(seed=i)[0] for i, env in enumerate(envs)]
+    returns, finished = np.zeros(N_ENVS), []
+    for t in range(N_STEPS):
+        assert torch.equal(rollout.observations[t], torch.as_tensor(np.array(observations)).to(dtype)), t
+        with torch.no_grad():
+            distribution = policy.distribution(policy.encode(rollout.observations[t]))
+            log_probs = policy.log_prob(distribution, rollout.actions[t])
+        assert torch.allclose(rollout.log_probs[t], log_probs, atol=1e-5), t
+        env_actions = policy.to_env_action(rollout.actions[t])
+        assert torch.equal(rollout.env_actions[t], torch.as_tensor(env_actions).float().reshape(rollout.env_actions[t].shape))
+        for i, env in enumerate(envs):
+            observation, reward, terminated, truncated, _ = env.step(env_actions[i])
+            assert torch.equal(rollout.next_observations[t, i], torch.as_tensor(observation).to(dtype)), (t, i)
+            assert rollout.env_rewards[t, i].item() == pytest.approx(reward, rel=1e-6)
+            assert (rollout.terminated[t, i].item(), rollout.truncated[t, i].item()) == (terminated, truncated), (t, i)
+            returns[i] += reward
+            if terminated or truncated:
+                finished.append(returns[i])
+                returns[i] = 0.0
+                observation, _ = env.reset()
+            observations[i] = observation
+    assert list(learner.recent_returns) == pytest.approx(finished, rel=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("name", "message"),
+    [
+        # Copy 1's 11th step is the first of its 4th episode (3 + 4 + 3 steps before): vector step 10,
+        # the third of the second rollout, env step 16 + 2·2 + 1 + 1.
+        ("Observation", "observation at env step 22 (env copy 1)"),
+        ("Reward", "reward at env step 22 (env copy 1)"),
+        # Its 10th step ends its 3rd episode: the NaN is in the final state, not in the reset one.
+        ("FinalObservation", "final observation at env step 20 (env copy 1)"),
+    ],
+)
+def test_a_non_finite_env_output_stops_the_rollout_naming_its_env_step(name: str, message: str) -> None:
+    env_id = f"TestPPONaN{name}-v0"
+    learner = PPO(tiny_config(env_id=env_id))
+    try:
+        learner.collect_rollout()
+        with pytest.raises(
+            ImitationError, match=rf"^{env_id}: the environment returned a non-finite {re.escape(message)}; PPO needs finite"
+        ):
+            learner.collect_rollout()
+    finally:
+        learner.close()
+
+
+def test_the_running_observation_statistics_are_those_of_every_state_the_rollout_saw() -> None:
+    learner = PPO(tiny_config(normalize_observations=True))
+    try:
+        rollout = learner.collect_rollout()
+    finally:
+        learner.close()
+    seen = rollout.observations.reshape(-1, 2).double()
+    statistics = learner.policy.obs_rms
+    assert statistics is not None
+    # The statistics start from a prior of weight 1e-4: a relative error of about 1e-5 over 16 states.
+    assert torch.allclose(statistics.mean, seen.mean(0), rtol=1e-4, atol=1e-6)
+    assert torch.allclose(statistics.var, seen.var(0, unbiased=False), rtol=1e-4, atol=1e-6)
+
+
+def test_the_logged_returns_are_the_means_of_the_last_20_episodes() -> None:
+    """64 steps of 2 envs end about 36 episodes: the row's returns (the env's, and the one
+    optimised) are the means of the last 20, and the checkpoint keeps those 20."""
+    learner = PPO(tiny_config(n_steps=64, total_steps=128, batch_size=128, n_epochs=1))
+    try:
+        rollout = learner.collect_rollout()
+        rewards = 2.0 * rollout.env_rewards + 1.0
+        row = learner.update(rollout, rewards)
+        _, state = learner.state_dict()
+    finally:
+        learner.close()
+    true_returns = episode_returns(rollout.env_rewards, rollout, np.zeros(N_ENVS))
+    optimised_returns = episode_returns(rewards, rollout, np.zeros(N_ENVS))
+    assert len(true_returns) > 30
+    assert state["recent_returns"] == pytest.approx(true_returns[-20:], rel=1e-5)
+    assert state["recent_optimised_returns"] == pytest.approx(optimised_returns[-20:], rel=1e-5)
+    assert row["return"] == pytest.approx(np.mean(true_returns[-20:]), rel=1e-5)
+    assert row["optimised_return"] == pytest.approx(np.mean(optimised_returns[-20:]), rel=1e-5)
+
+
+def test_the_timers_add_up_to_the_time_spent_in_rollouts_and_updates() -> None:
+    """Environment and inference time together cover a rollout's loop (all but the first
+    rollout's reset) and no more; update time is the update's. Fresh learners start from zero."""
+    learner = PPO(tiny_config())
+    try:
+        started = time.perf_counter()
+        learner.collect_rollout()  # resets the envs first, outside both timers
+        first = time.perf_counter() - started
+        assert learner.timers["env"] > 0 and learner.timers["inference"] > 0
+        assert learner.timers["env"] + learner.timers["inference"] <= first
+        before = dict(learner.timers)
+        started = time.perf_counter()
+        rollout = learner.collect_rollout()
+        second = time.perf_counter() - started
+        env, inference = (learner.timers[key] - before[key] for key in ("env", "inference"))
+        assert env > 0 and inference > 0 and 0.9 * second <= env + inference <= second
+        assert learner.timers["update"] == 0.0
+        started = time.perf_counter()
+        learner.update(rollout, rollout.env_rewards)
+        assert 0 < learner.timers["update"] <= time.perf_counter() - started
+    finally:
+        learner.close()
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"objective": "trpo"}, "objective must be one of clip, kl, got 'trpo'"),
+        ({"n_epochs": 0}, "n_epochs must be at least 1, got 0"),
+        ({"total_steps": 7, "n_envs": 2, "n_steps": 4}, "total_steps 7 is less than one rollout (2 envs × 4 steps)"),
+        ({"learning_rate": 0.0}, "learning_rate must be a positive number below 1e30, got 0.0"),
+        ({"learning_rate": 1e30}, "learning_rate must be a positive number below 1e30, got 1e+30"),
+        ({"learning_rate": float("nan")}, "learning_rate must be a positive number below 1e30, got nan"),
+    ],
+)
+def test_a_config_out_of_range_is_refused_naming_the_field(changes: dict, message: str) -> None:
+    with pytest.raises(ConfigError, match=f"^{re.escape(message)}$") as raised:
+        PPOConfig(env_id="CartPole-v1", **changes).validate()
+    assert raised.value.owner == "PPOConfig"
+
+
+def test_a_config_at_the_edges_of_its_ranges_is_accepted() -> None:
+    PPOConfig(
+        env_id="CartPole-v1", total_steps=8, n_envs=2, n_steps=4, batch_size=1, n_epochs=1, learning_rate=1e29
+    ).validate()
+    PPOConfig(env_id="CartPole-v1", learning_rate=1e-30).validate()
+
+
+def test_the_learner_is_built_as_configured() -> None:
+    """The policy's architecture, the device, Adam's ε, and the seed of numpy's global generator
+    (for whatever draws from it next, a reward learner's sampling say)."""
+    options = dict(hidden_sizes=[5, 3], activation="relu", shared_trunk=True, normalize_observations=True, log_std_init=-0.7)
+    learner = PPO(tiny_config(seed=7, **options))
+    learner.close()
+    drawn = np.random.random()
+    np.random.seed(7)
+    assert drawn == np.random.random()
+    for name, value in options.items():
+        assert getattr(learner.policy.config, name) == value, name
+    assert torch.equal(learner.policy.log_std.detach(), torch.full((2,), -0.7))
+    assert learner.device == torch.device("cpu")
+    assert learner.optimizer.defaults["eps"] == 1e-5  # CleanRL's Adam ε
+
+
+def test_an_unknown_device_is_refused_naming_the_setting() -> None:
+    with pytest.raises(ConfigError, match=r"^device 'abacus': ") as raised:
+        PPO(tiny_config(device="abacus"))
+    assert raised.value.field == "device"
+
+
+def test_envs_step_in_this_process_unless_async_envs_asks_for_spawned_workers() -> None:
+    """Forking a process whose torch threads have run can deadlock: async workers are spawned."""
+    envs = make_vector_env("TestPPODrift-v0", 2)
+    envs.close()
+    assert isinstance(envs, gym.vector.SyncVectorEnv)
+    learner = PPO(tiny_config(env_id="Pendulum-v1", async_envs=True, total_steps=16, n_steps=8))
+    try:
+        assert isinstance(learner.envs, gym.vector.AsyncVectorEnv) and learner.envs.num_envs == N_ENVS
+        assert all(isinstance(process, multiprocessing.context.SpawnProcess) for process in learner.envs.processes)
+    finally:
+        learner.close()
