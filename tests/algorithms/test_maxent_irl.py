@@ -351,12 +351,21 @@ def test_visitation_matched_exactly_converges_even_at_zero_tolerance() -> None:
     assert learner.converged and learner.done and learner.completed == 1
 
 
-def test_overflowing_reward_stops_as_diverged_without_numpy_warnings() -> None:
+@pytest.mark.parametrize(
+    "demo_occupancy",
+    [
+        pytest.param([0.5, 3.5], id="the soft values overflow"),
+        pytest.param([3.5, 0.5], id="the loss overflows too"),
+    ],
+)
+def test_overflowing_reward_stops_as_diverged_without_numpy_warnings(demo_occupancy: list[float]) -> None:
     """A float64 reward near the largest double overflows the soft values (r + V = inf, then
     inf - inf in π = exp(Q - V)): the run stops with the divergence error, and numpy's overflow
-    warnings stay silent. (Demos and start spread so that D̃·r and ρ₀·V themselves raise no warning.)"""
+    warnings stay silent. With the demos spread, D̃·r and ρ₀·V raise no warning themselves; with
+    them on the rewarding state, D̃·r = 3.5e308 overflows too and the loss is inf - inf."""
     mdp = _stay_or_swap(horizon=3, initial=(0.5, 0.5))
-    learner = MaxEntIRL(mdp, np.array([0.5, 3.5]), _linear_model(mdp, [1e308, 0.0], dtype=torch.float64), MaxEntIRLConfig())
+    model = _linear_model(mdp, [1e308, 0.0], dtype=torch.float64)
+    learner = MaxEntIRL(mdp, np.array(demo_occupancy), model, MaxEntIRLConfig())
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         with pytest.raises(ImitationError, match="iteration 1: the loss is .*diverged"):
