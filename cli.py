@@ -407,6 +407,7 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "hidden_sizes": "--hidden",
             "activation": "--activation",
             "loss": "--loss",
+            "previous_action": "--previous-action",
             "entropy_coef": "--entropy",
             "l2_coef": "--l2",
             "validation_fraction": "--validation",
@@ -691,6 +692,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bc.add_argument(
         "--loss", choices=["nll", "mse"], help="nll (log-likelihood) or mse (continuous actions only) (default: nll)"
+    )
+    bc.add_argument(
+        "--previous-action",
+        choices=["auto", "on", "off"],
+        help="condition the policy on the previous action and predict its change, as for a recorded command stream "
+        "(default: auto: on offline when the actions have the observations' shape, set-points such as joint targets "
+        "beside joint positions; off otherwise and with --env)",
     )
     bc.add_argument("--entropy", type=_finite, metavar="C", help="entropy bonus coefficient (default: 0.0)")
     bc.add_argument("--l2", type=_finite, metavar="C", help="L2 penalty on the policy weights (default: 0.0001)")

@@ -13,6 +13,11 @@ The heads index classes 0 … n-1; a space with `start` ≠ 0 takes env actions 
 so env actions (from demos, experts, the env) go through `from_env_action` before log π is taken
 and policy actions through `to_env_action` before the env sees them.
 
+A Gaussian policy may also be conditioned on the previous action (`previous_action`, for
+command streams; `imitation.envs.previous_action`): it observes x_t = [s_t, a_{t-1}, 1{t=0}]
+and predicts the change of the command, μ(x_t) = a_{t-1} + f(x_t), so that holding the last
+command is where it starts and what it must improve on.
+
 Observations go through an optional running mean/std normaliser that is part of the module
 (saved with the weights), so evaluation sees exactly what training saw. Discrete observations
 are one-hot encoded. Weights use orthogonal initialisation: gain √2 for hidden layers, 0.01 for
@@ -33,6 +38,7 @@ from torch import nn
 from torch.distributions import Categorical, Distribution, Normal, kl_divergence, register_kl
 
 from imitation.data.spaces import check_spaces_fit, space_from_json, space_to_json
+from imitation.envs.previous_action import PreviousActionObservation
 from imitation.errors import ImitationError, SpaceError
 from imitation.limits import LIMITS, over_limit
 from imitation.runs import read_run
@@ -104,6 +110,8 @@ class PolicyConfig:
     # the training actions by BC and saved with the weights), so every action dimension is learnt
     # at one scale whatever its units.
     normalize_actions: bool = False
+    # Box actions: the observation is x_t = [s_t, a_{t-1}, 1{t=0}] and μ is a_{t-1} plus the head's output.
+    previous_action: bool = False
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -120,8 +128,11 @@ class PolicyConfig:
             and isinstance(config.shared_trunk, bool)
             and isinstance(config.normalize_observations, bool)
             and isinstance(config.normalize_actions, bool)
+            and isinstance(config.previous_action, bool)
         ):
-            raise TypeError("activation must be a name, shared_trunk and normalize_observations/actions true or false")
+            raise TypeError(
+                "activation must be a name, shared_trunk, normalize_observations/actions and previous_action true or false"
+            )
         if (
             isinstance(config.log_std_init, bool)
             or not isinstance(config.log_std_init, (int, float))
@@ -288,6 +299,17 @@ class ActorCritic(nn.Module):
             raise ImitationError(
                 f"policies take Discrete, MultiDiscrete or Box actions, not {type(self.action_space).__name__}"
             )
+        # Columns of the raw observation that hold a_{t-1} (x_t's last column is the first-step flag).
+        self.inputs = obs_size
+        self.previous_columns = slice(0, 0)
+        if config.previous_action:
+            action_dim = int(np.prod(self.action_space.shape or ())) if self.is_continuous else 0
+            if not self.is_continuous or not isinstance(self.observation_space, gym.spaces.Box) or obs_size < action_dim + 2:
+                raise ImitationError(
+                    "a policy of the previous action takes Box actions and Box observations [state, previous action, "
+                    f"first-step flag], not {type(self.action_space).__name__} actions and {self.observation_space}"
+                )
+            self.previous_columns = slice(obs_size - action_dim - 1, obs_size - 1)
 
     # -- observations ---------------------------------------------------------------------------
 
@@ -296,22 +318,26 @@ class ActorCritic(nn.Module):
         if isinstance(self.observation_space, gym.spaces.Discrete):
             index = observations.long().reshape(-1) - int(self.observation_space.start)
             return nn.functional.one_hot(index, int(self.observation_space.n)).float()
-        features = observations.reshape(observations.shape[0], -1).float()
-        if self.obs_rms is not None:
-            features = self.obs_rms.normalize(features)
+        flat = observations.reshape(observations.shape[0], -1).float()
+        features = self.obs_rms.normalize(flat) if self.obs_rms is not None else flat
+        if self.config.previous_action:  # a_{t-1} rides along, raw, for the Gaussian's mean
+            return torch.cat([features, flat[:, self.previous_columns]], dim=1)
         return features
 
     def update_normalizer(self, observations: torch.Tensor) -> None:
         if self.obs_rms is not None:
             self.obs_rms.update(observations.reshape(observations.shape[0], -1))
 
-    def fit_action_normalizer(self, actions: torch.Tensor) -> None:
-        """Standardise the Gaussian head's units by these actions' mean and std per dimension (a
-        dimension that never moves keeps scale 1). Nothing to do without `normalize_actions`."""
+    def fit_action_normalizer(self, actions: torch.Tensor, observations: torch.Tensor) -> None:
+        """Standardise the Gaussian head's units by the mean and std per dimension of what it
+        predicts (a dimension that never moves keeps scale 1): these actions, or with
+        `previous_action` their changes a_t − a_{t-1}. Nothing to do without `normalize_actions`."""
         if not (self.is_continuous and self.config.normalize_actions):
             return
         with torch.no_grad():
             flat = actions.reshape(actions.shape[0], -1).double()
+            if self.config.previous_action:
+                flat = flat - observations.reshape(observations.shape[0], -1)[:, self.previous_columns].double()
             std = flat.std(0, unbiased=False)
             self.action_mean.copy_(flat.mean(0))
             self.action_scale.copy_(torch.where(std > 1e-6, std, torch.ones_like(std)))
@@ -320,16 +346,23 @@ class ActorCritic(nn.Module):
 
     def distribution(self, features: torch.Tensor) -> Distribution:
         """π(·|s) for encoded observations: Categorical(logits), MultiCategorical or Normal(μ, σ) per action dim."""
+        if self.config.previous_action:
+            parameters = self.action_head(self.actor_trunk(features[:, : self.inputs]))
+            return self.distribution_from(parameters, previous=features[:, self.inputs :])
         return self.distribution_from(self.action_head(self.actor_trunk(features)))
 
-    def distribution_from(self, parameters: torch.Tensor, log_std: torch.Tensor | None = None) -> Distribution:
-        """π(·|s) from the action head's output (the Gaussian's σ from `log_std`, by default the policy's own)."""
+    def distribution_from(
+        self, parameters: torch.Tensor, log_std: torch.Tensor | None = None, *, previous: torch.Tensor | None = None
+    ) -> Distribution:
+        """π(·|s) from the action head's output (the Gaussian's σ from `log_std`, by default the
+        policy's own; its mean shifted by the `previous` action for a policy of it)."""
         # No argument validation: it costs more than the network on small batches.
         if self.is_continuous:
             std = (self.log_std if log_std is None else log_std).exp().expand_as(parameters)
+            mean, scale = parameters, std
             if self.config.normalize_actions:  # the head's units are standardised: back to the env's
-                return Normal(self.action_mean + self.action_scale * parameters, self.action_scale * std, validate_args=False)
-            return Normal(parameters, std, validate_args=False)
+                mean, scale = self.action_mean + self.action_scale * parameters, self.action_scale * std
+            return Normal(mean if previous is None else previous + mean, scale, validate_args=False)
         if self.action_sizes is not None:
             return MultiCategorical(parameters, self.action_sizes)
         return Categorical(logits=parameters, validate_args=False)
@@ -373,6 +406,8 @@ class ActorCritic(nn.Module):
         Written out rather than through torch.distributions, whose per-call overhead is several
         times the network's cost on a rollout's small batches. The parameters are the Gaussian
         mean or the normalised logits (log-probabilities), enough to rebuild π_k(·|s)."""
+        if self.config.previous_action:
+            raise ImitationError("a policy of the previous action is trained by BC; PPO's rollouts do not sample it")
         with torch.no_grad():
             out = self.action_head(self.actor_trunk(features))
             if self.is_continuous:
@@ -392,7 +427,8 @@ class ActorCritic(nn.Module):
             return action, log_probs.gather(-1, action[:, None]).squeeze(-1), log_probs
 
     def value(self, features: torch.Tensor) -> torch.Tensor:
-        return self.value_head(self.critic_trunk(features)).squeeze(-1)
+        trunk_input = features[:, : self.inputs] if self.config.previous_action else features
+        return self.value_head(self.critic_trunk(trunk_input)).squeeze(-1)
 
     def act(self, features: torch.Tensor, *, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Sample (or take the mode of) π(·|s): action, its log-prob, and V(s)."""
@@ -495,6 +531,11 @@ def load_policy(path: str | os.PathLike) -> ActorCritic:
             f"{path}: policy weights do not match its config ({(str(error).splitlines() or [''])[0][:200]})"
         ) from None
     return policy.eval()
+
+
+def acting_env(policy: ActorCritic, env: gym.Env) -> gym.Env:
+    """`env` as `policy` observes it: with x_t = [s_t, a_{t-1}, 1{t=0}] for a policy of the previous action."""
+    return PreviousActionObservation(env) if policy.config.previous_action else env
 
 
 def check_policy_fits_env(policy: Predictor, env: gym.Env, where: str) -> None:

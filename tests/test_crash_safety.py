@@ -72,10 +72,10 @@ def progress_rows(run: Path) -> list[dict[str, float]]:
 def test_ctrl_c_during_train_ppo_keeps_a_checkpoint_that_resume_finishes(tmp_path: Path) -> None:
     out = tmp_path / "ppo"
     partial = tmp_path / "ppo.partial"
-    # CartPole's defaults: 8 envs × 32 steps = 256 steps per update, 200 updates, a checkpoint every 20.
-    args = ["train", "ppo", "--env", "CartPole-v1", "--steps", "51200", "--seed", "3", "--quiet", "--out", str(out)]
+    # CartPole's defaults: 8 envs × 32 steps = 256 steps per update, 50 updates, a checkpoint every 5.
+    args = ["train", "ppo", "--env", "CartPole-v1", "--steps", "12800", "--seed", "3", "--quiet", "--out", str(out)]
     message = interrupt_after_first_checkpoint(*args, out=out)
-    assert message.startswith("interrupted: PPO stopped after update ") and f"of 51200; its checkpoint is in {partial}" in message
+    assert message.startswith("interrupted: PPO stopped after update ") and f"of 12800; its checkpoint is in {partial}" in message
     assert message.endswith("run the same command with --resume to continue")
     assert not out.exists() and partial.is_dir()
 
@@ -83,7 +83,7 @@ def test_ctrl_c_during_train_ppo_keeps_a_checkpoint_that_resume_finishes(tmp_pat
     tensors, state = read_checkpoint(partial)
     trainer = state["trainer"]
     stopped_at = int(message.split("after update ")[1].split("/")[0])
-    assert trainer["update"] == stopped_at and trainer["global_step"] == 256 * stopped_at < 51200
+    assert trainer["update"] == stopped_at and trainer["global_step"] == 256 * stopped_at < 12800
     assert len(state["history"]) == stopped_at  # the rows are the run directory's, saved beside the trainer's state
     policy = ActorCritic(PolicyConfig.from_json(trainer["policy"]))
     policy.load_state_dict({name.removeprefix("policy."): t for name, t in tensors.items() if name.startswith("policy.")})
@@ -91,19 +91,19 @@ def test_ctrl_c_during_train_ppo_keeps_a_checkpoint_that_resume_finishes(tmp_pat
 
     resumed, evaluation = run_cli_many([[*args, "--resume", "--json"], ["eval", "policy", str(out), "--env", "CartPole-v1", "--episodes", "2", "--json"]])
     result = last_json(resumed)
-    assert result["steps"] == 51200, "a resumed run's step count is the requested total"
+    assert result["steps"] == 12800, "a resumed run's step count is the requested total"
     assert not partial.exists() and (out / "model.safetensors").is_file()
     rows = progress_rows(out)
-    assert [row["step"] for row in rows] == [256.0 * (i + 1) for i in range(200)], "every update logged once, in order"
+    assert [row["step"] for row in rows] == [256.0 * (i + 1) for i in range(50)], "every update logged once, in order"
     assert last_json(evaluation)["episodes"] == 2
 
 
 def test_ctrl_c_during_train_bc_keeps_a_checkpoint_that_resume_finishes(tmp_path: Path) -> None:
     out = tmp_path / "bc"
     partial = tmp_path / "bc.partial"
-    args = ["train", "bc", "--demos", str(DATASETS / "CartPole-v1.mcap"), "--env", "CartPole-v1", "--epochs", "60", "--patience", "60", "--hidden", "32,32", "--quiet", "--out", str(out)]
+    args = ["train", "bc", "--demos", str(DATASETS / "CartPole-v1.mcap"), "--env", "CartPole-v1", "--epochs", "20", "--patience", "20", "--hidden", "32,32", "--quiet", "--out", str(out)]
     message = interrupt_after_first_checkpoint(*args, out=out)
-    assert message.startswith("interrupted: BC stopped after epoch ") and f"of 60; its checkpoint is in {partial}" in message
+    assert message.startswith("interrupted: BC stopped after epoch ") and f"of 20; its checkpoint is in {partial}" in message
     stopped_at = int(message.split("after epoch ")[1].split(" ")[0])
     tensors, state = read_checkpoint(partial)
     assert state["trainer"]["epoch"] == stopped_at + 1 and len(state["history"]) == stopped_at
@@ -113,8 +113,8 @@ def test_ctrl_c_during_train_bc_keeps_a_checkpoint_that_resume_finishes(tmp_path
 
     resumed, evaluation = run_cli_many([[*args, "--resume", "--json"], ["eval", "policy", str(out), "--env", "CartPole-v1", "--episodes", "2", "--json"]])
     result = last_json(resumed)
-    assert result["epochs"] == 60 and not partial.exists()
-    assert [row["epoch"] for row in progress_rows(out)] == [float(e) for e in range(1, 61)]
+    assert result["epochs"] == 20 and not partial.exists()
+    assert [row["epoch"] for row in progress_rows(out)] == [float(e) for e in range(1, 21)]
     assert last_json(evaluation)["episodes"] == 2
 
 
@@ -298,7 +298,7 @@ def test_kill_9_during_convert_leaves_no_final_file_and_a_partial_one_whose_comp
 
 def test_resume_refuses_a_checkpoint_whose_counter_was_tampered_with(tmp_path: Path) -> None:
     out = tmp_path / "bc"
-    args = ["train", "bc", "--demos", str(DATASETS / "CartPole-v1.mcap"), "--env", "CartPole-v1", "--epochs", "200", "--hidden", "16", "--quiet",
+    args = ["train", "bc", "--demos", str(DATASETS / "CartPole-v1.mcap"), "--env", "CartPole-v1", "--epochs", "50", "--hidden", "16", "--quiet",
             "--out", str(out)]
     interrupt_after_first_checkpoint(*args, out=out)
     state_file = tmp_path / "bc.partial" / "checkpoint" / "state.json"
@@ -307,5 +307,5 @@ def test_resume_refuses_a_checkpoint_whose_counter_was_tampered_with(tmp_path: P
     state_file.write_text(json.dumps(state))
     started = time.monotonic()
     result = run_cli_many([[*args, "--resume"]])[0]
-    assert_one_line_error(result, "the checkpoint's next epoch is -1000000000000, outside 1..201 for this run")
+    assert_one_line_error(result, "the checkpoint's next epoch is -1000000000000, outside 1..51 for this run")
     assert time.monotonic() - started < 60

@@ -244,7 +244,7 @@ def test_normalised_actions_are_a_gaussian_in_the_envs_units(tmp_path) -> None:
     policy = make_policy(gym.spaces.Box(-1, 1, (2,), np.float32), space, hidden_sizes=[8], normalize_actions=True)
     # Four actions of three numbers (a non-square batch), and σ = 1/2 so that s·σ differs from s/σ.
     actions = torch.tensor([[10.0, -3.0, 7.0], [14.0, -1.0, 7.0], [12.0, -2.0, 7.0], [12.0, -2.0, 7.0]])
-    policy.fit_action_normalizer(actions)
+    policy.fit_action_normalizer(actions, torch.zeros(4, 2))
     assert torch.allclose(policy.action_mean, torch.tensor([12.0, -2.0, 7.0]))
     assert torch.allclose(policy.action_scale, torch.tensor([np.sqrt(2), np.sqrt(1 / 2), 1.0], dtype=torch.float32))
     with torch.no_grad():
@@ -259,7 +259,7 @@ def test_normalised_actions_are_a_gaussian_in_the_envs_units(tmp_path) -> None:
     )
     assert torch.allclose(policy.log_prob(distribution, actions[:1].expand(5, 3)), expected.log_prob(actions[:1]).sum(-1))
     plain = make_policy(gym.spaces.Box(-1, 1, (2,), np.float32), space, hidden_sizes=[8])
-    plain.fit_action_normalizer(actions)  # nothing to fit: its head works in the env's units
+    plain.fit_action_normalizer(actions, torch.zeros(4, 2))  # nothing to fit: its head works in the env's units
     assert not hasattr(plain, "action_mean")
 
     from imitation.policies import load_policy, policy_tensors
@@ -382,17 +382,18 @@ def test_a_stochastic_single_observation_expert_samples_its_policy() -> None:
         (
             {"activation": 1},
             TypeError,
-            "activation must be a name, shared_trunk and normalize_observations/actions true or false",
+            "activation must be a name, shared_trunk, normalize_observations/actions and previous_action true or false",
         ),
         ({"shared_trunk": "yes"}, TypeError, "activation must be a name"),
         ({"normalize_observations": 1}, TypeError, "activation must be a name"),
         ({"normalize_actions": "no"}, TypeError, "activation must be a name"),
+        ({"previous_action": 1}, TypeError, "activation must be a name"),
         ({"log_std_init": True}, ValueError, "log_std_init must be a finite number, got True"),
         ({"log_std_init": "0.5"}, ValueError, "log_std_init must be a finite number, got '0.5'"),
         ({"log_std_init": math.nan}, ValueError, "log_std_init must be a finite number, got nan"),
         ({"log_std_init": -math.inf}, ValueError, "log_std_init must be a finite number, got -inf"),
     ],
-    ids=["list", "activation", "shared_trunk", "normalize_observations", "normalize_actions", "bool", "str", "nan", "-inf"],
+    ids=["list", "activation", "shared_trunk", "normalize_observations", "normalize_actions", "previous_action", "bool", "str", "nan", "-inf"],
 )
 def test_a_policy_config_read_from_a_file_refuses_each_malformed_field_naming_it(data, error, message) -> None:
     valid = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[4]).config.to_json() | {"log_std_init": -1}

@@ -5,7 +5,9 @@
 For Discrete and MultiDiscrete actions -log π_θ is the categorical negative log-likelihood
 (cross-entropy) of the class index a - start of the demo's action a. For
 Box actions it is the Gaussian NLL of the state-independent-log-std policy, or (loss="mse") the
-squared error of the mean, ||μ_θ(s) - a||². The policy is the same `ActorCritic` PPO trains, so a
+squared error of the mean, ||μ_θ(s) - a||². With `previous_action` (a recorded stream of
+set-points) the policy is π_θ(a_t | s_t, a_{t-1}) = N(a_{t-1} + f_θ(s_t, a_{t-1}), σ²), its head in
+units of the actions' changes (policies.py). The policy is the same `ActorCritic` PPO trains, so a
 BC run can be evaluated, recorded with, or fine-tuned by PPO; its critic stays untrained.
 
 Whole episodes are held out for validation (neighbouring steps are nearly identical, so a
@@ -41,6 +43,7 @@ from imitation.errors import ConfigError, ImitationError
 from imitation.policies import ActorCritic
 
 LOSSES = ("nll", "mse")
+PREVIOUS_ACTION = ("auto", "on", "off")
 
 
 @dataclass(kw_only=True)
@@ -57,6 +60,12 @@ class BCConfig:
     # sharper fits (an expert's switching law) pay off.
     activation: str = "auto"
     loss: str = "nll"
+    # Condition on the previous action (policies.py: μ = a_{t-1} + f(s_t, a_{t-1})). "auto": on
+    # offline where Box actions have the observations' shape, a recorded stream of set-points
+    # (joint targets beside joint positions): the state lags the command, and the last target
+    # carries the motion the state cannot show. Off with an env, whose experts act on the state
+    # alone, and for other commands (a velocity command that the state explains).
+    previous_action: str = "auto"
     entropy_coef: float = 0.0
     l2_coef: float = 1e-4
     validation_fraction: float = 0.2
@@ -71,6 +80,12 @@ class BCConfig:
     def validate(self, continuous: bool) -> None:
         if self.loss not in LOSSES:
             raise ConfigError("loss", f"must be one of {', '.join(LOSSES)}, got {self.loss!r}", owner="BCConfig")
+        if self.previous_action not in PREVIOUS_ACTION:
+            raise ConfigError(
+                "previous_action",
+                f"must be one of {', '.join(PREVIOUS_ACTION)}, got {self.previous_action!r}",
+                owner="BCConfig",
+            )
         if self.loss == "mse" and not continuous:
             raise ConfigError("loss", "mse is for continuous (Box) actions; discrete actions use nll", owner="BCConfig")
         for name in ("epochs", "batch_size", "patience"):
@@ -146,8 +161,8 @@ class BehaviouralCloning:
             policy.obs_rms.reset_parameters()
             assert isinstance(self.train.observations, torch.Tensor)  # a policy takes no Dict observations
             policy.update_normalizer(self.train.observations)
-        assert isinstance(self.train.actions, torch.Tensor)  # nor Dict actions
-        policy.fit_action_normalizer(self.train.actions)
+        assert isinstance(self.train.actions, torch.Tensor) and isinstance(self.train.observations, torch.Tensor)
+        policy.fit_action_normalizer(self.train.actions, self.train.observations)
         self.config = config
         self.total = config.epochs
         self.evaluate, self.evaluate_every = evaluate, evaluate_every

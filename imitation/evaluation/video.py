@@ -9,15 +9,19 @@ from pathlib import Path
 import numpy as np
 
 from imitation.envs.make import make_env
+from imitation.envs.previous_action import PreviousActionObservation
 from imitation.envs.rollout import Policy
 from imitation.errors import ImitationError
 
 VIDEO_SUFFIXES = (".gif", ".mp4")
 
 
-def record_video(env_id: str, policy: Policy, path: str | os.PathLike, *, seed: int) -> dict[str, float]:
+def record_video(
+    env_id: str, policy: Policy, path: str | os.PathLike, *, seed: int, previous_action: bool = False
+) -> dict[str, float]:
     """Play one episode (reset with `seed`) rendered as rgb_array frames and write them to
-    `path` (written under a temporary name, then renamed). Returns its return, length and fps."""
+    `path` (written under a temporary name, then renamed). Returns its return, length and fps.
+    With `previous_action` the policy observes x_t (`imitation.envs.previous_action`)."""
     path = Path(path)
     if path.suffix.lower() not in VIDEO_SUFFIXES:
         raise ImitationError(f"--video {path}: the file name must end in {' or '.join(VIDEO_SUFFIXES)}")
@@ -26,7 +30,7 @@ def record_video(env_id: str, policy: Policy, path: str | os.PathLike, *, seed: 
     os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="pkg_resources is deprecated")  # raised by importing pygame; harmless
-        frames, episode_return, fps = _play(env_id, policy, seed)
+        frames, episode_return, fps = _play(env_id, policy, seed, previous_action)
     temporary = path.with_name(f".{path.name}.partial{path.suffix}")
     try:
         (_write_gif if path.suffix.lower() == ".gif" else _write_mp4)(temporary, frames, fps)
@@ -37,8 +41,9 @@ def record_video(env_id: str, policy: Policy, path: str | os.PathLike, *, seed: 
     return {"return": episode_return, "frames": len(frames), "fps": fps}
 
 
-def _play(env_id: str, policy: Policy, seed: int) -> tuple[list[np.ndarray], float, float]:
-    env = make_env(env_id, render_mode="rgb_array")
+def _play(env_id: str, policy: Policy, seed: int, previous_action: bool) -> tuple[list[np.ndarray], float, float]:
+    rendered = make_env(env_id, render_mode="rgb_array")
+    env = PreviousActionObservation(rendered) if previous_action else rendered
     try:
         frames, episode_return = [], 0.0
         observation, _ = env.reset(seed=seed)

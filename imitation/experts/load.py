@@ -35,6 +35,11 @@ def load_expert(spec: str, env: gym.Env, *, seed: int) -> Policy:
     `imitation.experts.keyboard`; the env must come from `make_env_for_expert`)."""
     if Path(spec).is_dir():
         policy = load_policy(spec)
+        if policy.config.previous_action:
+            raise ImitationError(
+                f"--expert {spec}: the policy acts on the previous action as well as the state (BC on a command stream); "
+                "an expert labels states alone: run it with eval policy"
+            )
         check_policy_fits_env(policy, env, f"--expert {spec}")
         return SingleObservationPolicy(policy)
     if spec.startswith("sb3:"):

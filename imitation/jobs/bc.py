@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from contextlib import closing, nullcontext
 from typing import Any
 
+import gymnasium as gym
+import numpy as np
 import torch
 
 from imitation.algorithms.bc import BCConfig, BehaviouralCloning, policy_options
@@ -17,15 +20,17 @@ from imitation.data.loader import (
     split_episodes,
     transitions_to_torch,
 )
+from imitation.data.types import Transitions
 from imitation.envs.make import make_env
-from imitation.errors import ImitationError
+from imitation.envs.previous_action import previous_action_space, with_previous_actions
+from imitation.errors import ConfigError, ImitationError
 from imitation.evaluation.baselines import baseline_scores, policy_scores
 from imitation.evaluation.plots import plot_curve
 from imitation.evaluation.policy import EVAL_SEED, evaluate_policy
 from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
-from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy, policy_tensors
+from imitation.policies import ActorCritic, SingleObservationPolicy, acting_env, make_policy, policy_tensors
 from imitation.seeding import seed_everything
 
 
@@ -51,16 +56,25 @@ def bc_job(
     elif dataset.num_transitions == 0:
         raise ImitationError(f"{dataset.files[0].path}: the demos hold no transitions (no episode, or only empty ones)")
     spaces = env if env is not None else dataset
-    train, validation, split = _split(dataset, config, offline=env is None)
+    previous_action = _conditions_on_previous_action(
+        config, spaces.observation_space, spaces.action_space, offline=env is None
+    )
+    train, validation, split = _split(dataset, config, offline=env is None, previous_action=previous_action)
+    observation_space = (
+        previous_action_space(spaces.observation_space, spaces.action_space) if previous_action else spaces.observation_space
+    )
     try:
-        policy = make_policy(spaces.observation_space, spaces.action_space, **policy_options(config, len(train)))
+        policy = make_policy(
+            observation_space, spaces.action_space, previous_action=previous_action, **policy_options(config, len(train))
+        )
     except ImitationError as error:
         raise ImitationError(f"{f'--env {env_id}' if env is not None else dataset.files[0].path}: {error}") from None
     config.validate(policy.is_continuous)
+    policy_env = acting_env(policy, env) if env is not None else None
 
     def env_return(candidate: ActorCritic) -> float:
-        assert env is not None  # passed to the learner only with an env
-        return evaluate_policy(SingleObservationPolicy(candidate), env, episodes=5, seed=EVAL_SEED)["mean_return"]
+        assert policy_env is not None  # passed to the learner only with an env
+        return evaluate_policy(SingleObservationPolicy(candidate), policy_env, episodes=5, seed=EVAL_SEED)["mean_return"]
 
     run_config = RunConfig(
         kind="bc",
@@ -81,7 +95,7 @@ def bc_job(
         run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
         seconds = learner.clock.seconds  # training only, not the evaluation below
         run.save_weights(policy_tensors(learner.policy.cpu()))
-        yardstick = _yardstick(learner, train, validation, config, spaces.action_space)
+        yardstick = _yardstick(learner, train, validation, config, spaces.observation_space, spaces.action_space)
         title = f"BC on {env_id or dataset.env_id or 'offline demos'}"
         plot_curve(
             run.file("loss_curve.png"),
@@ -96,6 +110,7 @@ def bc_job(
         metrics = {
             "env_id": env_id,
             "offline": env is None,
+            "previous_action": previous_action,
             "train_transitions": len(train),
             "validation_transitions": len(validation) if validation is not None else 0,
             "epochs": len(run.history),
@@ -108,7 +123,7 @@ def bc_job(
             "baselines": yardstick["baselines"],
             "beats_baselines": yardstick["beats"],
             "warnings": yardstick["warnings"],
-            "eval": final_evaluation(learner.policy.cpu(), env) if env is not None else None,
+            "eval": final_evaluation(learner.policy.cpu(), policy_env) if policy_env is not None else None,
         }
         run.finish(metrics)
     return {"run": str(run.path), **metrics}
@@ -119,11 +134,13 @@ def _yardstick(
     train: TransitionTensors,
     validation: TransitionTensors | None,
     config: BCConfig,
-    action_space: Any,
+    observation_space: gym.Space,
+    action_space: gym.Space,
 ) -> dict[str, Any]:
     """How the run ended, and the policy beside the trivial baselines on the held-out transitions
-    (`imitation.evaluation.baselines`): scores, which baselines it beats (lower NLL and lower squared
-    error or error rate), the baselines' values of the plotted loss, and what a user must be told."""
+    (`imitation.evaluation.baselines`, on the states without the previous action): scores, which
+    baselines it beats (lower NLL and lower squared error or error rate), the baselines' values
+    of the plotted loss, and what a user must be told."""
     warnings = []
     if learner.stopped:
         stopped = f"no better validation loss for {config.patience} epochs (best at epoch {learner.best_epoch})"
@@ -137,7 +154,7 @@ def _yardstick(
     if validation is None or not len(validation):
         return {"stopped": stopped, "validation": None, "baselines": {}, "beats": {}, "references": {}, "warnings": warnings}
     scores = policy_scores(learner.policy.cpu(), validation.to("cpu"))
-    baselines = baseline_scores(train, validation, action_space)
+    baselines = baseline_scores(_states(train, observation_space), _states(validation, observation_space), action_space)
     beats = {name: all(scores[key] < value for key, value in baseline.items()) for name, baseline in baselines.items()}
     loss = "mse" if config.loss == "mse" else "nll"
     references = {name: baseline[loss] for name, baseline in baselines.items() if loss in baseline}
@@ -156,22 +173,55 @@ def _yardstick(
     }
 
 
+def _conditions_on_previous_action(
+    config: BCConfig, observation_space: gym.Space, action_space: gym.Space, *, offline: bool
+) -> bool:
+    """Whether the policy is one of (s_t, a_{t-1}): config.previous_action, "auto" resolved."""
+    boxes = isinstance(observation_space, gym.spaces.Box) and isinstance(action_space, gym.spaces.Box)
+    if config.previous_action == "on" and not boxes:
+        raise ConfigError(
+            "previous_action",
+            f"is for Box observations and actions, not {type(observation_space).__name__} and {type(action_space).__name__}",
+            owner="BCConfig",
+        )
+    set_points = boxes and observation_space.shape == action_space.shape
+    return config.previous_action == "on" or (config.previous_action == "auto" and offline and set_points)
+
+
+def _with_previous_actions(transitions: Transitions) -> Transitions:
+    """x_t = [s_t, a_{t-1}, 1{t=0}] in place of s_t (rows in episode and time order, as loaded)."""
+    assert isinstance(transitions.observations, np.ndarray) and isinstance(transitions.actions, np.ndarray)  # Box spaces
+    observations = with_previous_actions(transitions.observations, transitions.actions, transitions.episode_index)
+    return dataclasses.replace(transitions, observations=observations)
+
+
+def _states(transitions: TransitionTensors, observation_space: gym.Space) -> TransitionTensors:
+    """The transitions with s_t alone, where the policy saw x_t (`_with_previous_actions`)."""
+    observations = transitions.observations
+    if not isinstance(observations, torch.Tensor) or observations.shape[1:] == observation_space.shape:
+        return transitions
+    size = int(np.prod(observation_space.shape or ()))
+    return dataclasses.replace(transitions, observations=observations[:, :size].reshape(-1, *(observation_space.shape or ())))
+
+
 def _split(
-    dataset: DemoDataset, config: BCConfig, *, offline: bool
+    dataset: DemoDataset, config: BCConfig, *, offline: bool, previous_action: bool
 ) -> tuple[TransitionTensors, TransitionTensors | None, dict[str, Any]]:
     """Training and validation transitions: whole episodes held out; offline, where the
     validation loss is all a run reports, each episode's last steps when there are too few
-    episodes to spare one (a single long recording)."""
+    episodes to spare one (a single long recording). With `previous_action` the observations are
+    x_t, built before the split so that a held-out tail starts from the command before it."""
+
+    def load(episodes: list[int] | None = None) -> Transitions:
+        transitions = load_transitions(dataset, episodes=episodes, next_observations=False)
+        return _with_previous_actions(transitions) if previous_action else transitions
+
     train_ids, validation_ids = split_episodes(len(dataset), validation_fraction=config.validation_fraction, seed=config.seed)
     if validation_ids or not offline or config.validation_fraction == 0:
-        train = transitions_to_torch(load_transitions(dataset, episodes=train_ids, next_observations=False))
-        validation = (
-            transitions_to_torch(load_transitions(dataset, episodes=validation_ids, next_observations=False))
-            if validation_ids
-            else None
-        )
+        train = transitions_to_torch(load(train_ids))
+        validation = transitions_to_torch(load(validation_ids)) if validation_ids else None
         return train, validation, {"train_episodes": train_ids, "validation_episodes": validation_ids}
-    every = load_transitions(dataset, next_observations=False)
+    every = load()
     train_rows, validation_rows = split_episode_tails(every, validation_fraction=config.validation_fraction)
     tensors = transitions_to_torch(every)
     validation = tensors.select(torch.from_numpy(validation_rows)) if len(validation_rows) else None

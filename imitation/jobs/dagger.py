@@ -9,6 +9,7 @@ from typing import Any
 from imitation.algorithms.bc import policy_options
 from imitation.algorithms.dagger import DAgger, DAggerConfig
 from imitation.data.dataset import DemoDataset
+from imitation.errors import ConfigError
 from imitation.evaluation.plots import plot_curve
 from imitation.evaluation.policy import EVAL_SEED, evaluate_policy
 from imitation.experts.load import load_expert, make_env_for_expert
@@ -32,6 +33,12 @@ def dagger_job(
     """DAgger with `expert_spec` into run directory `out`; each round's labelled rollouts are
     written to `out/rounds/round-NN.mcap`. `resume` continues the interrupted run in
     `out`.partial from its checkpoint, with the rounds it had finished."""
+    if config.bc.previous_action == "on":
+        raise ConfigError(
+            "previous_action",
+            "is for BC on a recorded command stream; DAgger's learner acts on the state alone",
+            owner="BCConfig",
+        )
     demos = demos or []
     seed_everything(config.seed)
     env = make_env_for_expert(env_id, expert_spec)

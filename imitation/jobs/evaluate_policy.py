@@ -11,7 +11,7 @@ from imitation.envs.make import make_env
 from imitation.evaluation.policy import evaluate_policy, normalized_return
 from imitation.evaluation.video import record_video
 from imitation.jobs.run_config import RunConfig
-from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
+from imitation.policies import SingleObservationPolicy, acting_env, check_policy_fits_env, load_policy
 from imitation.runs import read_run
 
 
@@ -34,11 +34,14 @@ def eval_policy_job(
     config, _ = read_run(run)
     actor = SingleObservationPolicy(policy, deterministic=not stochastic)
     with closing(make_env(env_id)) as env:
-        check_policy_fits_env(policy, env, str(run))
-        result = evaluate_policy(actor, env, episodes=episodes, seed=seed)
+        check_policy_fits_env(policy, acting_env(policy, env), str(run))
+        result = evaluate_policy(actor, acting_env(policy, env), episodes=episodes, seed=seed)
         demos = demos if demos is not None else RunConfig.from_json(config).existing_demos()
         if demos:
             result |= normalized_return(result, env, demos)
     if video is not None:
-        result["video"] = {"path": str(video), **record_video(env_id, actor, video, seed=seed)}
+        result["video"] = {
+            "path": str(video),
+            **record_video(env_id, actor, video, seed=seed, previous_action=policy.config.previous_action),
+        }
     return {"run": str(run), "env_id": env_id, "deterministic": not stochastic, **result}

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 import torch
-from support import DATASETS, run_cli
+from support import DATASETS, run_cli, run_cli_many
 
 import imitation.envs  # noqa: F401 - registers the imitation/ envs
 from imitation.envs.make import make_env
@@ -114,32 +114,25 @@ def test_a_constant_true_reward_gets_no_epic_and_says_why(tmp_path) -> None:
     assert "The true reward is constant" in (tmp_path / "eval" / "report.md").read_text()
 
 
-def test_eval_reward_says_how_long_it_will_take_and_reports_progress_to_a_log(tmp_path) -> None:
-    """stderr is a pipe here, as in a batch job: an estimate first, then progress lines."""
-    run = true_cartpole_reward(tmp_path / "true-reward")
-    result = run_cli(
-        "eval", "reward", str(run), "--env", CARTPOLE, "--demos", str(DATASETS / "CartPoleFixedHorizon-v0.mcap"), "--retrain-steps", "512",
-        "--seeds", "1", "--out", str(tmp_path / "eval"), "--json", timeout=300,
-    )
-    assert result.returncode == 0, result.stderr
-    assert "[eval reward] retraining PPO from scratch: 3 rewards × 1 seed(s) × 512 steps, 2 at a time; about" in result.stderr
-    assert "[retrain] run 3/3" in result.stderr
-    report = json.loads(result.stdout.strip().splitlines()[-1])
-    assert report["retrain"]["estimated_seconds"] > 0
-
-
-def test_eval_policy_and_eval_reward_normalise_with_one_reference(tmp_path) -> None:
-    """The random-policy reference is computed one way, and both outputs name it."""
+def test_eval_reward_estimates_its_time_reports_progress_to_a_log_and_shares_eval_policys_reference(tmp_path) -> None:
+    """stderr is a pipe here, as in a batch job: an estimate first, then progress lines. The
+    random-policy reference is computed one way, and both `eval reward` and `eval policy` name it."""
     run = true_cartpole_reward(tmp_path / "true-reward")
     demos = str(DATASETS / "CartPoleFixedHorizon-v0.mcap")
     reward = run_cli("eval", "reward", str(run), "--env", CARTPOLE, "--demos", demos, "--retrain-steps", "512", "--seeds", "1",
-                     "--out", str(tmp_path / "eval"), "--json", "--quiet", timeout=300)
+                     "--out", str(tmp_path / "eval"), "--json", timeout=300)
     assert reward.returncode == 0, reward.stderr
-    reward_reference = json.loads(reward.stdout.strip().splitlines()[-1])["references"]
+    assert "[eval reward] retraining PPO from scratch: 3 rewards × 1 seed(s) × 512 steps, 2 at a time; about" in reward.stderr
+    assert "[retrain] run 3/3" in reward.stderr
+    report = json.loads(reward.stdout.strip().splitlines()[-1])
+    assert report["retrain"]["estimated_seconds"] > 0
+    reward_reference = report["references"]
     retrained = tmp_path / "eval" / "retrain" / "learned-seed0"
-    policy = run_cli("eval", "policy", str(retrained), "--env", CARTPOLE, "--episodes", "3", "--seed", "7", "--demos", demos)
+    policy, policy_json = run_cli_many([
+        ["eval", "policy", str(retrained), "--env", CARTPOLE, "--episodes", "3", "--seed", "7", "--demos", demos],
+        ["eval", "policy", str(retrained), "--env", CARTPOLE, "--episodes", "3", "--seed", "7", "--demos", demos, "--json"],
+    ])
     assert policy.returncode == 0, policy.stderr
-    policy_json = run_cli("eval", "policy", str(retrained), "--env", CARTPOLE, "--episodes", "3", "--seed", "7", "--demos", demos, "--json")
     policy_reference = json.loads(policy_json.stdout.strip().splitlines()[-1])["reference"]
     assert policy_reference["random_return"] == reward_reference["random_return"]
     assert policy_reference["source"] == reward_reference["source"]
