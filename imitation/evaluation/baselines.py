@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from imitation.data.loader import TransitionTensors
+from imitation.envs.previous_action import previous_actions
 from imitation.policies import ActorCritic
 
 Scores = dict[str, float]
@@ -42,16 +43,6 @@ def _box_scores(predictions: np.ndarray, actions: np.ndarray, std: np.ndarray) -
 
 def _rows(tensor: torch.Tensor) -> np.ndarray:
     return tensor.cpu().numpy().reshape(len(tensor), -1).astype(np.float64)
-
-
-def _previous_actions(actions: np.ndarray, episodes: np.ndarray, first: np.ndarray) -> np.ndarray:
-    """a_{t-1} of the same episode for every row (rows in episode and time order); `first` where there is none."""
-    previous = np.empty_like(actions)
-    previous[1:] = actions[:-1]
-    starts = np.ones(len(actions), dtype=bool)
-    starts[1:] = episodes[1:] != episodes[:-1]
-    previous[starts] = first
-    return previous
 
 
 def baseline_scores(train: TransitionTensors, validation: TransitionTensors, action_space: gym.Space) -> dict[str, Scores]:
@@ -74,9 +65,9 @@ def baseline_scores(train: TransitionTensors, validation: TransitionTensors, act
     mean, std = train_actions.mean(0), np.maximum(train_actions.std(0), MIN_STD)
     scores = {"constant": _box_scores(np.broadcast_to(mean, held.shape), held, std)}
     train_episodes, held_episodes = train.episode_index.cpu().numpy(), validation.episode_index.cpu().numpy()
-    train_previous = _previous_actions(train_actions, train_episodes, mean)
+    train_previous, _ = previous_actions(train_actions, train_episodes, mean)
     hold_std = np.maximum((train_actions - train_previous).std(0), MIN_STD)
-    scores["hold"] = _box_scores(_previous_actions(held, held_episodes, mean), held, hold_std)
+    scores["hold"] = _box_scores(previous_actions(held, held_episodes, mean)[0], held, hold_std)
     if isinstance(train.observations, torch.Tensor) and isinstance(validation.observations, torch.Tensor):
         train_states, held_states = _rows(train.observations), _rows(validation.observations)
         if train_states.shape[1] == train_actions.shape[1]:

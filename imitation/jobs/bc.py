@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Callable
 from contextlib import closing, nullcontext
 from typing import Any
 
@@ -95,7 +96,8 @@ def bc_job(
         run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
         seconds = learner.clock.seconds  # training only, not the evaluation below
         run.save_weights(policy_tensors(learner.policy.cpu()))
-        yardstick = _yardstick(learner, train, validation, config, spaces.observation_space, spaces.action_space)
+        states = _states_alone(spaces.observation_space) if previous_action else None
+        yardstick = _yardstick(learner, train, validation, config, spaces.action_space, states)
         title = f"BC on {env_id or dataset.env_id or 'offline demos'}"
         plot_curve(
             run.file("loss_curve.png"),
@@ -134,11 +136,11 @@ def _yardstick(
     train: TransitionTensors,
     validation: TransitionTensors | None,
     config: BCConfig,
-    observation_space: gym.Space,
     action_space: gym.Space,
+    states: Callable[[TransitionTensors], TransitionTensors] | None,
 ) -> dict[str, Any]:
     """How the run ended, and the policy beside the trivial baselines on the held-out transitions
-    (`imitation.evaluation.baselines`, on the states without the previous action): scores, which
+    (`imitation.evaluation.baselines`, on the `states` alone where the policy saw x_t): scores, which
     baselines it beats (lower NLL and lower squared error or error rate), the baselines' values
     of the plotted loss, and what a user must be told."""
     warnings = []
@@ -154,7 +156,11 @@ def _yardstick(
     if validation is None or not len(validation):
         return {"stopped": stopped, "validation": None, "baselines": {}, "beats": {}, "references": {}, "warnings": warnings}
     scores = policy_scores(learner.policy.cpu(), validation.to("cpu"))
-    baselines = baseline_scores(_states(train, observation_space), _states(validation, observation_space), action_space)
+    baselines = (
+        baseline_scores(states(train), states(validation), action_space)
+        if states
+        else baseline_scores(train, validation, action_space)
+    )
     beats = {name: all(scores[key] < value for key, value in baseline.items()) for name, baseline in baselines.items()}
     loss = "mse" if config.loss == "mse" else "nll"
     references = {name: baseline[loss] for name, baseline in baselines.items() if loss in baseline}
@@ -195,13 +201,16 @@ def _with_previous_actions(transitions: Transitions) -> Transitions:
     return dataclasses.replace(transitions, observations=observations)
 
 
-def _states(transitions: TransitionTensors, observation_space: gym.Space) -> TransitionTensors:
-    """The transitions with s_t alone, where the policy saw x_t (`_with_previous_actions`)."""
-    observations = transitions.observations
-    if not isinstance(observations, torch.Tensor) or observations.shape[1:] == observation_space.shape:
-        return transitions
-    size = int(np.prod(observation_space.shape or ()))
-    return dataclasses.replace(transitions, observations=observations[:, :size].reshape(-1, *(observation_space.shape or ())))
+def _states_alone(observation_space: gym.Space) -> Callable[[TransitionTensors], TransitionTensors]:
+    """Transitions of x_t (`_with_previous_actions`) → the same with s_t of `observation_space` alone."""
+    shape = observation_space.shape or ()
+
+    def states(transitions: TransitionTensors) -> TransitionTensors:
+        assert isinstance(transitions.observations, torch.Tensor)  # x_t is a Box
+        observations = transitions.observations[:, : int(np.prod(shape))].reshape(-1, *shape)
+        return dataclasses.replace(transitions, observations=observations)
+
+    return states
 
 
 def _split(
