@@ -18,7 +18,7 @@ def test_shifted_discrete_actions_learn_and_act_through_record_bc_dagger_and_eva
     env = ["--env", f"shifted_envs:{env_name}"]
     expert, demos = tmp_path / "expert", tmp_path / "demos.mcap"
     cases = [
-        ["train", "ppo", *env, "--steps", "20000", "--quiet", "--out", expert],
+        ["train", "ppo", *env, "--steps", "8192", "--quiet", "--out", expert],
         ["record", *env, "--expert", expert, "--episodes", "10", "--quiet", "--out", demos],
         ["train", "bc", *env, "--demos", demos, "--epochs", "100", "--quiet", "--out", tmp_path / "bc"],
         ["train", "dagger", *env, "--expert", expert, "--rounds", "2", "--quiet", "--out", tmp_path / "dagger"],
