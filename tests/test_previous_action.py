@@ -20,7 +20,7 @@ from imitation.algorithms.bc import BCConfig
 from imitation.envs.previous_action import PreviousActionObservation, previous_action_space, with_previous_actions
 from imitation.errors import ConfigError, ImitationError
 from imitation.jobs.bc import _conditions_on_previous_action
-from imitation.policies import PolicyConfig, load_policy, make_policy
+from imitation.policies import PolicyConfig, acting_env, load_policy, make_policy
 
 
 def test_the_env_wrapper_builds_the_input_the_demos_give() -> None:
@@ -47,6 +47,18 @@ def test_the_env_wrapper_builds_the_input_the_demos_give() -> None:
     np.testing.assert_array_equal(offline[[0, 5], 3], [0.0, 0.0])
     np.testing.assert_array_equal(offline[1:5, 3], np.asarray(actions)[0:4, 0])
     assert offline.dtype == np.float64
+
+
+def test_a_policy_of_the_previous_action_acts_in_the_wrapped_env_and_others_in_the_env_itself() -> None:
+    env = gym.make("Pendulum-v1")
+    plain = make_policy(env.observation_space, env.action_space)
+    conditioned = make_policy(
+        previous_action_space(env.observation_space, env.action_space), env.action_space, previous_action=True
+    )
+    assert acting_env(plain, env) is env
+    wrapped = acting_env(conditioned, env)
+    assert isinstance(wrapped, PreviousActionObservation) and wrapped.env is env
+    assert wrapped.observation_space == conditioned.observation_space
 
 
 def test_the_input_space_holds_the_zeros_that_stand_for_no_previous_action() -> None:
