@@ -29,11 +29,10 @@ from tokenize import TokenError
 from typing import Any
 
 import numpy as np
-import yaml
 
 from imitation.data.convert.converted import Converted, box_for, cast_rows, infer_action_space
 from imitation.data.convert.endings import SourceEnds
-from imitation.data.convert.yaml_bounded import load_yaml
+from imitation.data.convert.yaml_bounded import read_yaml_file
 from imitation.data.types import Episode
 from imitation.errors import ImitationError
 
@@ -63,17 +62,7 @@ class Layout:
 def load_layout(path: str | Path) -> Layout:
     """Read and check a layout file; ImitationError names the file and what is wrong."""
     path = Path(path)
-    try:
-        raw = load_yaml(path.read_bytes())
-    except OSError as error:
-        raise ImitationError(f"{path}: cannot read the layout: {error.strerror or error}") from None
-    except yaml.YAMLError as error:
-        raise ImitationError(f"{path}: not valid YAML ({' '.join(str(error).split())[:300]})") from None
-    except RecursionError:
-        raise ImitationError(f"{path}: not a layout (YAML nested too deep)") from None
-    except ImitationError as error:
-        raise ImitationError(f"{path}: {error}") from None
-    return parse_layout(raw, path)
+    return parse_layout(read_yaml_file(path, "layout"), path)
 
 
 def parse_layout(raw: Any, path: Path) -> Layout:

@@ -23,10 +23,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from imitation.data.convert.fields import FieldError, parse_field
-from imitation.data.convert.yaml_bounded import load_yaml
+from imitation.data.convert.yaml_bounded import read_yaml_file
 from imitation.errors import ImitationError
 
 # Outside 0.001 Hz (a step per 1000 s) to 10 kHz a rate is a typo, or the map is damaged.
@@ -82,17 +80,7 @@ class RecordingMap:
 def load_map(path: str | Path) -> RecordingMap:
     """Read and check a map file; ImitationError names the file and what is wrong."""
     path = Path(path)
-    try:
-        raw = load_yaml(path.read_bytes())  # bytes: yaml reports text that is not UTF-8 as a YAMLError
-    except OSError as error:
-        raise ImitationError(f"{path}: cannot read the map: {error.strerror or error}") from None
-    except yaml.YAMLError as error:
-        raise ImitationError(f"{path}: not valid YAML ({' '.join(str(error).split())[:300]})") from None
-    except RecursionError:
-        raise ImitationError(f"{path}: not a map (YAML nested too deep)") from None
-    except ImitationError as error:
-        raise ImitationError(f"{path}: {error}") from None
-    return parse_map(raw, path)
+    return parse_map(read_yaml_file(path, "map"), path)
 
 
 def _unplain(value: Any, where: str) -> str | None:

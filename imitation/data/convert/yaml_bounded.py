@@ -9,6 +9,7 @@ above `LIMITS.yaml_nodes`.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import yaml
@@ -74,3 +75,18 @@ def load_yaml(data: bytes) -> Any:
         return loader.get_single_data()
     finally:
         loader.dispose()
+
+
+def read_yaml_file(path: Path, kind: str) -> Any:
+    """The YAML of a user's `kind` of file (a map, a layout), bounded as `load_yaml`;
+    ImitationError names the file and what is wrong."""
+    try:
+        return load_yaml(path.read_bytes())  # bytes: yaml reports text that is not UTF-8 as a YAMLError
+    except OSError as error:
+        raise ImitationError(f"{path}: cannot read the {kind}: {error.strerror or error}") from None
+    except yaml.YAMLError as error:
+        raise ImitationError(f"{path}: not valid YAML ({' '.join(str(error).split())[:300]})") from None
+    except RecursionError:
+        raise ImitationError(f"{path}: not a {kind} (YAML nested too deep)") from None
+    except ImitationError as error:
+        raise ImitationError(f"{path}: {error}") from None
