@@ -201,15 +201,17 @@ def _retrain(
 def _estimate_seconds(config: PPOConfig, reward: RewardNet, runs: int, workers: int) -> float:
     """How long `runs` retrainings take, `workers` at a time: two PPO updates on the reward, timed
     here (the first, which starts the environments and warms up, is left out), scaled up. Side by
-    side runs share the machine's cores, so more workers than cores do not go faster."""
-    probe = PPO(dataclasses.replace(config, total_steps=2 * config.n_envs * config.n_steps), reward=reward)
-    try:
-        probe.step()
-        started = time.perf_counter()
-        probe.step()
-        per_step = (time.perf_counter() - started) / (config.n_envs * config.n_steps)
-    finally:
-        probe.close()
+    side runs share the machine's cores, so more workers than cores do not go faster. PPO seeds
+    torch's generator: the probe runs on a fork of it, so what follows draws as it would without."""
+    with torch.random.fork_rng(devices=[]):
+        probe = PPO(dataclasses.replace(config, total_steps=2 * config.n_envs * config.n_steps), reward=reward)
+        try:
+            probe.step()
+            started = time.perf_counter()
+            probe.step()
+            per_step = (time.perf_counter() - started) / (config.n_envs * config.n_steps)
+        finally:
+            probe.close()
     parallel = max(1, min(workers, os.cpu_count() or 1))
     return per_step * config.total_steps * runs / parallel
 

@@ -137,3 +137,17 @@ def test_eval_reward_estimates_its_time_reports_progress_to_a_log_and_shares_eva
     assert policy_reference["random_return"] == reward_reference["random_return"]
     assert policy_reference["source"] == reward_reference["source"]
     assert "uniform random actions (10 episodes, seeds 10000-10009)" in policy.stdout
+
+
+def test_the_time_estimate_leaves_torchs_generator_as_it_found_it() -> None:
+    """The probe's PPO seeds torch; what `eval reward` draws afterwards must not depend on it."""
+    from imitation.jobs.evaluate_reward import _estimate_seconds
+    from imitation.jobs.presets import ppo_config
+
+    env = make_env(CARTPOLE)
+    reward = make_reward_model(env.observation_space, env.action_space, hidden_sizes=[8], inputs="sas")
+    torch.manual_seed(1234)
+    before = torch.get_rng_state()
+    seconds = _estimate_seconds(ppo_config(CARTPOLE, learned_reward=True, total_steps=4096, seed=7), reward, runs=3, workers=1)
+    assert seconds > 0
+    assert torch.equal(torch.get_rng_state(), before)
