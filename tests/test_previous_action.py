@@ -16,7 +16,8 @@ import torch
 from support import DATASETS, run_cli_many
 from test_cli import assert_one_line_error, last_json
 
-from imitation.algorithms.bc import BCConfig
+from imitation.algorithms.bc import BCConfig, BehaviouralCloning
+from imitation.data.loader import TransitionTensors
 from imitation.envs.previous_action import PreviousActionObservation, previous_action_space, with_previous_actions
 from imitation.errors import ConfigError, ImitationError
 from imitation.jobs.bc import _conditions_on_previous_action
@@ -97,6 +98,23 @@ def test_the_mean_is_the_previous_action_plus_the_head_in_units_of_the_changes()
         make_policy(gym.spaces.Box(-1, 1, (2,)), gym.spaces.Box(-1, 1, (2,)), previous_action=True)
     with pytest.raises(TypeError, match="previous_action true or false"):
         PolicyConfig.from_json(policy.config.to_json() | {"previous_action": "yes"})
+
+
+def test_bc_fits_the_head_to_the_changes_of_the_command() -> None:
+    """BC's learner standardises a policy of the previous action by a_t − a_{t-1}, not by a_t."""
+    actions = np.array([[1.0], [3.0], [4.0], [10.0], [9.0]])
+    x = with_previous_actions(np.zeros((5, 2)), actions, np.array([0, 0, 0, 1, 1]))
+    train = TransitionTensors(
+        observations=torch.as_tensor(x), actions=torch.as_tensor(actions, dtype=torch.float32), rewards=torch.zeros(5),
+        next_observations=None, terminated=torch.zeros(5, dtype=torch.bool), truncated=torch.zeros(5, dtype=torch.bool),
+        episode_index=torch.tensor([0, 0, 0, 1, 1]),
+    )
+    inputs = previous_action_space(gym.spaces.Box(-1, 1, (2,)), gym.spaces.Box(-20, 20, (1,)))
+    policy = make_policy(inputs, gym.spaces.Box(-20, 20, (1,)), hidden_sizes=[4], normalize_actions=True, previous_action=True)
+    BehaviouralCloning(policy, train, None, BCConfig(epochs=1))
+    changes = torch.tensor([1.0, 2.0, 1.0, 10.0, -1.0])  # the first step of each episode changes from a_{-1} = 0
+    assert torch.allclose(policy.action_mean, changes.mean().reshape(1))
+    assert torch.allclose(policy.action_scale, changes.std(unbiased=False).reshape(1))
 
 
 def test_auto_conditions_offline_set_points_only() -> None:
