@@ -20,7 +20,7 @@ from imitation.algorithms.bc import BCConfig, BehaviouralCloning
 from imitation.data.loader import TransitionTensors
 from imitation.envs.previous_action import PreviousActionObservation, previous_action_space, with_previous_actions
 from imitation.errors import ConfigError, ImitationError
-from imitation.jobs.bc import _conditions_on_previous_action
+from imitation.jobs.bc import _conditions_on_previous_action, _states_alone
 from imitation.policies import PolicyConfig, acting_env, load_policy, make_policy
 
 
@@ -115,6 +115,17 @@ def test_bc_fits_the_head_to_the_changes_of_the_command() -> None:
     changes = torch.tensor([1.0, 2.0, 1.0, 10.0, -1.0])  # the first step of each episode changes from a_{-1} = 0
     assert torch.allclose(policy.action_mean, changes.mean().reshape(1))
     assert torch.allclose(policy.action_scale, changes.std(unbiased=False).reshape(1))
+
+
+def test_the_baselines_see_the_states_the_input_was_built_from() -> None:
+    states = np.arange(12.0).reshape(3, 2, 2)
+    x = with_previous_actions(states, np.ones((3, 1)), np.zeros(3, dtype=np.int64))
+    tensors = TransitionTensors(
+        observations=torch.as_tensor(x), actions=torch.ones(3, 1), rewards=torch.zeros(3), next_observations=None,
+        terminated=torch.zeros(3, dtype=torch.bool), truncated=torch.zeros(3, dtype=torch.bool), episode_index=torch.zeros(3),
+    )
+    alone = _states_alone(gym.spaces.Box(-np.inf, np.inf, (2, 2)))(tensors)
+    assert torch.equal(alone.observations, torch.as_tensor(states))
 
 
 def test_auto_conditions_offline_set_points_only() -> None:

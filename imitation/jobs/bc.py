@@ -96,7 +96,7 @@ def bc_job(
         run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
         seconds = learner.clock.seconds  # training only, not the evaluation below
         run.save_weights(policy_tensors(learner.policy.cpu()))
-        states = _states_alone(spaces.observation_space) if previous_action else None
+        states = _states_alone(spaces.observation_space) if previous_action else _unchanged
         yardstick = _yardstick(learner, train, validation, config, spaces.action_space, states)
         title = f"BC on {env_id or dataset.env_id or 'offline demos'}"
         plot_curve(
@@ -137,7 +137,7 @@ def _yardstick(
     validation: TransitionTensors | None,
     config: BCConfig,
     action_space: gym.Space,
-    states: Callable[[TransitionTensors], TransitionTensors] | None,
+    states: Callable[[TransitionTensors], TransitionTensors],
 ) -> dict[str, Any]:
     """How the run ended, and the policy beside the trivial baselines on the held-out transitions
     (`imitation.evaluation.baselines`, on the `states` alone where the policy saw x_t): scores, which
@@ -156,11 +156,7 @@ def _yardstick(
     if validation is None or not len(validation):
         return {"stopped": stopped, "validation": None, "baselines": {}, "beats": {}, "references": {}, "warnings": warnings}
     scores = policy_scores(learner.policy.cpu(), validation.to("cpu"))
-    baselines = (
-        baseline_scores(states(train), states(validation), action_space)
-        if states
-        else baseline_scores(train, validation, action_space)
-    )
+    baselines = baseline_scores(states(train), states(validation), action_space)
     beats = {name: all(scores[key] < value for key, value in baseline.items()) for name, baseline in baselines.items()}
     loss = "mse" if config.loss == "mse" else "nll"
     references = {name: baseline[loss] for name, baseline in baselines.items() if loss in baseline}
@@ -199,6 +195,10 @@ def _with_previous_actions(transitions: Transitions) -> Transitions:
     assert isinstance(transitions.observations, np.ndarray) and isinstance(transitions.actions, np.ndarray)  # Box spaces
     observations = with_previous_actions(transitions.observations, transitions.actions, transitions.episode_index)
     return dataclasses.replace(transitions, observations=observations)
+
+
+def _unchanged(transitions: TransitionTensors) -> TransitionTensors:
+    return transitions
 
 
 def _states_alone(observation_space: gym.Space) -> Callable[[TransitionTensors], TransitionTensors]:

@@ -34,8 +34,9 @@ def eval_policy_job(
     config, _ = read_run(run)
     actor = SingleObservationPolicy(policy, deterministic=not stochastic)
     with closing(make_env(env_id)) as env:
-        check_policy_fits_env(policy, acting_env(policy, env), str(run))
-        result = evaluate_policy(actor, acting_env(policy, env), episodes=episodes, seed=seed)
+        policy_env = acting_env(policy, env)
+        check_policy_fits_env(policy, policy_env, str(run))
+        result = evaluate_policy(actor, policy_env, episodes=episodes, seed=seed)
         demos = demos if demos is not None else RunConfig.from_json(config).existing_demos()
         if demos:
             result |= normalized_return(result, env, demos)
