@@ -178,6 +178,41 @@ def cmd_train_ppo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train_pg(args: argparse.Namespace) -> int:
+    from imitation.jobs.pg import pg_config, pg_job
+
+    config = pg_config(args.env, **_fields(args, "PGConfig"))
+    result = pg_job(config, args.out, progress=not args.quiet, resume=args.resume)
+    if args.json:
+        _print_json(result)
+    else:
+        evaluation = result["eval"]
+        print(
+            f"trained policy gradient ({config.estimator}) on {args.env} for {result['steps']} steps in "
+            f"{result['batches']} batches, {result['seconds']:.0f} s; eval return {evaluation['mean_return']:.1f} ± "
+            f"{evaluation['std_return']:.1f}; run: {result['run']}"
+        )
+    return 0
+
+
+def cmd_train_search(args: argparse.Namespace) -> int:
+    from imitation.jobs.search import search_config, search_job
+
+    config = search_config(args.env, args.algorithm, **_fields(args, "SearchConfig"))
+    result = search_job(config, args.out, progress=not args.quiet, resume=args.resume)
+    if args.json:
+        _print_json(result)
+    else:
+        evaluation = result["eval"]
+        print(
+            f"searched {result['parameters']} policy parameters by {args.algorithm} on {args.env}: {result['steps']} steps, "
+            f"{result['generations']} generations in {result['seconds']:.0f} s; eval return of the "
+            f"{'incumbent' if args.algorithm == 'hill-climb' else 'mean'} {evaluation['mean_return']:.1f} ± "
+            f"{evaluation['std_return']:.1f}; run: {result['run']}"
+        )
+    return 0
+
+
 def _finite(text: str) -> float:
     """A float option: NaN and ±inf are refused where they enter, not deep inside training."""
     try:
@@ -266,6 +301,8 @@ def cmd_train_dagger(args: argparse.Namespace) -> int:
 def cmd_train_irl(args: argparse.Namespace) -> int:
     if args.method == "gcl":
         return _train_gcl(args)
+    if args.method == "apprenticeship":
+        return _train_apprenticeship(args)
     from imitation.algorithms.maxent_irl import MaxEntIRLConfig
     from imitation.jobs.irl import tabular_irl_job
 
@@ -308,6 +345,28 @@ def _train_gcl(args: argparse.Namespace) -> int:
             f"trained alongside (not for use) earns {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f} (demos "
             f"{result['demo_return']:.1f}); reward model for `train ppo --reward`: {result['run']}"
         )
+    return 0
+
+
+def _train_apprenticeship(args: argparse.Namespace) -> int:
+    from imitation.algorithms.apprenticeship import ApprenticeshipConfig
+    from imitation.jobs.apprenticeship import apprenticeship_job
+    from imitation.jobs.presets import ppo_config
+
+    config = ApprenticeshipConfig(**_fields(args, "ApprenticeshipConfig"))
+    # The PPO solver's steps per iteration are ApprenticeshipConfig's, so --steps is not PPOConfig's here.
+    solver = ppo_config(args.env, learned_reward=True, seed=config.seed, total_steps=config.solver_steps)
+    result = apprenticeship_job(args.demos, args.env, config, solver, args.out, progress=not args.quiet, resume=args.resume)
+    if args.json:
+        _print_json(result)
+        return 0
+    mixture = result["mixture"]
+    print(
+        f"apprenticeship learning on {args.env}: {result['iterations']} iterations, ‖μ_E - μ̄‖/‖μ_E‖ = "
+        f"{result['relative_feature_distance']:.4f}; the mixture of {len(mixture['lambdas'])} policies earns "
+        f"{mixture['return']:.2f} (normalised {mixture['normalized_return']:.3f}); reward and policy (member "
+        f"{result['chosen_member']}) in: {result['run']}"
+    )
     return 0
 
 
@@ -399,6 +458,35 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
         },
         None: {"device": "--device"},  # the device's own check, where any learner meets it
     },
+    **{
+        f"train {method}": {
+            "SearchConfig": {
+                "total_steps": "--steps",
+                "hidden_sizes": "--hidden",
+                "population": "--population",
+                "elite_fraction": "--elite-fraction",
+                "sigma": "--sigma",
+                "episodes_per_candidate": "--episodes-per-candidate",
+                "n_envs": "--n-envs",
+                "seed": "--seed",
+            },
+        }
+        for method in ("hill-climb", "cem", "cmaes")
+    },
+    "train pg": {
+        "PGConfig": {
+            "estimator": "--estimator",
+            "n_step": "--n-step",
+            "gae_lambda": "--gae-lambda",
+            "total_steps": "--steps",
+            "batch_steps": "--batch-steps",
+            "gamma": "--gamma",
+            "learning_rate": "--lr",
+            "hidden_sizes": "--hidden",
+            "n_envs": "--n-envs",
+            "seed": "--seed",
+        },
+    },
     "train bc": {
         "BCConfig": {
             "epochs": "--epochs",
@@ -447,6 +535,14 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
         },
         "GCLConfig": {"learning_rate": "--lr", "hidden_sizes": "--hidden", "seed": "--seed"},
         "PPOConfig": {"total_steps": "--steps", "seed": "--seed"},
+        "ApprenticeshipConfig": {
+            "iterations": "--iterations",
+            "tolerance": "--tolerance",
+            "discount": "--discount",
+            "solver_steps": "--steps",
+            "episodes": "--episodes",
+            "seed": "--seed",
+        },
         # The tabular planner's own check of the discount.
         None: {"discount": "--discount"},
     },
@@ -497,6 +593,80 @@ def _add_run_output(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object with the results")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _add_search_parsers(algorithms: Any) -> None:
+    """`train hill-climb`, `train cem`, `train cmaes`: one command per gradient-free search, same flags."""
+    searches = {
+        "hill-climb": (
+            "gradient-free: hill climbing with adaptive noise over the policy's parameters",
+            "Hill climbing: each generation perturbs the incumbent θ by σε for --population candidates and keeps the "
+            "best if it beats θ, re-evaluated on the same episodes; σ halves after an improvement and doubles "
+            "otherwise. The run keeps the incumbent.",
+        ),
+        "cem": (
+            "gradient-free: the cross-entropy method over the policy's parameters",
+            "The cross-entropy method: each generation samples --population parameter vectors from N(μ, diag σ²) and "
+            "refits μ and σ² to the --elite-fraction best, plus a decreasing extra variance. The run keeps the mean μ.",
+        ),
+        "cmaes": (
+            "gradient-free: CMA-ES (the cma library) over the policy's parameters",
+            "CMA-ES by the cma library (ask/tell): full covariance and global step size. The run keeps the mean.",
+        ),
+    }
+    for method, (summary, description) in searches.items():
+        search = algorithms.add_parser(
+            method,
+            help=summary,
+            description=description + " Candidates act deterministically (the mode of π_θ); each is scored by its "
+            "mean return over the same --episodes-per-candidate episodes, run side by side in --n-envs env copies. "
+            "The budget is env steps: no generation starts that could pass it. `eval policy RUN_DIR` evaluates the "
+            "result.",
+        )
+        search.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
+        search.add_argument(
+            "--steps",
+            type=int,
+            metavar="N",
+            help="environment steps in total (default: 50000 for CartPole-v1, 500000 for Pendulum-v1, else 100000)",
+        )
+        search.add_argument(
+            "--hidden",
+            type=_hidden_sizes,
+            metavar="W,W",
+            help="hidden layer widths of the policy, or 'linear' (default: 8 for Pendulum-v1, else linear)",
+        )
+        search.add_argument(
+            "--population",
+            type=int,
+            metavar="K",
+            help="candidates per generation, besides the centre (default: 24 for Pendulum-v1, else 16)",
+        )
+        search.add_argument(
+            "--elite-fraction",
+            dest="elite_fraction",
+            type=_finite,
+            metavar="F",
+            help="cem: the fraction of candidates the distribution is refitted to (default: 0.2)",
+        )
+        search.add_argument(
+            "--sigma",
+            type=_finite,
+            metavar="S",
+            help="initial noise scale: hill climbing's σ, CEM's std, CMA-ES's step size (default: 0.5)",
+        )
+        search.add_argument(
+            "--episodes-per-candidate",
+            dest="episodes_per_candidate",
+            type=int,
+            metavar="E",
+            help="episodes each candidate is scored on (default: 1)",
+        )
+        search.add_argument("--n-envs", dest="n_envs", type=int, metavar="K", help="environment copies (default: 8)")
+        search.add_argument("--seed", type=int, metavar="S", help="seed of the search and its episodes (default: 0)")
+        _add_run_output(search)
+        _add_resume(search)
+        search.set_defaults(handler=cmd_train_search)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -665,6 +835,60 @@ def build_parser() -> argparse.ArgumentParser:
     _add_resume(ppo)
     ppo.set_defaults(handler=cmd_train_ppo)
 
+    pg = algorithms.add_parser(
+        "pg",
+        help="policy gradient: REINFORCE (whole return, reward-to-go, baseline) or actor-critic",
+        description="Policy gradient from first principles: each batch of complete episodes gives one gradient step "
+        "on (1/m) Σ_i Σ_t ∇log π(a_t|s_t) w_t, w_t the trajectory's return, the reward-to-go, the reward-to-go minus a "
+        "learned V(s_t), or an actor-critic advantage (n-step with --n-step, else GAE(λ)). Softmax policies for "
+        "discrete actions, Gaussian for continuous ones. Per-environment defaults make the other flags optional.",
+    )
+    pg.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
+    pg.add_argument(
+        "--estimator",
+        choices=["return", "reward-to-go", "baseline", "actor-critic"],
+        help="the weight of ∇log π(a_t|s_t) (default: baseline)",
+    )
+    pg.add_argument(
+        "--n-step",
+        dest="n_step",
+        type=int,
+        metavar="N",
+        help="actor-critic: n-step advantages, TD(0) at 1 (default: none, GAE(λ))",
+    )
+    pg.add_argument(
+        "--gae-lambda", dest="gae_lambda", type=_finite, metavar="L", help="actor-critic: GAE's λ in [0, 1] (default: 0.95)"
+    )
+    pg.add_argument(
+        "--steps",
+        type=int,
+        metavar="N",
+        help="environment steps in total (default: 296000 for CartPole-v1, 197000 with actor-critic; 499000 for "
+        "Pendulum-v1; else 100000)",
+    )
+    pg.add_argument(
+        "--batch-steps",
+        dest="batch_steps",
+        type=int,
+        metavar="N",
+        help="environment steps per gradient step, at least: episodes are finished (default: per env, else 2000)",
+    )
+    pg.add_argument("--gamma", type=_finite, metavar="G", help="discount γ in [0, 1] (default: per env, else 0.99)")
+    pg.add_argument("--lr", type=_finite, metavar="LR", help="the policy's Adam learning rate (default: per env, else 0.01)")
+    pg.add_argument(
+        "--hidden",
+        type=_hidden_sizes,
+        metavar="W,W",
+        help="hidden layer widths of the policy and critic, or 'linear' (default: 64,64)",
+    )
+    pg.add_argument("--n-envs", dest="n_envs", type=int, metavar="K", help="environment copies (default: per env, else 4)")
+    pg.add_argument("--seed", type=int, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
+    _add_run_output(pg)
+    _add_resume(pg)
+    pg.set_defaults(handler=cmd_train_pg)
+
+    _add_search_parsers(algorithms)
+
     bc = algorithms.add_parser(
         "bc",
         help="behavioural cloning on MCAP demos",
@@ -755,25 +979,38 @@ def build_parser() -> argparse.ArgumentParser:
 
     irl = algorithms.add_parser(
         "irl",
-        help="maximum-entropy IRL: recover a reward from demos (tabular maxent/mce, continuous gcl)",
+        help="IRL: recover a reward from demos (tabular maxent/mce, continuous gcl, apprenticeship)",
         description="Maximum-entropy inverse RL. maxent (Ziebart 2008, deterministic dynamics) and mce (maximum causal "
         "entropy, any dynamics) need a tabular env with known dynamics (imitation/GridWorld8x8-v0, ...); gcl (guided cost "
-        "learning) works on continuous envs and trains PPO on the reward as it learns it. The run directory holds the "
-        "reward model, for `train ppo --reward RUN_DIR`.",
+        "learning) works on continuous envs and trains PPO on the reward as it learns it. apprenticeship (Abbeel & Ng "
+        "2004, projection method) matches the demos' feature expectations with a mixture of policies: exactly on a "
+        "tabular env, with PPO as the solver on Box observations. The run directory holds the reward model, for `train "
+        "ppo --reward RUN_DIR`.",
     )
-    irl.add_argument("--method", choices=["maxent", "mce", "gcl"], default="mce", help="the IRL algorithm (default: mce)")
+    irl.add_argument(
+        "--method", choices=["maxent", "mce", "gcl", "apprenticeship"], default="mce", help="the IRL algorithm (default: mce)"
+    )
     irl.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
     irl.add_argument("--demos", required=True, nargs="+", metavar="F.mcap", help="expert demo files of that env")
-    irl.add_argument("--iterations", type=int, default=2000, metavar="N", help="tabular: most gradient steps (default: 2000)")
+    irl.add_argument(
+        "--iterations",
+        type=int,
+        metavar="N",
+        help="maxent/mce: most gradient steps (default: 2000); apprenticeship: most projection iterations (default: 20)",
+    )
     irl.add_argument(
         "--tolerance",
         type=_finite,
-        default=1e-4,
         metavar="E",
-        help="tabular: stop when the visitation error (L∞) is below E (default: 1e-4)",
+        help="maxent/mce: stop when the visitation error (L∞) is below E (default: 1e-4); apprenticeship: stop when "
+        "‖μ_E - μ̄‖₂ ≤ E·‖μ_E‖₂ (default: 0.01)",
     )
     irl.add_argument(
-        "--discount", type=_finite, default=1.0, metavar="G", help="tabular: discount γ of the visitation counts (default: 1)"
+        "--discount",
+        type=_finite,
+        default=1.0,
+        metavar="G",
+        help="maxent/mce/apprenticeship: discount γ of the visitation counts and feature expectations (default: 1)",
     )
     irl.add_argument(
         "--lr", type=_finite, metavar="LR", help="Adam learning rate of the reward (default: 0.05 tabular, 3e-4 gcl)"
@@ -788,7 +1025,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--steps",
         type=int,
         metavar="N",
-        help="gcl: PPO environment steps in total (default: 500000 for Pendulum-v1, else 200000)",
+        help="gcl: PPO environment steps in total (default: 500000 for Pendulum-v1, else 200000); apprenticeship on "
+        "Box observations: PPO steps per iteration (default: 100000)",
+    )
+    irl.add_argument(
+        "--episodes",
+        type=int,
+        metavar="N",
+        help="apprenticeship on Box observations: episodes that estimate each policy's feature expectations (default: 10)",
     )
     irl.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     _add_run_output(irl)

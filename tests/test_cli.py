@@ -26,7 +26,7 @@ def assert_one_line_error(result: subprocess.CompletedProcess, *fragments: str) 
         assert fragment in lines[0], (fragment, lines[0])
 
 
-@pytest.mark.parametrize("command", [[], ["record"], ["info"], ["train"], ["train", "ppo"], ["eval"], ["eval", "policy"]])
+@pytest.mark.parametrize("command", [[], ["record"], ["info"], ["train"], ["train", "ppo"], ["train", "pg"], ["eval"], ["eval", "policy"]])
 def test_help(command: list[str]) -> None:
     result = run_cli(*command, "--help")
     assert result.returncode == 0 and "usage: imitation" in result.stdout

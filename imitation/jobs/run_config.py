@@ -24,7 +24,7 @@ def config_json(config: Any) -> dict[str, Any]:
 
 @dataclass(kw_only=True)
 class RunConfig:
-    kind: str  # "bc", "dagger", "ppo", "reward" (tabular IRL, GCL, a saved reward) or "reward-evaluation"
+    kind: str  # "bc", "dagger", "ppo", "search", "pg", "reward" (tabular IRL, GCL, a saved reward) or "reward-evaluation"
     env_id: str | None
     creator: str = CREATOR
     offline: bool | None = None  # bc: trained without an env
@@ -38,6 +38,8 @@ class RunConfig:
     dagger: dict[str, Any] | None = None
     ppo: dict[str, Any] | None = None
     irl: dict[str, Any] | None = None
+    search: dict[str, Any] | None = None  # hill-climb, cem, cmaes: the gradient-free search's config
+    pg: dict[str, Any] | None = None  # pg: the policy-gradient config
     reward: dict[str, Any] | None = None  # RewardConfig of the reward model the run holds
     policy: dict[str, Any] | None = None  # PolicyConfig of the policy the run holds
     split: dict[str, Any] | None = None  # bc: which episodes or steps were held out
