@@ -5,7 +5,7 @@ DEMO_OUT := demo-output
 # Bundled datasets: seeds start at 1000 so evaluations on seeds 0, 1, 2, ... see fresh starts.
 DATASET_SEED := 1000
 
-.PHONY: venv demo lint test test-all bench fuzz mutate datasets clean
+.PHONY: venv demo lint test test-all bench bench-claims fuzz mutate datasets clean
 
 venv:
 	@bash scripts/bootstrap.sh
@@ -36,6 +36,15 @@ bench: venv
 	$(PY) bench/dagger_vs_bc.py
 	$(PY) bench/irl.py
 	$(PY) bench/irl.py --continuous
+
+# The notes' claims as experiments, each ending in a verdict line (figures and plots: bench/RESULTS.md,
+# "The notes' claims as experiments"); under an hour on 2 cores.
+bench-claims: venv
+	$(PY) bench/claim_baseline_variance.py
+	$(PY) bench/claim_gradient_free.py
+	$(PY) bench/claim_compounding.py
+	$(PY) bench/claim_clip_vs_kl.py
+	$(PY) bench/claim_apprenticeship.py
 
 # Mutation fuzzing of every file reader, 10,000 inputs per target (figures: bench/RESULTS.md, "Fuzzing (issue 8)").
 fuzz: venv
