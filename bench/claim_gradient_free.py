@@ -12,7 +12,11 @@ It reports each method's evaluated return (mean ± std over seeds):
 
 - at equal env steps: at the end of the budget;
 - at equal wall time: at the last evaluation point within W seconds of training, W being the
-  mean training time of the fastest method to finish the budget.
+  mean training time of the fastest method to finish the budget;
+
+and how many seeds reach the task (475 on CartPole, −400 on Pendulum) at an evaluation point,
+with the steps and training seconds to the first such point (the finer comparison when every
+method ends solved).
 
 Verdict: the claim holds on an env when the better of hill climbing and CEM is within one
 standard deviation (over seeds, of the better policy-gradient method) of the best of REINFORCE,
@@ -39,6 +43,7 @@ BENCH = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH.parent))  # run from a checkout without installing the package
 
 BUDGET = {"CartPole-v1": 100_000, "Pendulum-v1": 150_000}
+SOLVED = {"CartPole-v1": 475.0, "Pendulum-v1": -400.0}  # the evaluated return that counts as reaching the task
 METHODS = ("hill-climb", "cem", "reinforce+baseline", "actor-critic", "ppo")
 GRADIENT_FREE = ("hill-climb", "cem")
 POINTS = 8
@@ -101,6 +106,14 @@ def at_wall_time(points: list[tuple[float, float, float]], seconds: float) -> fl
     return within[-1] if within else float("nan")
 
 
+def first_reaching(points: list[tuple[float, float, float]], threshold: float) -> tuple[float, float]:
+    """(steps, seconds) of the first evaluation point at or above `threshold`; (nan, nan) if none."""
+    for steps, seconds, score in points:
+        if score >= threshold:
+            return steps, seconds
+    return float("nan"), float("nan")
+
+
 def summarise(env_id: str, runs: list[dict[str, Any]], seeds: list[int]) -> bool:
     by_method = {method: [run for run in runs if run["method"] == method] for method in METHODS}
     final = {method: np.array([run["points"][-1][2] for run in per]) for method, per in by_method.items()}
@@ -109,13 +122,21 @@ def summarise(env_id: str, runs: list[dict[str, Any]], seeds: list[int]) -> bool
     wall = float(min(value.mean() for value in seconds.values()))
     at_wall = {method: np.array([at_wall_time(run["points"], wall) for run in per]) for method, per in by_method.items()}
     print(f"\n### {env_id}: {BUDGET[env_id]:,} env steps each, {len(seeds)} seeds; equal wall time W = {wall:.0f} s\n")
-    print("| method | steps used | training time (s) | return at equal steps | return at W | per seed (equal steps) |")
-    print("|---|---:|---:|---:|---:|---|")
+    threshold = SOLVED[env_id]
+    print(
+        f"| method | steps used | training time (s) | return at equal steps | return at W | per seed (equal steps) | "
+        f"seeds reaching {threshold:g} | steps to it (mean) | seconds to it (mean) |"
+    )
+    print("|---|---:|---:|---:|---:|---|---:|---:|---:|")
     for method in METHODS:
+        reached = np.array([first_reaching(run["points"], threshold) for run in by_method[method]])
+        hits = int(np.isfinite(reached[:, 0]).sum())
+        to_steps = f"{np.nanmean(reached[:, 0]):,.0f}" if hits else "—"
+        to_seconds = f"{np.nanmean(reached[:, 1]):.0f}" if hits else "—"
         print(
             f"| {method} | {steps[method].mean():,.0f} | {seconds[method].mean():.0f} | {final[method].mean():.1f} ± "
             f"{final[method].std():.1f} | {np.nanmean(at_wall[method]):.1f} ± {np.nanstd(at_wall[method]):.1f} | "
-            f"{', '.join(f'{value:.0f}' for value in final[method])} |"
+            f"{', '.join(f'{value:.0f}' for value in final[method])} | {hits}/{len(reached)} | {to_steps} | {to_seconds} |"
         )
     verdict = False
     for label, scores in (("equal steps", final), ("equal wall time", at_wall)):
