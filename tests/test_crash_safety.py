@@ -98,6 +98,32 @@ def test_ctrl_c_during_train_ppo_keeps_a_checkpoint_that_resume_finishes(tmp_pat
     assert last_json(evaluation)["episodes"] == 2
 
 
+@pytest.mark.parametrize(
+    ("command", "name", "unit", "count"),
+    [
+        (["pg", "--env", "CartPole-v1", "--steps", "16000", "--batch-steps", "500"], "policy gradient", "batch", "batches"),
+        (["cem", "--env", "CartPole-v1", "--steps", "60000"], "CEM", "generation", "generations"),
+    ],
+)
+def test_ctrl_c_during_the_notes_learners_keeps_a_checkpoint_that_resume_finishes(
+    tmp_path: Path, command: list[str], name: str, unit: str, count: str
+) -> None:
+    out = tmp_path / "run"
+    args = ["train", *command, "--seed", "3", "--quiet", "--out", str(out)]
+    message = interrupt_after_first_checkpoint(*args, out=out)
+    assert message.startswith(f"interrupted: {name} stopped after {unit} ") and "--resume to continue" in message
+    stopped_at = int(message.split(f"after {unit} ")[1].split(",")[0])
+    assert len(read_checkpoint(out.with_name("run.partial"))[1]["history"]) == stopped_at
+
+    resumed, evaluation = run_cli_many([[*args, "--resume", "--json"], ["eval", "policy", str(out), "--env", "CartPole-v1", "--episodes", "2", "--json"]])
+    result = last_json(resumed)
+    rows = progress_rows(out)
+    assert len(rows) == result[count] > stopped_at, "every step logged once: those before the interruption and after"
+    steps = [row["step"] for row in rows]
+    assert steps == sorted(steps) and len(set(steps)) == len(steps)
+    assert last_json(evaluation)["episodes"] == 2
+
+
 def test_ctrl_c_during_train_bc_keeps_a_checkpoint_that_resume_finishes(tmp_path: Path) -> None:
     out = tmp_path / "bc"
     partial = tmp_path / "bc.partial"
