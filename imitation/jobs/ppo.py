@@ -7,14 +7,11 @@ from contextlib import closing
 from typing import Any
 
 from imitation.algorithms.ppo import PPO, PPOConfig
-from imitation.checkpoints import prefixed
 from imitation.data.spaces import check_spaces_fit
 from imitation.envs.make import make_env
 from imitation.evaluation.plots import plot_curve
-from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
-from imitation.jobs.run_directory import checkpointing, final_evaluation, training_run
-from imitation.policies import policy_tensors
+from imitation.jobs.run_directory import final_evaluation, save_policy, train_to_end, training_run
 from imitation.rewards import RewardNet, load_reward
 from imitation.runs import read_run
 from imitation.seeding import seed_everything
@@ -51,16 +48,8 @@ def ppo_job(
     )
     with training_run(out, run_config, resume=resume) as run:
         learner = PPO(config, reward=reward)
-        try:
-            run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
-            seconds = learner.clock.seconds  # training only, not the evaluation below
-        finally:
-            learner.close()
-        tensors = policy_tensors(learner.policy)
-        if learner.reward_scaler is not None:
-            tensors |= prefixed("reward_scaler", learner.reward_scaler.stats.state_dict())
-        run.save_weights(tensors)
-        run.update_config(policy=learner.policy.config.to_json())
+        seconds = train_to_end(run, learner, progress=progress)
+        save_policy(run, learner.policy, learner.reward_scaler.stats if learner.reward_scaler is not None else None)
         ys = ["return"] + (["optimised_return"] if reward is not None else [])
         plot_curve(
             run.file("learning_curve.png"), run.history, x="step", ys=ys, title=f"PPO ({config.objective}) on {config.env_id}"

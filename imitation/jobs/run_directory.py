@@ -7,17 +7,19 @@ import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import gymnasium as gym
 
+from imitation.checkpoints import TrainingClock, prefixed
 from imitation.data.dataset import DemoDataset
 from imitation.data.spaces import check_spaces_fit
 from imitation.errors import ImitationError
 from imitation.evaluation.policy import EVAL_EPISODES, EVAL_SEED, evaluate_policy
-from imitation.jobs.loop import Checkpointing, TrainingInterrupted
+from imitation.jobs.loop import Checkpointing, Learner, TrainingInterrupted
+from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig
-from imitation.policies import ActorCritic, SingleObservationPolicy
+from imitation.policies import ActorCritic, RunningMeanStd, SingleObservationPolicy, policy_tensors
 from imitation.rewards import RewardNet, reward_tensors
 from imitation.runs import RunWriter
 
@@ -55,6 +57,34 @@ def training_run(
 def checkpointing(run: RunWriter) -> Checkpointing:
     """Checkpoints into `run`, from the one it was reopened with."""
     return Checkpointing(save=run.save_checkpoint, resume=run.resumed)
+
+
+class EnvLearner(Learner, Protocol):
+    """A learner that holds envs to close and a clock of its training time."""
+
+    clock: TrainingClock
+
+    def close(self) -> None: ...
+
+
+def train_to_end(run: RunWriter, learner: EnvLearner, *, progress: bool) -> float:
+    """Run `learner` to its end in `run`, from the checkpoint `run` was reopened with; its envs
+    are closed whatever happens. Returns the seconds it trained, not counting what follows."""
+    try:
+        run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
+        return learner.clock.seconds
+    finally:
+        learner.close()
+
+
+def save_policy(run: RunWriter, policy: ActorCritic, reward_scaler: RunningMeanStd | None = None) -> None:
+    """The trained policy as `eval policy` reads it: its weights (and the reward scaler's
+    statistics, when rewards were scaled) and its config."""
+    tensors = policy_tensors(policy)
+    if reward_scaler is not None:
+        tensors |= prefixed("reward_scaler", reward_scaler.state_dict())
+    run.save_weights(tensors)
+    run.update_config(policy=policy.config.to_json())
 
 
 def fingerprints(dataset: DemoDataset | None) -> list[str]:

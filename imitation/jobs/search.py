@@ -14,10 +14,8 @@ from typing import Any
 from imitation.algorithms.policy_search import PolicySearch, SearchConfig
 from imitation.envs.make import make_env
 from imitation.evaluation.plots import plot_curve
-from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
-from imitation.jobs.run_directory import checkpointing, final_evaluation, training_run
-from imitation.policies import policy_tensors
+from imitation.jobs.run_directory import final_evaluation, save_policy, train_to_end, training_run
 from imitation.seeding import seed_everything
 
 # Per-environment SearchConfig fields, over the config's defaults (a linear policy, 16 candidates,
@@ -53,13 +51,8 @@ def search_job(config: SearchConfig, out: str | os.PathLike, *, progress: bool =
     run_config = RunConfig(kind="search", env_id=config.env_id, search=config_json(config))
     with training_run(out, run_config, resume=resume) as run:
         learner = PolicySearch(config)
-        try:
-            run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
-            seconds = learner.clock.seconds  # searching only, not the evaluation below
-        finally:
-            learner.close()
-        run.save_weights(policy_tensors(learner.policy))
-        run.update_config(policy=learner.policy.config.to_json())
+        seconds = train_to_end(run, learner, progress=progress)
+        save_policy(run, learner.policy)
         plot_curve(
             run.file("learning_curve.png"),
             run.history,
