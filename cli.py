@@ -480,6 +480,7 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "gae_lambda": "--gae-lambda",
             "total_steps": "--steps",
             "batch_steps": "--batch-steps",
+            "rollout_steps": "--rollout-steps",
             "gamma": "--gamma",
             "learning_rate": "--lr",
             "hidden_sizes": "--hidden",
@@ -864,7 +865,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         metavar="N",
         help="environment steps in total (default: 296000 for CartPole-v1, 197000 with actor-critic; 499000 for "
-        "Pendulum-v1; else 100000)",
+        "Pendulum-v1, 500000 with actor-critic; else 100000)",
     )
     pg.add_argument(
         "--batch-steps",
@@ -872,6 +873,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         metavar="N",
         help="environment steps per gradient step, at least: episodes are finished (default: per env, else 2000)",
+    )
+    pg.add_argument(
+        "--rollout-steps",
+        dest="rollout_steps",
+        type=int,
+        metavar="N",
+        help="actor-critic: N steps of every env copy per gradient step, as in A2C; episodes run on and the cut is "
+        "bootstrapped with V (default: per env; --batch-steps alone means whole episodes)",
     )
     pg.add_argument("--gamma", type=_finite, metavar="G", help="discount γ in [0, 1] (default: per env, else 0.99)")
     pg.add_argument("--lr", type=_finite, metavar="LR", help="the policy's Adam learning rate (default: per env, else 0.01)")

@@ -32,11 +32,17 @@ The policies are `imitation.policies.ActorCritic`: softmax for Discrete actions 
 `PolicyGradient` is the learner: one step collects a batch of complete episodes with π_θ (every
 env copy runs episodes until the batch holds `batch_steps` steps, then finishes the one it is
 in), takes one gradient step of the policy on −ĝ, and `value_steps` regression steps of the
-critic on ½(V_φ(s_t) − target_t)². Options: w_t divided by its batch std (not centred, which
-would be a baseline), both learning rates annealed linearly to 0, observations normalised by
-running statistics updated between batches, rewards divided by the running std of the discounted
-return, an entropy bonus. Every episode is reset with a seed drawn from the run's seed and its
-index, so a run resumed from a checkpoint equals the run that was never stopped.
+critic on ½(V_φ(s_t) − target_t)². With `rollout_steps` (actor-critic only, as in A2C) a batch is
+instead `rollout_steps` steps of every env copy: episodes run on across batches, and each piece
+cut at the batch's end is bootstrapped with V of the state it reached, as a time limit is. The
+critic then makes many small updates possible where whole episodes would allow few.
+
+Options: w_t divided by its batch std (not centred, which would be a baseline), both learning
+rates annealed linearly to 0, observations normalised by running statistics updated between
+batches, rewards divided by the running std of the discounted return, an entropy bonus. Every
+episode is reset with a seed drawn from the run's seed and its index, so a run resumed from a
+checkpoint equals the run that was never stopped (an episode a checkpoint falls inside is
+rebuilt by replaying its actions from that seed).
 """
 
 from __future__ import annotations
@@ -80,6 +86,7 @@ class PGConfig:
     total_steps: int = 100_000
     n_envs: int = 4
     batch_steps: int = 2000  # env steps a batch holds at least (its episodes are finished)
+    rollout_steps: int | None = None  # actor-critic: steps per env copy per batch, episodes cut and bootstrapped
     gamma: float = 0.99
     n_step: int | None = None  # actor-critic: n-step advantages; None for GAE(λ)
     gae_lambda: float = 0.95
@@ -111,9 +118,14 @@ class PGConfig:
                 raise ConfigError("n_step", f"is for the actor-critic estimator, not {self.estimator}", owner=owner)
             if self.n_step < 1:
                 raise ConfigError("n_step", f"must be at least 1, got {self.n_step}", owner=owner)
-        if self.total_steps < self.batch_steps:
+        if self.rollout_steps is not None:
+            if self.estimator != "actor-critic":
+                raise ConfigError("rollout_steps", f"is for the actor-critic estimator, not {self.estimator}", owner=owner)
+            if self.rollout_steps < 1:
+                raise ConfigError("rollout_steps", f"must be at least 1, got {self.rollout_steps}", owner=owner)
+        if self.total_steps < self.steps_per_batch:
             raise ConfigError(
-                "total_steps", f"{self.total_steps} is less than one batch ({self.batch_steps} steps)", owner=owner
+                "total_steps", f"{self.total_steps} is less than one batch ({self.steps_per_batch} steps)", owner=owner
             )
         for name in ("gamma", "gae_lambda"):
             if not 0.0 <= getattr(self, name) <= 1.0:
@@ -121,6 +133,11 @@ class PGConfig:
         for name in ("learning_rate", "value_learning_rate"):
             if not 0 < getattr(self, name) < 1e30:  # NaN fails too
                 raise ConfigError(name, f"must be a positive number below 1e30, got {getattr(self, name)}", owner=owner)
+
+    @property
+    def steps_per_batch(self) -> int:
+        """The fewest env steps a batch holds (exactly this many with `rollout_steps`)."""
+        return self.batch_steps if self.rollout_steps is None else self.n_envs * self.rollout_steps
 
     @staticmethod
     def from_json(data: dict[str, Any]) -> PGConfig:
@@ -263,11 +280,8 @@ class Batch:
     terminated: torch.Tensor
     truncated: torch.Tensor
     final_features: torch.Tensor
-    episode_returns: list[float]
-
-    @property
-    def episodes(self) -> int:
-        return len(self.episode_returns)
+    episode_returns: list[float]  # of the episodes that ended in this batch
+    pieces: int  # m: the episodes, or pieces of them cut by a rollout's end, in the batch
 
 
 @dataclass
@@ -311,8 +325,14 @@ class PolicyGradient:
         # Rewards are divided by the running std of the discounted return (CleanRL's NormalizeReward,
         # its statistics updated once per batch): the critic's targets stay near unit scale.
         self.reward_scaler = RunningMeanStd(()) if config.normalize_rewards else None
-        # Batches planned: the most there can be, since each holds at least batch_steps steps.
-        self.total = -(-config.total_steps // config.batch_steps)
+        # Batches planned: the most there can be, since each holds at least steps_per_batch steps.
+        self.total = -(-config.total_steps // config.steps_per_batch)
+        # Each copy's episode in progress: its reset seed and the env actions since, so that a
+        # checkpoint taken between rollouts can rebuild the env by replay (no pickled env state).
+        self.observations: list[np.ndarray] | None = None
+        self.episode_seeds = [0] * config.n_envs
+        self.episode_actions: list[list[np.ndarray]] = [[] for _ in range(config.n_envs)]
+        self.episode_rewards = [0.0] * config.n_envs
         self.batches = 0
         self.global_step = 0
         self.episodes = 0
@@ -337,13 +357,95 @@ class PolicyGradient:
         # Episode k is reset with a seed of its own, so a batch depends only on θ and the RNGs.
         seed = int(np.random.SeedSequence([self.config.seed, self.episodes]).generate_state(1)[0])
         self.episodes += 1
+        self.episode_seeds[copy], self.episode_actions[copy], self.episode_rewards[copy] = seed, [], 0.0
         observation, _ = self.envs[copy].reset(seed=seed)
         return observation
 
+    def _replay(self) -> None:
+        """Rebuild every copy's episode in progress from its reset seed and actions."""
+        observations = []
+        for env, seed, actions in zip(self.envs, self.episode_seeds, self.episode_actions, strict=True):
+            observation, _ = env.reset(seed=seed)
+            for action in actions:
+                observation, *_ = env.step(action)
+            observations.append(observation)
+        self.observations = observations
+
     def collect(self) -> Batch:
+        return self.collect_episodes() if self.config.rollout_steps is None else self.collect_rollout()
+
+    def collect_rollout(self) -> Batch:
+        """`rollout_steps` steps of every env copy, its episodes carried over from the last batch;
+        a piece still running at the end is cut there, marked truncated and bootstrapped with V
+        of the state it reached."""
+        config, policy = self.config, self.policy
+        assert config.rollout_steps is not None
+        self.clock.start()
+        if self.observations is None:
+            self.observations = [self._reset(copy) for copy in range(config.n_envs)]
+        pieces = [_Episode() for _ in range(config.n_envs)]
+        finished: list[_Episode] = []
+        returns: list[float] = []
+        seen: list[torch.Tensor] = []
+        steps = 0
+        for _ in range(config.rollout_steps):
+            features, actions, env_actions = self._act(np.stack(self.observations), steps, seen)
+            for copy in range(config.n_envs):
+                piece = pieces[copy]
+                piece.features.append(features[copy])
+                piece.actions.append(actions[copy])
+                self.episode_actions[copy].append(env_actions[copy])
+                steps += 1
+                observation_next, reward, terminated, truncated = self._env_step(copy, env_actions[copy], steps)
+                piece.rewards.append(reward)
+                self.episode_rewards[copy] += reward
+                if not (terminated or truncated):
+                    self.observations[copy] = observation_next
+                    continue
+                self._end_piece(piece, observation_next, terminated, truncated)
+                finished.append(piece)
+                returns.append(self.episode_rewards[copy])
+                pieces[copy] = _Episode()
+                self.observations[copy] = self._reset(copy)
+        for copy, piece in enumerate(pieces):
+            if piece.rewards:
+                self._end_piece(piece, self.observations[copy], terminated=False, truncated=True)
+                finished.append(piece)
+        policy.update_normalizer(torch.cat(seen))
+        self.global_step += steps
+        self.recent_returns.extend(returns)
+        return self._batch(finished, returns)
+
+    def _act(self, stacked: np.ndarray, steps: int, seen: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
+        """(encoded states, sampled actions, env actions) for a stack of raw observations (a
+        reset's or the last step's), which join `seen` for the normaliser."""
+        self._check_finite(stacked, "observation", steps)
+        observation = torch.as_tensor(stacked, device=self.device)
+        seen.append(observation)
+        with torch.no_grad():
+            features = self.policy.encode(observation)
+            actions, _, _ = self.policy.sample(features)
+        return features, actions, self.policy.to_env_action(actions)
+
+    def _env_step(self, copy: int, action: np.ndarray, steps: int) -> tuple[np.ndarray, float, bool, bool]:
+        """One step of env copy `copy` (the batch's step number `steps`): the next observation,
+        reward, terminated and truncated, the first two checked finite."""
+        observation_next, reward, terminated, truncated, _ = self.envs[copy].step(action)
+        self._check_finite(np.asarray([reward], dtype=np.float64), "reward", steps)
+        self._check_finite(np.asarray(observation_next)[None], "observation", steps)
+        return observation_next, float(reward), bool(terminated), bool(truncated)
+
+    def _end_piece(self, piece: _Episode, final: np.ndarray, terminated: bool, truncated: bool) -> None:
+        """Mark how `piece` ended; a truncated one keeps its encoded final state for V's bootstrap."""
+        if truncated and not terminated:
+            with torch.no_grad():
+                piece.final = self.policy.encode(torch.as_tensor(np.asarray(final)[None], device=self.device))[0]
+        piece.terminated, piece.truncated = terminated, truncated and not terminated
+
+    def collect_episodes(self) -> Batch:
         """Complete episodes with π_θ: each env copy starts a new episode while the batch holds
         fewer than `batch_steps` steps."""
-        config, policy, device = self.config, self.policy, self.device
+        config, policy = self.config, self.policy
         self.clock.start()
         observations = {copy: self._reset(copy) for copy in range(config.n_envs)}
         running = {copy: _Episode() for copy in range(config.n_envs)}
@@ -353,31 +455,18 @@ class PolicyGradient:
         seen: list[torch.Tensor] = []  # raw observations, for the normaliser
         while observations:
             copies = list(observations)
-            stacked = np.stack([observations[copy] for copy in copies])
-            self._check_finite(stacked, "observation", steps)  # a reset's or the last step's
-            observation = torch.as_tensor(stacked, device=device)
-            seen.append(observation)
-            with torch.no_grad():
-                features = policy.encode(observation)
-                actions, _, _ = policy.sample(features)
-            env_actions = policy.to_env_action(actions)
+            features, actions, env_actions = self._act(np.stack([observations[copy] for copy in copies]), steps, seen)
             for row, copy in enumerate(copies):
                 episode = running[copy]
                 episode.features.append(features[row])
                 episode.actions.append(actions[row])
-                observation_next, reward, terminated, truncated, _ = self.envs[copy].step(env_actions[row])
                 steps += 1
-                self._check_finite(np.asarray([reward], dtype=np.float64), "reward", steps)
-                self._check_finite(np.asarray(observation_next)[None], "observation", steps)
-                episode.rewards.append(float(reward))
+                observation_next, reward, terminated, truncated = self._env_step(copy, env_actions[row], steps)
+                episode.rewards.append(reward)
                 if not (terminated or truncated):
                     observations[copy] = observation_next
                     continue
-                if truncated and not terminated:
-                    with torch.no_grad():
-                        final = torch.as_tensor(np.asarray(observation_next)[None], device=device)
-                        episode.final = policy.encode(final)[0]
-                episode.terminated, episode.truncated = bool(terminated), bool(truncated and not terminated)
+                self._end_piece(episode, observation_next, terminated, truncated)
                 finished.append(episode)
                 returns.append(float(sum(episode.rewards)))
                 if steps < config.batch_steps:
@@ -415,7 +504,7 @@ class PolicyGradient:
         if self.reward_scaler is not None:
             self.reward_scaler.update(running_returns(rewards, terminated | truncated, gamma=self.config.gamma))
             rewards = torch.clamp(rewards / torch.sqrt(self.reward_scaler.var + 1e-8), -10.0, 10.0)
-        return Batch(features, actions, rewards, terminated, truncated, final_features, returns)
+        return Batch(features, actions, rewards, terminated, truncated, final_features, returns, len(episodes))
 
     def weights(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(w_t, the critic's targets, V(s_t)) for the batch, with the critic as it is now."""
@@ -443,7 +532,7 @@ class PolicyGradient:
             weights = weights / (weights.std() + 1e-8)
         distribution = self.policy.distribution(batch.features)
         log_probs, entropy = self.policy.log_prob_and_entropy(distribution, batch.actions)
-        loss = surrogate_loss(log_probs, weights, batch.episodes) - self.config.entropy_coef * entropy.mean()
+        loss = surrogate_loss(log_probs, weights, batch.pieces) - self.config.entropy_coef * entropy.mean()
         return loss, entropy.mean()
 
     def step(self) -> dict[str, float]:
@@ -479,8 +568,8 @@ class PolicyGradient:
         return {
             "step": float(self.global_step),
             "return": float(np.mean(self.recent_returns)) if self.recent_returns else float("nan"),
-            "batch_return": float(np.mean(batch.episode_returns)),
-            "episodes": float(batch.episodes),
+            "batch_return": float(np.mean(batch.episode_returns)) if batch.episode_returns else float("nan"),
+            "episodes": float(len(batch.episode_returns)),
             "policy_loss": loss.item(),
             "value_loss": value_loss,
             "explained_variance": explained if self.config.estimator in WITH_CRITIC else float("nan"),
@@ -496,13 +585,20 @@ class PolicyGradient:
 
     def state_dict(self) -> CheckpointData:
         """Everything to continue after this batch: networks, both Adams, the normalisers, the
-        counters (the episode counter seeds the next resets), recent returns and the RNGs."""
+        counters (the episode counter seeds the next resets), recent returns and the RNGs; with
+        `rollout_steps`, each episode in progress as its reset seed and actions, to replay."""
         optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")
         value_tensors, value_state = optimizer_checkpoint(self.value_optimizer, "value_optimizer")
         rng_tensors, rng_state = rng_checkpoint()
         tensors = prefixed("policy", self.policy.state_dict()) | optimizer_tensors | value_tensors | rng_tensors
         if self.reward_scaler is not None:
             tensors |= prefixed("reward_scaler", self.reward_scaler.state_dict())
+        in_progress = self.config.rollout_steps is not None and self.observations is not None
+        if in_progress:
+            tensors |= {
+                f"episode_actions.{copy}": torch.as_tensor(np.asarray(actions))
+                for copy, actions in enumerate(self.episode_actions)
+            }
         state = {
             "batch": self.batches,
             "global_step": self.global_step,
@@ -513,6 +609,7 @@ class PolicyGradient:
             "value_optimizer": value_state,
             "rng": rng_state,
             "recent_returns": list(self.recent_returns),
+            "episodes_in_progress": ({"seeds": self.episode_seeds, "rewards": self.episode_rewards} if in_progress else None),
         }
         return tensors, state
 
@@ -529,3 +626,9 @@ class PolicyGradient:
             self.global_step, self.episodes = int(state["global_step"]), int(state["episodes"])
             self.clock.before = float(state["seconds"])
             self.batches = checked_counter(int(state["batch"]), "next batch", 0, self.total)
+            in_progress = state.get("episodes_in_progress")
+            if in_progress is not None:
+                self.episode_seeds = [int(seed) for seed in in_progress["seeds"]]
+                self.episode_rewards = [float(reward) for reward in in_progress["rewards"]]
+                self.episode_actions = [list(tensors[f"episode_actions.{copy}"].numpy()) for copy in range(self.config.n_envs)]
+                self._replay()

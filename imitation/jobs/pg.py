@@ -13,13 +13,10 @@ from typing import Any
 import gymnasium as gym
 
 from imitation.algorithms.policy_gradient import PGConfig, PolicyGradient
-from imitation.checkpoints import prefixed
 from imitation.envs.make import make_env
 from imitation.evaluation.plots import plot_curve
-from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
-from imitation.jobs.run_directory import checkpointing, final_evaluation, training_run
-from imitation.policies import policy_tensors
+from imitation.jobs.run_directory import final_evaluation, save_policy, train_to_end, training_run
 from imitation.seeding import seed_everything
 
 # PGConfig fields per env, then per estimator ("*": every estimator), over PGConfig's defaults.
@@ -32,7 +29,7 @@ PG_PRESETS: dict[str, dict[str, dict[str, Any]]] = {
     },
     # Small batches and a short horizon (γ = 0.9, as PPO's preset); the critic gets 20 regression
     # steps a batch. Both copies' 200-step episodes end on the same round, the first at 399 steps
-    # in, so it starts another: a batch is three episodes, 600 steps.
+    # in, so it starts another: a batch is three episodes, 600 steps (REINFORCE, baseline).
     "Pendulum-v1": {
         "*": dict(
             total_steps=499_000,
@@ -45,6 +42,18 @@ PG_PRESETS: dict[str, dict[str, dict[str, Any]]] = {
             learning_rate=1e-2,
             value_learning_rate=3e-3,
             value_steps=20,
+        ),
+        # A2C-style: rollouts of 2 steps on 8 copies make 31,250 small updates in 500k steps, where
+        # whole episodes allow ~830; the entropy bonus keeps σ from collapsing before the swing-up.
+        "actor-critic": dict(
+            total_steps=500_000,
+            n_envs=8,
+            rollout_steps=2,
+            learning_rate=2e-3,
+            value_learning_rate=2e-3,
+            value_steps=1,
+            entropy_coef=0.1,
+            max_grad_norm=0.5,
         ),
     },
 }
@@ -67,6 +76,8 @@ def pg_config(env_id: str, **fields: Any) -> PGConfig:
     estimator = fields.get("estimator", PGConfig.estimator)
     with closing(make_env(env_id)) as env:
         settings = pg_settings(env_id, estimator, env.action_space)
+    if "batch_steps" in fields and "rollout_steps" not in fields:
+        settings.pop("rollout_steps", None)  # a batch size asked for is one of whole episodes
     return PGConfig(env_id=env_id, **settings | fields)
 
 
@@ -78,16 +89,8 @@ def pg_job(config: PGConfig, out: str | os.PathLike, *, progress: bool = True, r
     run_config = RunConfig(kind="pg", env_id=config.env_id, pg=config_json(config))
     with training_run(out, run_config, resume=resume) as run:
         learner = PolicyGradient(config)
-        try:
-            run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
-            seconds = learner.clock.seconds  # training only, not the evaluation below
-        finally:
-            learner.close()
-        tensors = policy_tensors(learner.policy)
-        if learner.reward_scaler is not None:
-            tensors |= prefixed("reward_scaler", learner.reward_scaler.state_dict())
-        run.save_weights(tensors)
-        run.update_config(policy=learner.policy.config.to_json())
+        seconds = train_to_end(run, learner, progress=progress)
+        save_policy(run, learner.policy, learner.reward_scaler)
         plot_curve(
             run.file("learning_curve.png"),
             run.history,

@@ -290,7 +290,7 @@ def test_the_baseline_is_unbiased_and_lowers_the_variance_on_sampled_episodes() 
     scores = torch.cat([(error[:, :, None] * batch.features[:, None, :]).reshape(len(error), -1), error], 1)
     ends = batch.terminated | batch.truncated
     episode = torch.cumsum(ends.long(), 0) - ends.long()  # each step's episode index
-    n = batch.episodes
+    n = batch.pieces
     assert n > 450
     plain_g = torch.zeros(n, scores.shape[1]).index_add_(0, episode, scores * without_b[:, None])
     baseline_g = torch.zeros(n, scores.shape[1]).index_add_(0, episode, scores * with_b[:, None])
@@ -410,6 +410,35 @@ def test_config_errors_name_the_field() -> None:
         PGConfig(env_id="CartPole-v1", total_steps=10).validate()
     with pytest.raises(ConfigError, match=r"gae_lambda must lie in \[0, 1\], got 1.5"):
         PGConfig(env_id="CartPole-v1", gae_lambda=1.5).validate()
+    with pytest.raises(ConfigError, match="rollout_steps is for the actor-critic estimator, not baseline"):
+        PGConfig(env_id="CartPole-v1", rollout_steps=8).validate()
+    with pytest.raises(ConfigError, match=r"total_steps 100 is less than one batch \(128 steps\)"):
+        PGConfig(env_id="CartPole-v1", estimator="actor-critic", total_steps=100, n_envs=4, rollout_steps=32).validate()
+
+
+def test_a_rollout_cuts_running_episodes_and_carries_them_over() -> None:
+    """Pendulum's 200-step episodes in rollouts of 30 steps: every piece but the ones a time limit
+    ends is cut, marked truncated with the state it reached as its final state, and the next
+    rollout carries on from that very state."""
+    config = PGConfig(
+        env_id="Pendulum-v1", estimator="actor-critic", n_envs=2, rollout_steps=30, total_steps=600, hidden_sizes=[8]
+    )
+    learner = PolicyGradient(config)
+    try:
+        first = learner.collect()
+        reached = [np.array(observation) for observation in learner.observations]
+        second = learner.collect()
+        for _ in range(5):
+            seventh = learner.collect()
+    finally:
+        learner.close()
+    assert len(first.rewards) == len(second.rewards) == 60 == first.pieces * 30
+    assert first.truncated.tolist() == [False] * 29 + [True] + [False] * 29 + [True]
+    assert first.episode_returns == [] and len(seventh.episode_returns) == 2  # steps 180–210 end both episodes
+    assert seventh.pieces == 4 and int((seventh.truncated | seventh.terminated).sum()) == 4
+    for copy, state in enumerate(reached):
+        assert torch.allclose(first.final_features[30 * copy + 29], torch.as_tensor(state))
+        assert torch.allclose(second.features[30 * copy], torch.as_tensor(state))
 
 
 def test_a_batch_holds_complete_episodes_and_counts_its_steps() -> None:
@@ -420,7 +449,7 @@ def test_a_batch_holds_complete_episodes_and_counts_its_steps() -> None:
     finally:
         learner.close()
     ends = batch.terminated | batch.truncated
-    assert bool(ends[-1]) and int(ends.sum()) == batch.episodes == learner.episodes
+    assert bool(ends[-1]) and int(ends.sum()) == batch.pieces == len(batch.episode_returns) == learner.episodes
     assert len(batch.rewards) == learner.global_step >= 100
     assert sum(batch.episode_returns) == pytest.approx(float(batch.rewards.sum()))
 
@@ -430,6 +459,9 @@ def test_a_batch_holds_complete_episodes_and_counts_its_steps() -> None:
     [
         ("CartPole-v1", "reward-to-go", {}),
         ("Pendulum-v1", "actor-critic", {"n_step": 5, "n_envs": 1, "normalize_observations": True, "normalize_rewards": True}),
+        # Checkpoints between rollouts fall inside episodes: the resumed run replays them.
+        ("Pendulum-v1", "actor-critic", {"rollout_steps": 70, "normalize_observations": True}),
+        ("CartPole-v1", "actor-critic", {"rollout_steps": 40, "n_step": 3}),
     ],
 )
 def test_resume_equals_an_uninterrupted_run(env_id: str, estimator: str, options: dict) -> None:
