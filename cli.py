@@ -880,7 +880,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         metavar="N",
         help="actor-critic: N steps of every env copy per gradient step, as in A2C; episodes run on and the cut is "
-        "bootstrapped with V (default: per env; --batch-steps alone means whole episodes)",
+        "bootstrapped with V; --batch-steps without it means whole episodes (default: 2 for Pendulum-v1, else none)",
     )
     pg.add_argument("--gamma", type=_finite, metavar="G", help="discount γ in [0, 1] (default: per env, else 0.99)")
     pg.add_argument("--lr", type=_finite, metavar="LR", help="the policy's Adam learning rate (default: per env, else 0.01)")

@@ -107,3 +107,29 @@ def test_train_pg_help_names_the_configs_own_defaults_and_the_presets() -> None:
     assert f"{PG_PRESETS['CartPole-v1']['*']['total_steps']} for CartPole-v1" in steps
     assert f"{PG_PRESETS['CartPole-v1']['actor-critic']['total_steps']} with actor-critic" in steps
     assert f"{PG_PRESETS['Pendulum-v1']['*']['total_steps']} for Pendulum-v1" in steps
+    assert f"{PG_PRESETS['Pendulum-v1']['actor-critic']['total_steps']} with actor-critic" in steps
+    assert f"{PG_PRESETS['Pendulum-v1']['actor-critic']['rollout_steps']} for Pendulum-v1" in helps["--rollout-steps"]
+
+
+def test_a_batch_size_given_means_whole_episodes_over_the_presets_rollouts() -> None:
+    """Pendulum's actor-critic preset runs 2-step rollouts; `--batch-steps` alone asks for batches
+    of whole episodes, and `--rollout-steps` overrides the preset's."""
+    from imitation.jobs.pg import pg_config
+
+    assert pg_config("Pendulum-v1", estimator="actor-critic").rollout_steps == 2
+    assert pg_config("Pendulum-v1", estimator="actor-critic", batch_steps=400).rollout_steps is None
+    assert pg_config("Pendulum-v1", estimator="actor-critic", batch_steps=400, rollout_steps=5).rollout_steps == 5
+    assert pg_config("Pendulum-v1", estimator="baseline").rollout_steps is None
+
+
+def test_a_rollout_run_is_a_run_eval_policy_reads(tmp_path) -> None:
+    """Pendulum's actor-critic preset (8 copies × 2-step rollouts) for 160 steps: ten batches of
+    exactly 16 steps, and a run directory `eval policy` loads."""
+    from imitation.jobs.evaluate_policy import eval_policy_job
+    from imitation.jobs.pg import pg_config, pg_job
+
+    config = pg_config("Pendulum-v1", estimator="actor-critic", total_steps=160, hidden_sizes=[8])
+    result = pg_job(config, tmp_path / "a2c", progress=False)
+    assert result["steps"] == 160 and result["batches"] == 10
+    assert json.loads((tmp_path / "a2c" / "config.json").read_text())["pg"]["rollout_steps"] == 2
+    assert eval_policy_job(str(tmp_path / "a2c"), "Pendulum-v1", episodes=1)["episodes"] == 1

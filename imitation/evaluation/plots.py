@@ -32,7 +32,10 @@ def plot_curve(
     axis.set_xlabel(x)
     axis.set_title(title)
     axis.grid(alpha=0.3)
-    axis.legend()
+    if axis.get_legend_handles_labels()[0]:
+        axis.legend()
+    else:  # e.g. a run too short to finish an episode
+        axis.text(0.5, 0.5, "no finite values yet", transform=axis.transAxes, ha="center", va="center")
     figure.tight_layout()
     figure.savefig(path, dpi=110)
     plt.close(figure)
