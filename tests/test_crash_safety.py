@@ -292,6 +292,29 @@ def test_ctrl_c_during_tabular_train_irl_keeps_a_checkpoint_that_resume_finishes
     assert "epic" in last_json(evaluation)
 
 
+def test_ctrl_c_during_train_irl_apprenticeship_keeps_a_checkpoint_that_resume_finishes(tmp_path: Path) -> None:
+    """The PPO solver on fixed-horizon CartPole, a checkpoint after every iteration (each is a
+    PPO run of 2048 steps): Ctrl-C after the first leaves the iterations so far, and --resume
+    finishes the run with each iteration logged once and a reward `eval reward` reads."""
+    out = tmp_path / "app"
+    partial = tmp_path / "app.partial"
+    env_id = "imitation/CartPoleFixedHorizon-v0"
+    args = ["train", "irl", "--method", "apprenticeship", "--env", env_id, "--demos", str(DATASETS / "CartPoleFixedHorizon-v0.mcap"),
+            "--iterations", "4", "--steps", "2048", "--episodes", "2", "--tolerance", "0", "--seed", "3", "--quiet", "--out", str(out)]
+    message = interrupt_after_first_checkpoint(*args, out=out)
+    assert message.startswith("interrupted: apprenticeship learning stopped after iteration ") and f"of 4; its checkpoint is in {partial}" in message
+    stopped_at = int(message.split("after iteration ")[1].split(" ")[0])
+    assert 1 <= stopped_at < 4 and len(read_checkpoint(partial)[1]["history"]) == stopped_at
+
+    resumed, evaluation = run_cli_many([
+        [*args, "--resume", "--json"],
+        ["eval", "reward", str(out), "--env", env_id, "--retrain-steps", "0", "--quiet", "--json"],
+    ])
+    assert last_json(resumed)["iterations"] == 4 and not partial.exists()
+    assert [row["iteration"] for row in progress_rows(out)] == [1.0, 2.0, 3.0, 4.0]
+    assert "epic" in last_json(evaluation)
+
+
 def test_kill_9_during_convert_leaves_no_final_file_and_a_partial_one_whose_complete_episodes_read_back(tmp_path: Path) -> None:
     # 30,000 short episodes: writing them takes seconds, each flushed as its own chunk.
     episodes, length = 30_000, 10
