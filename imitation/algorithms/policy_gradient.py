@@ -407,9 +407,12 @@ class PolicyGradient:
                 returns.append(self.episode_rewards[copy])
                 pieces[copy] = _Episode()
                 self.observations[copy] = self._reset(copy)
+        # The cut pieces' final states, encoded in one call rather than one per copy.
+        with torch.no_grad():
+            reached = policy.encode(torch.as_tensor(np.stack(self.observations), device=self.device))
         for copy, piece in enumerate(pieces):
             if piece.rewards:
-                self._end_piece(piece, self.observations[copy], terminated=False, truncated=True)
+                piece.truncated, piece.final = True, reached[copy]
                 finished.append(piece)
         policy.update_normalizer(torch.cat(seen))
         self.global_step += steps
