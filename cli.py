@@ -31,6 +31,7 @@ def _print_json(data: dict[str, Any]) -> None:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
+    from imitation.envs.pixels import PixelRecipe
     from imitation.jobs.record import record_job
 
     result = record_job(
@@ -40,6 +41,10 @@ def cmd_record(args: argparse.Namespace) -> int:
         episodes=args.episodes,
         seed=args.seed,
         compression=args.compression,
+        pixels=PixelRecipe.parse(args.pixels, grayscale=args.grayscale, crop=args.crop) if args.pixels else None,
+        frame_stack=args.frame_stack,
+        image_codec=args.image_codec,
+        action_noise=args.action_noise,
         progress=not args.quiet,
     )
     if args.json:
@@ -284,7 +289,12 @@ def cmd_train_dagger(args: argparse.Namespace) -> int:
     from imitation.jobs.dagger import dagger_job
 
     config = DAggerConfig(**_fields(args, "DAggerConfig"), bc=BCConfig(**_fields(args, "BCConfig")))
-    result = dagger_job(args.env, args.expert, config, args.out, demos=args.demos, progress=not args.quiet, resume=args.resume)
+    from imitation.envs.pixels import PixelRecipe
+
+    pixels = PixelRecipe.parse(args.pixels, grayscale=args.grayscale, crop=args.crop) if args.pixels else None
+    result = dagger_job(
+        args.env, args.expert, config, args.out, demos=args.demos, pixels=pixels, progress=not args.quiet, resume=args.resume
+    )
     if args.json:
         _print_json(result)
     else:
@@ -502,6 +512,9 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "validation_fraction": "--validation",
             "patience": "--patience",
             "epoch_samples": "--epoch-samples",
+            "frame_stack": "--frame-stack",
+            "random_shift": "--random-shift",
+            "observation_keys": "--observation-keys",
             "seed": "--seed",
             "device": "--device",
         },
@@ -519,6 +532,8 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "epochs": "--epochs",
             "patience": "--patience",
             "hidden_sizes": "--hidden",
+            "frame_stack": "--frame-stack",
+            "random_shift": "--random-shift",
             "seed": "--seed",
             "device": "--device",
         },
@@ -561,6 +576,30 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
 
 def _dest(flag: str) -> str:
     return flag.lstrip("-").replace("-", "_")
+
+
+def _add_pixel_arguments(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument(
+        "--pixels",
+        metavar="HxW",
+        help=f"observations {what} rendered frames resized to H×W (e.g. 84x84) under the key 'pixels', with the env's own "
+        "observation beside them as 'state' (the expert acts on the state)",
+    )
+    parser.add_argument("--grayscale", action="store_true", help="with --pixels: one luma channel instead of RGB")
+    parser.add_argument(
+        "--crop",
+        metavar="T,L,H,W",
+        help="with --pixels: keep only this rectangle of the rendered image (top, left, height, width in pixels) "
+        "before resizing, e.g. 150,200,180,200 around CartPole's cart and pole in its 400×600 frame",
+    )
+
+
+def _names(text: str) -> list[str]:
+    """A comma-separated list of names, e.g. `pixels,state`."""
+    names = [name.strip() for name in text.split(",")]
+    if not all(names):
+        raise argparse.ArgumentTypeError(f"{text!r}: give names separated by commas, e.g. pixels,state")
+    return names
 
 
 def _fields(args: argparse.Namespace, owner: str) -> dict[str, Any]:
@@ -710,6 +749,28 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["zstd", "lz4", "none"],
         default="zstd",
         help="chunk compression (default: zstd; none loads fastest)",
+    )
+    _add_pixel_arguments(record, "recorded as")
+    record.add_argument(
+        "--frame-stack",
+        type=int,
+        default=1,
+        metavar="K",
+        help="with --pixels: the number of frames learners stack by default; the file holds single frames (default: 1)",
+    )
+    record.add_argument(
+        "--image-codec",
+        choices=["png", "jpeg", "raw"],
+        default="png",
+        help="how frames are stored: png (lossless), jpeg (lossy, compact) or raw (lossless, chunk-compressed) (default: png)",
+    )
+    record.add_argument(
+        "--action-noise",
+        type=_finite,
+        default=0.0,
+        metavar="P",
+        help="with probability P the env executes a random action while the file stores the expert's (DART): demos of "
+        "the states just off the expert's path, labelled (default: 0)",
     )
     record.add_argument("--json", action="store_true", help="print one JSON object with the results")
     record.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -946,6 +1007,26 @@ def build_parser() -> argparse.ArgumentParser:
         help="the fewest samples an epoch goes through: small recordings are passed over several times per epoch "
         "(default: 4096)",
     )
+    bc.add_argument(
+        "--frame-stack",
+        type=int,
+        metavar="K",
+        help="image observations: frames stacked per image (default: as the demos were recorded, else 1)",
+    )
+    bc.add_argument(
+        "--random-shift",
+        type=int,
+        metavar="P",
+        help="image observations: shift training frames by up to P pixels, edges replicated (DrQ); 0 turns it off "
+        "(default: 4)",
+    )
+    bc.add_argument(
+        "--observation-keys",
+        type=_names,
+        metavar="K,K",
+        help="Dict observations: the keys the policy reads (default: the frames alone for demos recorded with --pixels, "
+        "every key otherwise)",
+    )
     bc.add_argument("--seed", type=int, metavar="S", help="seed (default: 0)")
     bc.add_argument("--device", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
     _add_run_output(bc)
@@ -979,6 +1060,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     dagger.add_argument(
         "--hidden", type=_hidden_sizes, default=[256, 256], metavar="256,256", help="MLP layer widths (default: 256,256)"
+    )
+    _add_pixel_arguments(dagger, "the learner sees")
+    dagger.add_argument(
+        "--frame-stack", type=int, metavar="K", help="with --pixels: frames the learner stacks per observation (default: 1)"
+    )
+    dagger.add_argument(
+        "--random-shift",
+        type=int,
+        metavar="P",
+        help="with --pixels: shift training frames by up to P pixels, edges replicated (DrQ); 0 turns it off (default: 4)",
     )
     dagger.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     dagger.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")

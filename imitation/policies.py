@@ -18,6 +18,12 @@ command streams; `imitation.envs.previous_action`): it observes x_t = [s_t, a_{t
 and predicts the change of the command, μ(x_t) = a_{t-1} + f(x_t), so that holding the last
 command is where it starts and what it must improve on.
 
+Image observations (uint8 frames, `imitation.envs.pixels`) and Dict observations that mix them
+with vectors are encoded as SB3's MultiInputPolicy does: each image leaf (a stack of
+`frame_stack` frames) through its own CNN (`imitation.encoders`), the vector leaves flattened,
+normalised and concatenated beside them; actor and critic share the CNN. `observation_keys`
+picks the leaves a policy reads (a pixel policy ignores the state recorded beside its frames).
+
 Observations go through an optional running mean/std normaliser that is part of the module
 (saved with the weights), so evaluation sees exactly what training saw. Discrete observations
 are one-hot encoded. Weights use orthogonal initialisation: gain √2 for hidden layers, 0.01 for
@@ -37,7 +43,10 @@ import torch
 from torch import nn
 from torch.distributions import Categorical, Distribution, Normal, kl_divergence, register_kl
 
-from imitation.data.spaces import check_spaces_fit, space_from_json, space_to_json
+from imitation.data.spaces import check_spaces_fit, describe_space, space_from_json, space_to_json
+from imitation.encoders import CNNConfig, ImageEncoder, cnn_weight_count, conv_output_sides, random_shift
+from imitation.envs.make import make_env
+from imitation.envs.pixels import PixelObservation, PixelRecipe, StackFrames, is_image_space, make_pixel_env
 from imitation.envs.previous_action import PreviousActionObservation
 from imitation.errors import ImitationError, SpaceError
 from imitation.limits import LIMITS, over_limit
@@ -112,6 +121,12 @@ class PolicyConfig:
     normalize_actions: bool = False
     # Box actions: the observation is x_t = [s_t, a_{t-1}, 1{t=0}] and μ is a_{t-1} plus the head's output.
     previous_action: bool = False
+    # Pixel observations: the leaves read (top-level keys; None: all), frames per image leaf, the
+    # CNN for image leaves, and how the acting env renders its frames (`acting_env`).
+    observation_keys: list[str] | None = None
+    frame_stack: int = 1
+    cnn: dict[str, Any] | None = None
+    pixels: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -133,6 +148,20 @@ class PolicyConfig:
             raise TypeError(
                 "activation must be a name, shared_trunk, normalize_observations/actions and previous_action true or false"
             )
+        if config.observation_keys is not None and not (
+            isinstance(config.observation_keys, list) and all(isinstance(key, str) for key in config.observation_keys)
+        ):
+            raise TypeError("observation_keys must be a list of names")
+        if (
+            isinstance(config.frame_stack, bool)
+            or not isinstance(config.frame_stack, int)
+            or not 1 <= config.frame_stack <= 64
+        ):
+            raise ValueError(f"frame_stack must be an integer in [1, 64], got {config.frame_stack!r}")
+        if config.cnn is not None:
+            CNNConfig.from_json(config.cnn)
+        if config.pixels is not None:
+            PixelRecipe.from_json(config.pixels)
         if (
             isinstance(config.log_std_init, bool)
             or not isinstance(config.log_std_init, (int, float))
@@ -189,6 +218,75 @@ def observation_size(space: gym.Space) -> int:
     if isinstance(space, gym.spaces.Discrete):
         return int(space.n)
     raise ImitationError(f"policies take Box or Discrete observations, not {type(space).__name__}")
+
+
+@dataclass(frozen=True)
+class ImageLeaf:
+    """A leaf of the observation read as frames: its path, and (k, H, W, C) per sample."""
+
+    path: tuple[str, ...]
+    frames: int
+    height: int
+    width: int
+    channels: int
+
+
+@dataclass(frozen=True)
+class ObservationLayout:
+    """How a Dict or image observation becomes features: image leaves through CNNs, the other
+    leaves read flattened (Discrete ones one-hot) into one vector, in key order."""
+
+    images: list[ImageLeaf]
+    vectors: list[tuple[tuple[str, ...], gym.Space]]
+
+    @property
+    def vector_size(self) -> int:
+        return sum(observation_size(space) for _, space in self.vectors)
+
+
+def observation_layout(space: gym.Space, keys: list[str] | None, frame_stack: int) -> ObservationLayout | None:
+    """The layout of a Dict or image observation space (None for a plain Box or Discrete one,
+    read as before). With `frame_stack` k > 1 an image leaf is a (k, H, W, C) stack."""
+
+    def image(path: tuple[str, ...], sub: gym.Space) -> ImageLeaf | None:
+        if not isinstance(sub, gym.spaces.Box) or sub.dtype != np.uint8:
+            return None
+        shape = sub.shape
+        if frame_stack > 1:
+            if len(shape) == 4 and shape[0] == frame_stack and shape[-1] in (1, 3, 4):
+                return ImageLeaf(path, frame_stack, shape[1], shape[2], shape[3])
+            return None
+        if not is_image_space(sub):
+            return None
+        return ImageLeaf(path, 1, shape[0], shape[1], shape[2] if len(shape) == 3 else 1)
+
+    if not isinstance(space, gym.spaces.Dict):
+        leaf = image((), space)
+        return ObservationLayout([leaf], []) if leaf is not None else None
+    unknown = sorted(set(keys or []) - set(space.spaces))
+    if unknown:
+        raise ImitationError(f"observation keys {unknown} are not in the observation space's {sorted(space.spaces)}")
+    images: list[ImageLeaf] = []
+    vectors: list[tuple[tuple[str, ...], gym.Space]] = []
+    for key, sub in space.spaces.items():
+        if keys is not None and key not in keys:
+            continue
+        leaf = image((key,), sub)
+        if leaf is not None:
+            images.append(leaf)
+        elif isinstance(sub, (gym.spaces.Box, gym.spaces.Discrete)):
+            vectors.append(((key,), sub))
+        else:
+            raise ImitationError(f"policies read Box, Discrete and image leaves of a Dict observation, not {key!r}: {sub}")
+    if not images and not vectors:
+        raise ImitationError("the policy reads no observation leaf")
+    return ObservationLayout(images, vectors)
+
+
+def _leaf(tree: Any, path: tuple[str, ...]) -> Any:
+    for key in path:
+        tree = tree[key]
+    return tree
 
 
 class MultiCategorical(Distribution):
@@ -259,7 +357,15 @@ class ActorCritic(nn.Module):
         self.config = config
         self.observation_space = space_from_json(config.observation_space)
         self.action_space = space_from_json(config.action_space)
-        obs_size = observation_size(self.observation_space)
+        self.layout = observation_layout(self.observation_space, config.observation_keys, config.frame_stack)
+        encoders = self._image_encoders()
+        self.image_encoders = nn.ModuleList(encoders)
+        obs_size = (
+            observation_size(self.observation_space)
+            if self.layout is None
+            else sum(encoder.features for encoder in encoders) + self.layout.vector_size
+        )
+        normalized_size = obs_size if self.layout is None else self.layout.vector_size
         hidden = config.hidden_sizes[-1] if config.hidden_sizes else obs_size
         known = isinstance(
             self.action_space, (gym.spaces.Discrete, gym.spaces.MultiDiscrete, gym.spaces.Box)
@@ -267,7 +373,7 @@ class ActorCritic(nn.Module):
         _check_size(
             obs_size, config.hidden_sizes, action_logits_size(self.action_space) if known else 0, shared=config.shared_trunk
         )
-        self.obs_rms = RunningMeanStd((obs_size,)) if config.normalize_observations else None
+        self.obs_rms = RunningMeanStd((normalized_size,)) if config.normalize_observations and normalized_size else None
         self.actor_trunk = _mlp(obs_size, config.hidden_sizes, config.activation)
         self.critic_trunk = self.actor_trunk if config.shared_trunk else _mlp(obs_size, config.hidden_sizes, config.activation)
         self.value_head = _layer(hidden, 1, 1.0)
@@ -304,17 +410,73 @@ class ActorCritic(nn.Module):
         self.previous_columns = slice(0, 0)
         if config.previous_action:
             action_dim = int(np.prod(self.action_space.shape or ())) if self.is_continuous else 0
-            if not self.is_continuous or not isinstance(self.observation_space, gym.spaces.Box) or obs_size < action_dim + 2:
+            if (
+                not self.is_continuous
+                or self.layout is not None
+                or not isinstance(self.observation_space, gym.spaces.Box)
+                or obs_size < action_dim + 2
+            ):
                 raise ImitationError(
                     "a policy of the previous action takes Box actions and Box observations [state, previous action, "
                     f"first-step flag], not {type(self.action_space).__name__} actions and {self.observation_space}"
                 )
             self.previous_columns = slice(obs_size - action_dim - 1, obs_size - 1)
 
+    def _image_encoders(self) -> list[ImageEncoder]:
+        if self.layout is None:
+            return []
+        cnn = CNNConfig.from_json(self.config.cnn or {})
+        encoders = []
+        for leaf in self.layout.images:
+            if min(conv_output_sides(leaf.height, leaf.width, cnn)) < 1:
+                raise ImitationError(
+                    f"{leaf.height}×{leaf.width} frames are too small for the CNN (kernels {cnn.kernels}, strides "
+                    f"{cnn.strides}): give larger frames or smaller kernels"
+                )
+            encoders.append(ImageEncoder(leaf.frames, leaf.height, leaf.width, leaf.channels, cnn))
+        return encoders
+
     # -- observations ---------------------------------------------------------------------------
 
-    def encode(self, observations: torch.Tensor) -> torch.Tensor:
+    def _frames(self, observations: Any, leaf: ImageLeaf) -> torch.Tensor:
+        """An image leaf of a batch as (batch, k, H, W, C)."""
+        frames = _leaf(observations, leaf.path)
+        return frames.reshape(frames.shape[0], leaf.frames, leaf.height, leaf.width, leaf.channels)
+
+    def _vector(self, observations: Any) -> torch.Tensor:
+        """The non-image leaves of a batch, flattened (Discrete ones one-hot) side by side."""
+        assert self.layout is not None
+        parts = []
+        for path, space in self.layout.vectors:
+            values = _leaf(observations, path)
+            if isinstance(space, gym.spaces.Discrete):
+                parts.append(nn.functional.one_hot(values.long().reshape(-1) - int(space.start), int(space.n)).float())
+            else:
+                parts.append(values.reshape(values.shape[0], -1).float())
+        return torch.cat(parts, dim=1)
+
+    def shifted(self, observations: Any, pad: int) -> Any:
+        """The batch with each image leaf randomly shifted by up to `pad` pixels (`random_shift`)."""
+        if self.layout is None or not self.layout.images or pad <= 0:
+            return observations
+        if not isinstance(observations, dict):
+            return random_shift(self._frames(observations, self.layout.images[0]), pad).reshape(observations.shape)
+        shifted = dict(observations)
+        for leaf in self.layout.images:
+            (key,) = leaf.path
+            shifted[key] = random_shift(self._frames(observations, leaf), pad).reshape(observations[key].shape)
+        return shifted
+
+    def encode(self, observations: Any) -> torch.Tensor:
         """Raw observations (batch first) → flat float features, normalised if configured."""
+        if self.layout is not None:
+            parts = [
+                encoder(self._frames(observations, leaf)) for leaf, encoder in zip(self.layout.images, self.image_encoders)
+            ]
+            if self.layout.vectors:
+                vector = self._vector(observations)
+                parts.append(self.obs_rms.normalize(vector) if self.obs_rms is not None else vector)
+            return torch.cat(parts, dim=1)
         if isinstance(self.observation_space, gym.spaces.Discrete):
             index = observations.long().reshape(-1) - int(self.observation_space.start)
             return nn.functional.one_hot(index, int(self.observation_space.n)).float()
@@ -324,11 +486,15 @@ class ActorCritic(nn.Module):
             return torch.cat([features, flat[:, self.previous_columns]], dim=1)
         return features
 
-    def update_normalizer(self, observations: torch.Tensor) -> None:
-        if self.obs_rms is not None:
+    def update_normalizer(self, observations: Any) -> None:
+        if self.obs_rms is None:
+            return
+        if self.layout is not None:
+            self.obs_rms.update(self._vector(observations))
+        else:
             self.obs_rms.update(observations.reshape(observations.shape[0], -1))
 
-    def fit_action_normalizer(self, actions: torch.Tensor, observations: torch.Tensor) -> None:
+    def fit_action_normalizer(self, actions: torch.Tensor, observations: Any) -> None:
         """Standardise the Gaussian head's units by the mean and std per dimension of what it
         predicts (a dimension that never moves keeps scale 1): these actions, or with
         `previous_action` their changes a_t − a_{t-1}. Nothing to do without `normalize_actions`."""
@@ -463,9 +629,34 @@ class ActorCritic(nn.Module):
     def predict(self, observations: Any, *, deterministic: bool = True) -> np.ndarray:
         """Env actions for a batch of raw observations (numpy), e.g. for evaluation or as an expert."""
         with torch.no_grad():
-            tensor = torch.as_tensor(np.asarray(observations), device=self.action_head.weight.device)
-            action, _, _ = self.act(self.encode(tensor), deterministic=deterministic)
+            tensors = tensor_tree(observations, self.action_head.weight.device)
+            action, _, _ = self.act(self.encode(tensors), deterministic=deterministic)
             return self.to_env_action(action)
+
+
+def tensor_tree(observations: Any, device: torch.device | str = "cpu") -> Any:
+    """A batch of raw observations (an array, or a dict of them) as tensors on `device`."""
+    if isinstance(observations, dict):
+        return {key: tensor_tree(value, device) for key, value in observations.items()}
+    return torch.as_tensor(np.asarray(observations), device=device)
+
+
+def batch_of_one(observation: Any) -> Any:
+    """One observation (an array, or a dict of them) as a batch of one."""
+    if isinstance(observation, dict):
+        return {key: batch_of_one(value) for key, value in observation.items()}
+    return np.asarray(observation)[None]
+
+
+def require_flat_observations(policy: ActorCritic, learner: str) -> ActorCritic:
+    """`policy`, refused in one line when it reads image or Dict observations, which `learner`
+    does not train yet (its rollout buffers hold flat features)."""
+    if policy.layout is not None:
+        raise ImitationError(
+            f"{learner} takes Box or Discrete observations, not {describe_space(policy.observation_space)}; "
+            "image and Dict observations are learnt by train bc and train dagger"
+        )
+    return policy
 
 
 def make_policy(observation_space: gym.Space, action_space: gym.Space, **options: Any) -> ActorCritic:
@@ -495,7 +686,7 @@ class SingleObservationPolicy:
         self.deterministic = deterministic
 
     def __call__(self, observation: Any) -> Any:
-        action = self.policy.predict(np.asarray(observation)[None], deterministic=self.deterministic)[0]
+        action = self.policy.predict(batch_of_one(observation), deterministic=self.deterministic)[0]
         return int(action) if isinstance(self.policy.action_space, gym.spaces.Discrete) else action
 
 
@@ -518,9 +709,16 @@ def load_policy(path: str | os.PathLike) -> ActorCritic:
         observations, actions = space_from_json(policy_config.observation_space), space_from_json(policy_config.action_space)
         outputs = action_logits_size(actions)
         trunks = 1 if policy_config.shared_trunk else 2
-        planned = trunks * mlp_weight_count(observation_size(observations), policy_config.hidden_sizes, 0) + (
-            policy_config.hidden_sizes or [observation_size(observations)]
-        )[-1] * (outputs + 1)
+        layout = observation_layout(observations, policy_config.observation_keys, policy_config.frame_stack)
+        cnn = CNNConfig.from_json(policy_config.cnn or {})
+        inputs = observation_size(observations) if layout is None else layout.vector_size + cnn.features * len(layout.images)
+        planned = trunks * mlp_weight_count(inputs, policy_config.hidden_sizes, 0) + (policy_config.hidden_sizes or [inputs])[
+            -1
+        ] * (outputs + 1)
+        if layout is not None:
+            planned += sum(
+                cnn_weight_count(leaf.frames * leaf.channels, leaf.height, leaf.width, cnn) for leaf in layout.images
+            )
         check_weights_cover(path, planned, state)
         policy = ActorCritic(policy_config)
         policy.load_state_dict(state)
@@ -534,8 +732,27 @@ def load_policy(path: str | os.PathLike) -> ActorCritic:
 
 
 def acting_env(policy: ActorCritic, env: gym.Env) -> gym.Env:
-    """`env` as `policy` observes it: with x_t = [s_t, a_{t-1}, 1{t=0}] for a policy of the previous action."""
+    """`env` as `policy` observes it: with x_t = [s_t, a_{t-1}, 1{t=0}] for a policy of the
+    previous action, its image leaves stacked for a policy of frame stacks (`env` renders the
+    frames already: `make_acting_env`)."""
+    if policy.config.frame_stack > 1:
+        env = StackFrames(env, policy.config.frame_stack)
     return PreviousActionObservation(env) if policy.config.previous_action else env
+
+
+def make_acting_env(config: PolicyConfig, env_id: str) -> gym.Env:
+    """The env `env_id` made as a policy of `config` needs it before `acting_env`: rendering
+    frames (`PixelObservation`) for a policy trained on rendered frames."""
+    if config.pixels is None:
+        return make_env(env_id)
+    return make_pixel_env(env_id, PixelRecipe.from_json(config.pixels))
+
+
+def pixel_observer(policy: ActorCritic, rendered: gym.Env) -> gym.Env:
+    """A rendering env as `policy` observes it, but for the previous action: its frames for a
+    policy trained on rendered frames, stacked for a policy of frame stacks."""
+    env = PixelObservation(rendered, PixelRecipe.from_json(policy.config.pixels)) if policy.config.pixels else rendered
+    return StackFrames(env, policy.config.frame_stack) if policy.config.frame_stack > 1 else env
 
 
 def check_policy_fits_env(policy: Predictor, env: gym.Env, where: str) -> None:

@@ -73,6 +73,13 @@ class BCConfig:
     # An epoch goes through at least this many samples (several passes over a small recording,
     # each in its own order), so that a few hundred transitions get enough gradient steps.
     epoch_samples: int = 4096
+    # Image observations: frames stacked per image leaf (None: as the demos were recorded, else 1),
+    # the random shift in pixels applied to training batches (DrQ), the leaves read (None: the
+    # frames alone for rendered-pixel demos, every leaf otherwise), and the CNN (encoders.CNNConfig).
+    frame_stack: int | None = None
+    random_shift: int = 4
+    observation_keys: list[str] | None = None
+    cnn: dict[str, Any] | None = None
     seed: int = 0
     device: str = "auto"
     threads: int = 1
@@ -88,6 +95,10 @@ class BCConfig:
             )
         if self.loss == "mse" and not continuous:
             raise ConfigError("loss", "mse is for continuous (Box) actions; discrete actions use nll", owner="BCConfig")
+        if self.frame_stack is not None and not 1 <= self.frame_stack <= 64:
+            raise ConfigError("frame_stack", f"must be in [1, 64], got {self.frame_stack}", owner="BCConfig")
+        if self.random_shift < 0:
+            raise ConfigError("random_shift", f"must be at least 0 pixels, got {self.random_shift}", owner="BCConfig")
         for name in ("epochs", "batch_size", "patience"):
             if getattr(self, name) < 1:
                 raise ConfigError(name, f"must be at least 1, got {getattr(self, name)}", owner="BCConfig")
@@ -98,10 +109,11 @@ class BCConfig:
 
 
 def bc_loss(policy: ActorCritic, batch: TransitionTensors, config: BCConfig) -> tuple[torch.Tensor, dict[str, float]]:
-    """The objective above on one batch, and its parts for logging."""
-    # Tensors, not dicts: a policy takes Box or Discrete observations and no Dict actions.
-    assert isinstance(batch.observations, torch.Tensor) and isinstance(batch.actions, torch.Tensor)
-    features = policy.encode(batch.observations)
+    """The objective above on one batch, and its parts for logging; in training, image
+    observations randomly shifted first (`config.random_shift` pixels)."""
+    assert isinstance(batch.actions, torch.Tensor)  # a policy takes no Dict actions
+    observations = policy.shifted(batch.observations, config.random_shift) if policy.training else batch.observations
+    features = policy.encode(observations)
     distribution = policy.distribution(features)
     if config.loss == "mse":
         fit = ((distribution.mean - batch.actions.reshape(len(batch), -1).float()) ** 2).sum(-1).mean()
@@ -159,9 +171,8 @@ class BehaviouralCloning:
         self.train, self.validation = train.to(device), validation.to(device) if validation is not None else None
         if policy.obs_rms is not None:
             policy.obs_rms.reset_parameters()
-            assert isinstance(self.train.observations, torch.Tensor)  # a policy takes no Dict observations
             policy.update_normalizer(self.train.observations)
-        assert isinstance(self.train.actions, torch.Tensor) and isinstance(self.train.observations, torch.Tensor)
+        assert isinstance(self.train.actions, torch.Tensor)  # a policy takes no Dict actions
         policy.fit_action_normalizer(self.train.actions, self.train.observations)
         self.config = config
         self.total = config.epochs

@@ -14,6 +14,10 @@ Each round's labelled rollouts are written as an MCAP demo file (round-NN.mcap) 
 are the expert's labels, so the aggregate dataset stays on disk and can be reloaded; the
 episodes' metadata record the round, β and which steps the expert actually drove.
 
+With pixel observations the learner acts on stacks of frames (`StackFrames`) while a round file
+holds single frames, the newest of each stack, and BC restacks them (`stack_frames`): what the
+learner trains on is exactly what it saw.
+
 The state saved after a round is the learner, the β-mixture's generator, the label count and
 the finished rounds' file names; a resumed run goes on with the next round and trains on the
 finished rounds' files as they are. Each round's BC starts afresh from
@@ -24,11 +28,12 @@ expert is deterministic (`random` and tabular soft-optimal experts restart their
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -36,10 +41,11 @@ import numpy as np
 from imitation.algorithms.bc import BCConfig, BehaviouralCloning, fit
 from imitation.checkpoints import CheckpointData, checked_counter, prefixed, restoring, unprefixed
 from imitation.data.dataset import DemoDataset
-from imitation.data.loader import load_transitions, split_episodes, transitions_to_torch
+from imitation.data.loader import TransitionTensors, load_transitions, split_episodes, transitions_to_torch
 from imitation.data.mcap.writer import DemoWriter
 from imitation.data.types import Episode, stack_samples
 from imitation.envs.make import control_period
+from imitation.envs.pixels import StackFrames, stack_frames
 from imitation.errors import ConfigError
 from imitation.policies import ActorCritic, SingleObservationPolicy
 
@@ -133,9 +139,15 @@ class DAgger:
         env_id: str,
         demos: Sequence[str | os.PathLike] = (),
         evaluate: Callable[[ActorCritic], float] | None = None,
+        metadata: dict[str, Any] | None = None,
     ) -> None:
         config.validate()
         self.env, self.expert, self.policy, self.config = env, expert, policy, config
+        # A StackFrames env's observations are stacks; the round files hold their newest frames.
+        self.stacked_keys = env.keys if isinstance(env, StackFrames) else []
+        self.frames = env.frames if isinstance(env, StackFrames) else 1
+        self.file_space = env.env.observation_space if isinstance(env, StackFrames) else env.observation_space
+        self.metadata = metadata or {}
         self.env_id, self.demos, self.evaluate = env_id, list(demos), evaluate
         self.total = config.rounds
         self.rng = np.random.default_rng(config.seed)
@@ -181,14 +193,14 @@ class DAgger:
         with DemoWriter(
             path,
             env_id=self.env_id,
-            observation_space=self.env.observation_space,
+            observation_space=self.file_space,
             action_space=self.env.action_space,
             dt=control_period(self.env),
             source=f"dagger round {round_index}",
-            metadata={"round": round_index, "beta": beta},
+            metadata={**self.metadata, "round": round_index, "beta": beta},
         ) as writer:
             for episode in episodes:
-                writer.write(episode)
+                writer.write(self._newest_frames(episode))
         self.files.append(path)
         self.labels += sum(len(episode) for episode in episodes)
         self.policy, validation_loss = self._fit([*self.demos, *self.files])
@@ -203,6 +215,21 @@ class DAgger:
             "return": self.evaluate(self.policy) if self.evaluate is not None else float("nan"),
         }
 
+    def _newest_frames(self, episode: Episode) -> Episode:
+        """The episode as a round file holds it: of each stack of frames, the newest."""
+        if not self.stacked_keys:
+            return episode
+        observations = episode.observations
+        if isinstance(observations, dict):
+            observations = {
+                key: cast(np.ndarray, value)[:, -1] if key in self.stacked_keys else value
+                for key, value in observations.items()
+            }
+        else:
+            assert isinstance(observations, np.ndarray)
+            observations = observations[:, -1]
+        return dataclasses.replace(episode, observations=observations)
+
     def _fit(self, paths: Sequence[str | os.PathLike]) -> tuple[ActorCritic, float]:
         """BC on the aggregate dataset, warm-started from the current policy; the best validation loss."""
         dataset = DemoDataset(paths)
@@ -210,12 +237,16 @@ class DAgger:
         train_ids, validation_ids = split_episodes(
             len(dataset), validation_fraction=bc.validation_fraction, seed=self.config.seed
         )
-        train = transitions_to_torch(load_transitions(dataset, episodes=train_ids, next_observations=False))
-        validation = (
-            transitions_to_torch(load_transitions(dataset, episodes=validation_ids, next_observations=False))
-            if validation_ids
-            else None
-        )
+
+        def load(episodes: list[int]) -> TransitionTensors:
+            transitions = load_transitions(dataset, episodes=episodes, next_observations=False)
+            if self.frames > 1:
+                stacked = stack_frames(transitions.observations, transitions.episode_index, self.frames, self.stacked_keys)
+                transitions = dataclasses.replace(transitions, observations=stacked)
+            return transitions_to_torch(transitions)
+
+        train = load(train_ids)
+        validation = load(validation_ids) if validation_ids else None
         cloning = BehaviouralCloning(self.policy, train, validation, bc)
         losses = [row["validation_loss"] for row in fit(cloning) if np.isfinite(row["validation_loss"])]
         return cloning.policy, min(losses) if losses else float("nan")

@@ -71,7 +71,7 @@ from imitation.checkpoints import (
 from imitation.data.loader import resolve_device
 from imitation.envs.make import make_env
 from imitation.errors import ConfigError, ImitationError
-from imitation.policies import RunningMeanStd, make_policy
+from imitation.policies import RunningMeanStd, make_policy, require_flat_observations
 
 ESTIMATORS = ("return", "reward-to-go", "baseline", "actor-critic")
 WITH_CRITIC = ("baseline", "actor-critic")
@@ -309,14 +309,15 @@ class PolicyGradient:
         self.config = config
         self.device = device = resolve_device(config.device)
         self.envs = [make_env(config.env_id) for _ in range(config.n_envs)]
-        self.policy = make_policy(
+        policy = make_policy(
             self.envs[0].observation_space,
             self.envs[0].action_space,
             hidden_sizes=list(config.hidden_sizes),
             activation=config.activation,
             normalize_observations=config.normalize_observations,
             log_std_init=config.log_std_init,
-        ).to(device)
+        )
+        self.policy = require_flat_observations(policy, "policy gradient").to(device)
         critic = {id(p) for p in [*self.policy.critic_trunk.parameters(), *self.policy.value_head.parameters()]}
         self.actor_parameters = [p for p in self.policy.parameters() if id(p) not in critic]
         self.critic_parameters = [p for p in self.policy.parameters() if id(p) in critic]

@@ -52,7 +52,7 @@ from torch import nn
 from imitation.algorithms.ppo import make_vector_env
 from imitation.checkpoints import CheckpointData, TrainingClock, checked_counter, restoring
 from imitation.errors import ConfigError, ImitationError
-from imitation.policies import ActorCritic, make_policy
+from imitation.policies import ActorCritic, make_policy, require_flat_observations
 
 METHODS = ("hill-climb", "cem", "cmaes")
 NAMES = {"hill-climb": "hill climbing", "cem": "CEM", "cmaes": "CMA-ES"}
@@ -334,11 +334,14 @@ class PolicySearch:
         envs = make_vector_env(config.env_id, config.n_envs)
         assert isinstance(envs, gym.vector.SyncVectorEnv)  # resets copies one by one, each to its episode's seed
         self.envs = envs
-        self.policy = make_policy(
-            self.envs.single_observation_space,
-            self.envs.single_action_space,
-            hidden_sizes=list(config.hidden_sizes),
-            activation=config.activation,
+        self.policy = require_flat_observations(
+            make_policy(
+                self.envs.single_observation_space,
+                self.envs.single_action_space,
+                hidden_sizes=list(config.hidden_sizes),
+                activation=config.activation,
+            ),
+            "policy search",
         )
         self.policy.eval()
         self.search = STRATEGIES[config.method](config, actor_vector(self.policy))

@@ -56,7 +56,7 @@ from imitation.data.loader import resolve_device
 from imitation.envs.make import make_env
 from imitation.envs.rollout import Rollout
 from imitation.errors import ConfigError, ImitationError
-from imitation.policies import ActorCritic, RunningMeanStd, make_policy
+from imitation.policies import ActorCritic, RunningMeanStd, make_policy, require_flat_observations
 
 OBJECTIVES = ("clip", "kl")
 
@@ -377,7 +377,7 @@ class PPO:
         self.reward = reward
         self.device = device = resolve_device(config.device)
         self.envs = make_vector_env(config.env_id, config.n_envs, asynchronous=config.async_envs)
-        self.policy = make_policy(
+        policy = make_policy(
             self.envs.single_observation_space,
             self.envs.single_action_space,
             hidden_sizes=list(config.hidden_sizes),
@@ -385,7 +385,8 @@ class PPO:
             shared_trunk=config.shared_trunk,
             normalize_observations=config.normalize_observations,
             log_std_init=config.log_std_init,
-        ).to(device)
+        )
+        self.policy = require_flat_observations(policy, "PPO").to(device)
         self.optimizer = torch.optim.Adam(self.policy.parameters(), lr=config.learning_rate, eps=1e-5)
         self.reward_scaler = RewardScaler(config.n_envs, config.gamma) if config.normalize_rewards else None
         self.rollout_size = config.n_steps * config.n_envs

@@ -47,7 +47,7 @@ def _rows(tensor: torch.Tensor) -> np.ndarray:
 
 def baseline_scores(train: TransitionTensors, validation: TransitionTensors, action_space: gym.Space) -> dict[str, Scores]:
     """The baselines that apply to this data, each scored on `validation` (see the module docstring)."""
-    # Arrays, not dicts: behavioural cloning refuses Dict spaces before it gets here.
+    # Arrays, not dicts: behavioural cloning refuses Dict action spaces before it gets here.
     assert isinstance(train.actions, torch.Tensor) and isinstance(validation.actions, torch.Tensor)
     if isinstance(action_space, gym.spaces.Discrete):
         counts = np.bincount(train.actions.cpu().numpy().reshape(-1) - int(action_space.start), minlength=int(action_space.n))
@@ -78,9 +78,22 @@ def baseline_scores(train: TransitionTensors, validation: TransitionTensors, act
 
 def policy_scores(policy: ActorCritic, validation: TransitionTensors) -> Scores:
     """The policy on `validation`, scored as the baselines are: its NLL of the held-out actions, and
-    the squared error of its mean (Box) or the error rate of its most likely action (Discrete)."""
+    the squared error of its mean (Box) or the error rate of its most likely action (Discrete).
+    Batches of `PIECE` rows bound the memory a CNN's activations take."""
+    totals: dict[str, float] = {}
+    for start in range(0, len(validation), PIECE):
+        piece = validation.select(torch.arange(start, min(start + PIECE, len(validation)), device=validation.device))
+        for name, value in _piece_scores(policy, piece).items():
+            totals[name] = totals.get(name, 0.0) + value * len(piece)
+    return {name: total / len(validation) for name, total in totals.items()}
+
+
+PIECE = 1024
+
+
+def _piece_scores(policy: ActorCritic, validation: TransitionTensors) -> Scores:
     observations, actions = validation.observations, validation.actions
-    assert isinstance(observations, torch.Tensor) and isinstance(actions, torch.Tensor)  # BC refuses Dict spaces
+    assert isinstance(actions, torch.Tensor)  # BC refuses Dict action spaces
     with torch.no_grad():
         features = policy.encode(observations)
         distribution = policy.distribution(features)

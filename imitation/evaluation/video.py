@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import os
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 
 from imitation.envs.make import make_env
@@ -17,11 +19,18 @@ VIDEO_SUFFIXES = (".gif", ".mp4")
 
 
 def record_video(
-    env_id: str, policy: Policy, path: str | os.PathLike, *, seed: int, previous_action: bool = False
+    env_id: str,
+    policy: Policy,
+    path: str | os.PathLike,
+    *,
+    seed: int,
+    previous_action: bool = False,
+    observe: Callable[[gym.Env], gym.Env] | None = None,
 ) -> dict[str, float]:
     """Play one episode (reset with `seed`) rendered as rgb_array frames and write them to
     `path` (written under a temporary name, then renamed). Returns its return, length and fps.
-    With `previous_action` the policy observes x_t (`imitation.envs.previous_action`)."""
+    With `previous_action` the policy observes x_t (`imitation.envs.previous_action`); `observe`
+    wraps the rendering env into the one the policy acts in (pixel observations, frame stacks)."""
     path = Path(path)
     if path.suffix.lower() not in VIDEO_SUFFIXES:
         raise ImitationError(f"--video {path}: the file name must end in {' or '.join(VIDEO_SUFFIXES)}")
@@ -30,7 +39,7 @@ def record_video(
     os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="pkg_resources is deprecated")  # raised by importing pygame; harmless
-        frames, episode_return, fps = _play(env_id, policy, seed, previous_action)
+        frames, episode_return, fps = _play(env_id, policy, seed, previous_action, observe)
     temporary = path.with_name(f".{path.name}.partial{path.suffix}")
     try:
         (_write_gif if path.suffix.lower() == ".gif" else _write_mp4)(temporary, frames, fps)
@@ -41,9 +50,12 @@ def record_video(
     return {"return": episode_return, "frames": len(frames), "fps": fps}
 
 
-def _play(env_id: str, policy: Policy, seed: int, previous_action: bool) -> tuple[list[np.ndarray], float, float]:
+def _play(
+    env_id: str, policy: Policy, seed: int, previous_action: bool, observe: Callable[[gym.Env], gym.Env] | None
+) -> tuple[list[np.ndarray], float, float]:
     rendered = make_env(env_id, render_mode="rgb_array")
-    env = PreviousActionObservation(rendered) if previous_action else rendered
+    env = observe(rendered) if observe is not None else rendered
+    env = PreviousActionObservation(env) if previous_action else env
     try:
         frames, episode_return = [], 0.0
         observation, _ = env.reset(seed=seed)

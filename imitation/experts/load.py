@@ -20,9 +20,10 @@ Policy = Callable[[Any], Any]
 EXPERT_SPECS = ("scripted", "random", "keyboard", "RUN_DIR", "sb3:PATH")
 
 
-def make_env_for_expert(env_id: str, spec: str) -> gym.Env:
-    """The env an expert acts in: rendered to frames when a human must see it."""
-    return make_env(env_id, render_mode="rgb_array") if spec == "keyboard" else make_env(env_id)
+def make_env_for_expert(env_id: str, spec: str, *, pixels: bool = False) -> gym.Env:
+    """The env an expert acts in: rendered to frames when a human must see them or when they
+    are recorded (`pixels`)."""
+    return make_env(env_id, render_mode="rgb_array") if spec == "keyboard" or pixels else make_env(env_id)
 
 
 def load_expert(spec: str, env: gym.Env, *, seed: int) -> Policy:

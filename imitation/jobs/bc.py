@@ -23,6 +23,7 @@ from imitation.data.loader import (
 )
 from imitation.data.types import Transitions
 from imitation.envs.make import make_env
+from imitation.envs.pixels import PIXELS_KEY, PixelRecipe, image_keys, make_pixel_env, stack_frames, stacked_space
 from imitation.envs.previous_action import previous_action_space, with_previous_actions
 from imitation.errors import ConfigError, ImitationError
 from imitation.evaluation.baselines import baseline_scores, policy_scores
@@ -51,7 +52,12 @@ def bc_job(
     `resume` continues the interrupted run in `out`.partial from its checkpoint."""
     seed_everything(config.seed)
     dataset = DemoDataset(demos)
-    env = make_env(env_id) if env_id else None
+    pixels = _recorded_pixels(dataset)
+    frames = _frame_stack(dataset, config)
+    if env_id and pixels is not None:
+        env: gym.Env | None = make_pixel_env(env_id, pixels)
+    else:
+        env = make_env(env_id) if env_id else None
     if env is not None:
         check_demos_fit_env(dataset, env)
     elif dataset.num_transitions == 0:
@@ -60,13 +66,32 @@ def bc_job(
     previous_action = _conditions_on_previous_action(
         config, spaces.observation_space, spaces.action_space, offline=env is None
     )
-    train, validation, split = _split(dataset, config, offline=env is None, previous_action=previous_action)
-    observation_space = (
-        previous_action_space(spaces.observation_space, spaces.action_space) if previous_action else spaces.observation_space
+    keys = image_keys(spaces.observation_space)
+    if frames > 1 and not keys:
+        raise ConfigError("frame_stack", "stacks image observations, and the demos hold none", owner="BCConfig")
+    train, validation, split = _split(
+        dataset, config, offline=env is None, previous_action=previous_action, frames=frames, image_keys=keys
     )
+    observation_space = (
+        previous_action_space(spaces.observation_space, spaces.action_space)
+        if previous_action
+        else stacked_space(spaces.observation_space, frames)
+        if frames > 1
+        else spaces.observation_space
+    )
+    pixel_options = {
+        "frame_stack": frames,
+        "observation_keys": config.observation_keys or ([PIXELS_KEY] if pixels is not None else None),
+        "cnn": config.cnn,
+        "pixels": pixels.to_json() if pixels is not None else None,
+    }
     try:
         policy = make_policy(
-            observation_space, spaces.action_space, previous_action=previous_action, **policy_options(config, len(train))
+            observation_space,
+            spaces.action_space,
+            previous_action=previous_action,
+            **policy_options(config, len(train)),
+            **pixel_options,
         )
     except ImitationError as error:
         raise ImitationError(f"{f'--env {env_id}' if env is not None else dataset.files[0].path}: {error}") from None
@@ -190,6 +215,28 @@ def _conditions_on_previous_action(
     return config.previous_action == "on" or (config.previous_action == "auto" and offline and set_points)
 
 
+def _recorded_pixels(dataset: DemoDataset) -> PixelRecipe | None:
+    """How the demos' frames were rendered (`record --pixels`), None for other demos."""
+    recorded = dataset.files[0].user_metadata.get("pixels")
+    if recorded is None:
+        return None
+    try:
+        return PixelRecipe.from_json(recorded)
+    except ValueError as error:
+        raise ImitationError(f"{dataset.files[0].path}: user metadata 'pixels': {error}") from None
+
+
+def _frame_stack(dataset: DemoDataset, config: BCConfig) -> int:
+    """Frames per image leaf: the configured number, else as recorded, else 1."""
+    if config.frame_stack is not None:
+        return config.frame_stack
+    recorded = dataset.files[0].user_metadata.get("pixels")
+    stack = recorded.get("frame_stack", 1) if isinstance(recorded, dict) else 1
+    if isinstance(stack, bool) or not isinstance(stack, int) or not 1 <= stack <= 64:
+        raise ImitationError(f"{dataset.files[0].path}: user metadata 'pixels': frame_stack must be in [1, 64], got {stack!r}")
+    return stack
+
+
 def _with_previous_actions(transitions: Transitions) -> Transitions:
     """x_t = [s_t, a_{t-1}, 1{t=0}] in place of s_t (rows in episode and time order, as loaded)."""
     assert isinstance(transitions.observations, np.ndarray) and isinstance(transitions.actions, np.ndarray)  # Box spaces
@@ -214,15 +261,25 @@ def _states_alone(observation_space: gym.Space) -> Callable[[TransitionTensors],
 
 
 def _split(
-    dataset: DemoDataset, config: BCConfig, *, offline: bool, previous_action: bool
+    dataset: DemoDataset,
+    config: BCConfig,
+    *,
+    offline: bool,
+    previous_action: bool,
+    frames: int = 1,
+    image_keys: list[str] | None = None,
 ) -> tuple[TransitionTensors, TransitionTensors | None, dict[str, Any]]:
     """Training and validation transitions: whole episodes held out; offline, where the
     validation loss is all a run reports, each episode's last steps when there are too few
     episodes to spare one (a single long recording). With `previous_action` the observations are
-    x_t, built before the split so that a held-out tail starts from the command before it."""
+    x_t, built before the split so that a held-out tail starts from the command before it; so are
+    stacks of `frames` frames of the `image_keys` leaves."""
 
     def load(episodes: list[int] | None = None) -> Transitions:
         transitions = load_transitions(dataset, episodes=episodes, next_observations=False)
+        if frames > 1:
+            observations = stack_frames(transitions.observations, transitions.episode_index, frames, image_keys or [])
+            transitions = dataclasses.replace(transitions, observations=observations)
         return _with_previous_actions(transitions) if previous_action else transitions
 
     train_ids, validation_ids = split_episodes(len(dataset), validation_fraction=config.validation_fraction, seed=config.seed)

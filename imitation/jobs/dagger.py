@@ -9,6 +9,7 @@ from typing import Any
 from imitation.algorithms.bc import policy_options
 from imitation.algorithms.dagger import DAgger, DAggerConfig
 from imitation.data.dataset import DemoDataset
+from imitation.envs.pixels import PIXELS_KEY, PixelObservation, PixelRecipe, StackFrames, expert_on_state
 from imitation.errors import ConfigError
 from imitation.evaluation.plots import plot_curve
 from imitation.evaluation.policy import EVAL_SEED, evaluate_policy
@@ -27,12 +28,16 @@ def dagger_job(
     out: str | os.PathLike,
     *,
     demos: list[str] | None = None,
+    pixels: PixelRecipe | None = None,
     progress: bool = True,
     resume: bool = False,
 ) -> dict[str, Any]:
     """DAgger with `expert_spec` into run directory `out`; each round's labelled rollouts are
     written to `out/rounds/round-NN.mcap`. `resume` continues the interrupted run in
-    `out`.partial from its checkpoint, with the rounds it had finished."""
+    `out`.partial from its checkpoint, with the rounds it had finished.
+
+    With `pixels` the learner sees rendered frames (stacks of `config.bc.frame_stack`) and the
+    expert the env's own observation beside them."""
     if config.bc.previous_action == "on":
         raise ConfigError(
             "previous_action",
@@ -41,12 +46,28 @@ def dagger_job(
         )
     demos = demos or []
     seed_everything(config.seed)
-    env = make_env_for_expert(env_id, expert_spec)
+    frames = config.bc.frame_stack or 1
+    if frames > 1 and pixels is None:
+        raise ConfigError("frame_stack", "stacks rendered frames: give --pixels too", owner="BCConfig")
+    env = make_env_for_expert(env_id, expert_spec, pixels=pixels is not None)
     expert = load_expert(expert_spec, env, seed=config.seed)
+    pixel_options: dict[str, Any] = {}
+    metadata: dict[str, Any] = {}
+    if pixels is not None:
+        pixel_env = PixelObservation(env, pixels)
+        expert = expert_on_state(expert, pixel_env)
+        env = StackFrames(pixel_env, frames) if frames > 1 else pixel_env
+        pixel_options = {
+            "frame_stack": frames,
+            "observation_keys": config.bc.observation_keys or [PIXELS_KEY],
+            "cnn": config.bc.cnn,
+            "pixels": pixels.to_json(),
+        }
+        metadata = {"pixels": pixels.to_json() | {"frame_stack": frames}}
     given = DemoDataset(demos) if demos else None
     if given is not None:
-        check_demos_fit_env(given, env)
-    policy = make_policy(env.observation_space, env.action_space, **policy_options(config.bc))
+        check_demos_fit_env(given, env.env if isinstance(env, StackFrames) else env)
+    policy = make_policy(env.observation_space, env.action_space, **policy_options(config.bc), **pixel_options)
     config.bc.validate(policy.is_continuous)
 
     def env_return(candidate: ActorCritic) -> float:
@@ -63,7 +84,15 @@ def dagger_job(
     )
     with closing(env), training_run(out, run_config, x_axis="round", resume=resume) as run:
         learner = DAgger(
-            env, expert, policy, config, round_dir=run.file("rounds"), env_id=env_id, demos=demos, evaluate=env_return
+            env,
+            expert,
+            policy,
+            config,
+            round_dir=run.file("rounds"),
+            env_id=env_id,
+            demos=demos,
+            evaluate=env_return,
+            metadata=metadata,
         )
         run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
         run.save_weights(policy_tensors(learner.policy.cpu()))

@@ -7,11 +7,17 @@ import os
 from contextlib import closing
 from typing import Any
 
-from imitation.envs.make import make_env
 from imitation.evaluation.policy import evaluate_policy, normalized_return
 from imitation.evaluation.video import record_video
 from imitation.jobs.run_config import RunConfig
-from imitation.policies import SingleObservationPolicy, acting_env, check_policy_fits_env, load_policy
+from imitation.policies import (
+    SingleObservationPolicy,
+    acting_env,
+    check_policy_fits_env,
+    load_policy,
+    make_acting_env,
+    pixel_observer,
+)
 from imitation.runs import read_run
 
 
@@ -33,7 +39,7 @@ def eval_policy_job(
     policy = load_policy(run)
     config, _ = read_run(run)
     actor = SingleObservationPolicy(policy, deterministic=not stochastic)
-    with closing(make_env(env_id)) as env:
+    with closing(make_acting_env(policy.config, env_id)) as env:
         policy_env = acting_env(policy, env)
         check_policy_fits_env(policy, policy_env, str(run))
         result = evaluate_policy(actor, policy_env, episodes=episodes, seed=seed)
@@ -43,6 +49,13 @@ def eval_policy_job(
     if video is not None:
         result["video"] = {
             "path": str(video),
-            **record_video(env_id, actor, video, seed=seed, previous_action=policy.config.previous_action),
+            **record_video(
+                env_id,
+                actor,
+                video,
+                seed=seed,
+                previous_action=policy.config.previous_action,
+                observe=lambda env: pixel_observer(policy, env),
+            ),
         }
     return {"run": str(run), "env_id": env_id, "deterministic": not stochastic, **result}

@@ -8,7 +8,9 @@ from typing import Any
 
 from imitation.data.mcap.writer import DemoWriter
 from imitation.data.recorder import RecordEpisodes, run_episodes
+from imitation.envs.action_noise import ActionNoise
 from imitation.envs.make import control_period
+from imitation.envs.pixels import PixelObservation, PixelRecipe, expert_on_state
 from imitation.errors import ConfigError, ImitationError
 from imitation.experts.load import load_expert, make_env_for_expert
 
@@ -21,19 +23,47 @@ def record_job(
     episodes: int,
     seed: int = 0,
     compression: str = "zstd",
+    pixels: PixelRecipe | None = None,
+    frame_stack: int = 1,
+    image_codec: str = "png",
+    action_noise: float = 0.0,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Record `episodes` episodes of `expert_spec` in `env_id` (episode i reset with seed
     `seed + i`) to `out`; their returns. Each episode is durable the moment it ends: Ctrl-C
-    keeps the finished ones (KeyboardInterrupt says how many)."""
+    keeps the finished ones (KeyboardInterrupt says how many).
+
+    With `pixels` the observations are rendered frames beside the env's own observation
+    (`PixelObservation`), which the expert acts on; `frame_stack` is stored as the number of
+    frames learners stack by default (single frames are what the file holds).
+
+    With `action_noise` ε the env executes a random action with probability ε while the file
+    stores the expert's action at every step (`ActionNoise`, DART): demos of the states next to
+    the expert's path, labelled."""
     out = Path(out)
     if out.is_dir():
         raise ImitationError(f"--out {out}: is a directory; give a file name such as {out / 'demos.mcap'}")
     if episodes < 1:
         raise ConfigError("episodes", f"must be at least 1, got {episodes}", owner="record")
-    env = make_env_for_expert(env_id, expert_spec)
+    if not 1 <= frame_stack <= 64:
+        raise ConfigError("frame_stack", f"must be in [1, 64], got {frame_stack}", owner="record")
+    if not 0.0 <= action_noise <= 1.0:
+        raise ConfigError("action_noise", f"must be a probability in [0, 1], got {action_noise}", owner="record")
+    if frame_stack > 1 and pixels is None:
+        raise ConfigError("frame_stack", "stacks rendered frames: give --pixels too", owner="record")
+    env = make_env_for_expert(env_id, expert_spec, pixels=pixels is not None)
     try:
         policy = load_expert(expert_spec, env, seed=seed)
+        metadata: dict[str, Any] = {"expert": expert_spec, "seed": seed}
+        if pixels is not None:
+            env = PixelObservation(env, pixels)
+            policy = expert_on_state(policy, env)
+            metadata["pixels"] = pixels.to_json() | {"frame_stack": frame_stack}
+        if action_noise > 0:
+            metadata["action_noise"] = action_noise
+            metadata["actions"] = (
+                f"the expert's labels; with probability {action_noise} the env executed a uniformly random action instead"
+            )
         writer = DemoWriter(
             out,
             env_id=env_id,
@@ -41,14 +71,16 @@ def record_job(
             action_space=env.action_space,
             dt=control_period(env),
             source=f"imitation record --expert {expert_spec}",
-            metadata={"expert": expert_spec, "seed": seed},
+            metadata=metadata,
             end_flags={"decided": "env"},  # RecordEpisodes keeps the env's own terminated/truncated
             durable=True,
             compression=compression,
+            image_codec=image_codec,
         )
         try:
             with writer:
-                returns = run_episodes(RecordEpisodes(env, writer), policy, episodes=episodes, seed=seed, progress=progress)
+                acted = ActionNoise(env, action_noise, seed=seed) if action_noise > 0 else env
+                returns = run_episodes(RecordEpisodes(acted, writer), policy, episodes=episodes, seed=seed, progress=progress)
         except KeyboardInterrupt:
             kept = writer.episodes_written
             raise KeyboardInterrupt(

@@ -1,0 +1,164 @@
+"""Pixel observations: rendered frames, frame stacks online and offline, the CNN policy, random
+shift, and `record --pixels` → `train bc` / `train dagger` → `eval policy` through the CLI."""
+
+from __future__ import annotations
+
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from support import run_cli
+
+from imitation.data.dataset import DemoDataset
+from imitation.encoders import CNNConfig, random_shift
+from imitation.envs.action_noise import ActionNoise
+from imitation.envs.pixels import (
+    PixelRecipe,
+    StackFrames,
+    frame_stack_index,
+    make_pixel_env,
+    stack_frames,
+)
+from imitation.errors import ImitationError
+from imitation.policies import load_policy, make_policy
+
+SMALL_CNN = {"channels": [8, 16], "kernels": [4, 3], "strides": [2, 2], "features": 32}
+
+
+def test_recipe_parses_and_round_trips() -> None:
+    recipe = PixelRecipe.parse("40x60", grayscale=True, crop="10,20,100,200")
+    assert (recipe.height, recipe.width, recipe.grayscale, recipe.crop) == (40, 60, True, (10, 20, 100, 200))
+    assert PixelRecipe.from_json(json.loads(json.dumps(recipe.to_json()))) == recipe
+    for size in ("84", "0x84", "84x", "ax84"):
+        with pytest.raises(ImitationError, match="HEIGHTxWIDTH"):
+            PixelRecipe.parse(size)
+    with pytest.raises(ImitationError, match="TOP,LEFT,HEIGHT,WIDTH"):
+        PixelRecipe.parse("84x84", crop="1,2,3")
+    for bad in ({"size": [84]}, {"size": [84, 0]}, {"size": [84, 84], "crop": [0, 0, 0, 5]}, "84x84"):
+        with pytest.raises(ValueError):
+            PixelRecipe.from_json(bad)
+
+
+def test_frames_crop_resize_and_grayscale() -> None:
+    image = np.zeros((40, 60, 3), dtype=np.uint8)
+    image[10:20, 30:40] = (255, 0, 0)  # a red square, inside the crop
+    frame = PixelRecipe(10, 10, False, (10, 30, 10, 10)).frame(image)
+    assert frame.shape == (10, 10, 3) and (frame == (255, 0, 0)).all()
+    luma = PixelRecipe(10, 10, True, (10, 30, 10, 10)).frame(image)
+    assert luma.shape == (10, 10, 1) and (luma == 76).all()  # 0.299 · 255
+    with pytest.raises(ImitationError, match="reaches outside"):
+        PixelRecipe(10, 10, False, (35, 0, 10, 10)).frame(image)
+
+
+def test_pixel_env_keeps_the_state_beside_the_frames() -> None:
+    env = make_pixel_env("CartPole-v1", PixelRecipe(21, 32, True))
+    observation, _ = env.reset(seed=3)
+    state, _ = gym.make("CartPole-v1").reset(seed=3)
+    assert observation["pixels"].shape == (21, 32, 1) and observation["pixels"].dtype == np.uint8
+    np.testing.assert_array_equal(observation["state"], state)
+    assert env.observation_space.contains(observation)
+
+
+def test_offline_stacks_equal_what_the_env_shows() -> None:
+    """A stacked episode rebuilt from its newest frames (as files hold them) equals the stacks
+    StackFrames showed, the reset frame repeated at the start."""
+    env = StackFrames(make_pixel_env("CartPole-v1", PixelRecipe(16, 24, True)), 3)
+    shown = []
+    observation, _ = env.reset(seed=0)
+    shown.append(observation["pixels"])
+    for action in [1, 1, 0, 1, 0, 0, 1]:
+        observation, *_ = env.step(action)
+        shown.append(observation["pixels"])
+    stacks = np.stack(shown)
+    assert (stacks[0] == stacks[0][0]).all() and not (stacks[3][0] == stacks[3][2]).all()
+    episodes = np.array([0] * len(stacks))
+    np.testing.assert_array_equal(stack_frames({"pixels": stacks[:, -1]}, episodes, 3, ["pixels"])["pixels"], stacks)
+    np.testing.assert_array_equal(frame_stack_index(np.array([0, 0, 1, 1, 1]), 2), [[0, 0], [0, 1], [2, 2], [2, 3], [3, 4]])
+
+
+def test_random_shift_moves_each_sample_with_edges_replicated() -> None:
+    frames = torch.arange(2 * 2 * 5 * 5, dtype=torch.uint8).reshape(2, 2, 5, 5, 1)
+    generator = torch.Generator().manual_seed(0)
+    shifted = random_shift(frames, 2, generator)
+    dy, dx = torch.randint(0, 5, (2, 2), generator=torch.Generator().manual_seed(0)) - 2
+    for i in range(2):
+        rows = (torch.arange(5) + dy[i]).clamp(0, 4)
+        columns = (torch.arange(5) + dx[i]).clamp(0, 4)
+        expected = frames[i][:, rows][:, :, columns]  # both frames of a sample move together
+        assert torch.equal(shifted[i], expected)
+    assert torch.equal(random_shift(frames, 0), frames)
+
+
+def test_cnn_policy_reads_only_its_keys() -> None:
+    env = StackFrames(make_pixel_env("CartPole-v1", PixelRecipe(24, 24, True)), 2)
+    policy = make_policy(env.observation_space, env.action_space, frame_stack=2, observation_keys=["pixels"], cnn=SMALL_CNN)
+    observation, _ = env.reset(seed=0)
+    batch = {key: torch.as_tensor(value)[None] for key, value in observation.items()}
+    features = policy.encode(batch)
+    assert features.shape == (1, 32)
+    changed_state = batch | {"state": batch["state"] + 100}
+    assert torch.equal(policy.encode(changed_state), features)
+    changed_pixels = batch | {"pixels": 255 - batch["pixels"]}
+    assert not torch.equal(policy.encode(changed_pixels), features)
+    both = make_policy(env.observation_space, env.action_space, frame_stack=2, cnn=SMALL_CNN)
+    assert both.encode(batch).shape == (1, 32 + 4)  # the state's 4 numbers beside the CNN's features
+    with pytest.raises(ImitationError, match="too small for the CNN"):
+        make_policy(env.observation_space, env.action_space, frame_stack=2, cnn=CNNConfig().to_json())
+
+
+def test_action_noise_executes_random_actions_and_keeps_the_label() -> None:
+    env = ActionNoise(gym.make("CartPole-v1"), 1.0, seed=0)
+    env.reset(seed=0)
+    executed = []
+    for _ in range(50):
+        before = env.unwrapped.state.copy()
+        _, _, terminated, _, _ = env.step(0)  # the given action is always 0; with ε = 1 the env pushes either way
+        executed.append(env.unwrapped.state[1] > before[1])  # pushed right
+        if terminated:
+            env.reset()
+    assert 10 < sum(executed) < 40
+
+
+def test_record_train_and_eval_pixel_cartpole_through_the_cli(tmp_path) -> None:
+    demos = tmp_path / "pixels.mcap"
+    recorded = run_cli(
+        "record", "--env", "CartPole-v1", "--pixels", "36x36", "--grayscale", "--crop", "100,150,250,300",
+        "--frame-stack", "2", "--episodes", "2", "--action-noise", "0.2", "--out", str(demos), "--quiet",
+    )  # fmt: skip
+    assert recorded.returncode == 0, recorded.stderr
+    dataset = DemoDataset(demos)
+    assert dataset.observation_space["pixels"] == gym.spaces.Box(0, 255, (36, 36, 1), np.uint8)
+    assert dataset.files[0].user_metadata["pixels"] == {
+        "size": [36, 36], "grayscale": True, "crop": [100, 150, 250, 300], "frame_stack": 2,
+    }  # fmt: skip
+    assert dataset.files[0].user_metadata["action_noise"] == 0.2
+
+    run = tmp_path / "bc"
+    trained = run_cli(
+        "train", "bc", "--demos", str(demos), "--env", "CartPole-v1", "--epochs", "2", "--epoch-samples", "256",
+        "--out", str(run), "--quiet", "--json",
+    )  # fmt: skip
+    assert trained.returncode == 0, trained.stderr
+    policy = load_policy(run)
+    assert policy.config.frame_stack == 2 and policy.config.observation_keys == ["pixels"]
+    assert policy.observation_space["pixels"].shape == (2, 36, 36, 1)
+    evaluated = run_cli("eval", "policy", str(run), "--env", "CartPole-v1", "--episodes", "2", "--json")
+    assert evaluated.returncode == 0, evaluated.stderr
+    assert json.loads(evaluated.stdout)["episodes"] == 2
+
+
+def test_dagger_on_pixels_writes_single_frames_and_learns_on_stacks(tmp_path) -> None:
+    run = tmp_path / "dagger"
+    result = run_cli(
+        "train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--pixels", "36x36", "--grayscale",
+        "--frame-stack", "3", "--rounds", "2", "--episodes-per-round", "1", "--epochs", "1", "--out", str(run), "--quiet",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    round_file = DemoDataset(run / "rounds" / "round-02.mcap")
+    assert round_file.observation_space["pixels"].shape == (36, 36, 1)
+    assert round_file.files[0].user_metadata["pixels"]["frame_stack"] == 3
+    episode = round_file[0]
+    assert episode.observations["pixels"].shape[1:] == (36, 36, 1) and episode.observations["state"].shape[1:] == (4,)
+    assert load_policy(run).observation_space["pixels"].shape == (3, 36, 36, 1)
