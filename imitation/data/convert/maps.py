@@ -6,11 +6,16 @@
     align: hold                 # hold (last value) | interpolate (linear); an entry may override it
     observation:                # concatenated in this order
       - {topic: /turtle1/pose, fields: [x, y, theta, linear_velocity, angular_velocity]}
+      - {topic: /camera/image_raw, image: front, size: [480, 640]}   # an image leaf; size optional
     action:
       - {topic: /turtle1/cmd_vel, fields: [linear.x, angular.z], default: 0, max_age: 1.0}
     reward: {topic: /score, field: data}     # optional; zero rewards without it
     episodes: {split: file}     # file | {split: gap, seconds: 2.0} | {split: topic, topic: /marker}
     env_id: null                # optional gymnasium id the demos belong to
+
+An `image` entry (observation only) makes a sensor_msgs/Image or CompressedImage topic a leaf
+of a Dict observation under the key it names, beside `state` (the numeric entries); its frames
+are held, never interpolated, and `size: [height, width]` refuses frames of any other size.
 
 `load_map` checks the map's own shape (keys, types, values); whether its topics and fields exist
 in a bag is checked against the bag in `ros.py`. Errors name the map file and the entry.
@@ -19,6 +24,7 @@ in a bag is checked against the bag in `ros.py`. Errors name the map file and th
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,7 +40,10 @@ ALIGNMENTS = ("hold", "interpolate")
 CLOCKS = ("log", "header")
 SPLITS = ("file", "gap", "topic")
 _TOP_KEYS = {"rate_hz", "time", "align", "observation", "action", "reward", "episodes", "env_id"}
-_ENTRY_KEYS = {"topic", "fields", "field", "align", "default", "max_age"}
+_ENTRY_KEYS = {"topic", "fields", "field", "align", "default", "max_age", "image", "size"}
+STATE_KEY = "state"  # the Dict observation's leaf for the numeric entries, beside the images
+_IMAGE_KEY = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}")
+MAX_IMAGE_SIDE = 2**16  # pixels: a larger declared size is a typo
 
 
 @dataclass(frozen=True)
@@ -51,6 +60,8 @@ class Stream:
     align: str
     default: tuple[float, ...] | None  # one value per field, or one value for all
     max_age_s: float | None
+    image: str | None = None  # an image entry: the key of its leaf in the Dict observation
+    size: tuple[int, int] | None = None  # an image entry's declared (height, width)
 
 
 @dataclass(frozen=True)
@@ -75,6 +86,10 @@ class RecordingMap:
     @property
     def streams(self) -> tuple[Stream, ...]:
         return self.observation + self.action + ((self.reward,) if self.reward else ())
+
+    @property
+    def images(self) -> tuple[Stream, ...]:
+        return tuple(stream for stream in self.observation if stream.image is not None)
 
 
 def load_map(path: str | Path) -> RecordingMap:
@@ -140,9 +155,15 @@ def parse_map(raw: Any, path: Path) -> RecordingMap:
             raise fail(f"no {key}: list at least one {{topic, fields}} entry under '{key}'")
         if not isinstance(entries, list):
             raise fail(f"{key} must be a list of {{topic, fields}} entries")
-        return tuple(_stream(entry, f"{key}[{i}]", align, fail) for i, entry in enumerate(entries))
+        return tuple(
+            _stream(entry, f"{key}[{i}]", align, fail, images=key == "observation") for i, entry in enumerate(entries)
+        )
 
     observation, action = streams("observation"), streams("action")
+    keys = [stream.image for stream in observation if stream.image is not None]
+    for stream in observation:
+        if stream.image is not None and keys.count(stream.image) > 1:
+            raise fail(f"{stream.where} ({stream.topic}): image key {stream.image!r} is taken by another image entry")
     reward = None
     if raw.get("reward") is not None:
         reward = _stream(raw["reward"], "reward", align, fail)
@@ -161,15 +182,21 @@ def parse_map(raw: Any, path: Path) -> RecordingMap:
     )
 
 
-def _stream(entry: Any, where: str, align: str, fail: Any) -> Stream:
+def _stream(entry: Any, where: str, align: str, fail: Any, *, images: bool = False) -> Stream:
     if not isinstance(entry, dict):
         raise fail(f"{where}: an entry is a mapping such as {{topic: /odom, fields: [twist.twist.linear.x]}}")
     unknown = sorted(set(entry) - _ENTRY_KEYS)
     if unknown:
-        raise fail(f"{where}: unknown key {unknown[0]!r} (an entry has topic, fields, align, default, max_age)")
+        raise fail(
+            f"{where}: unknown key {unknown[0]!r} (an entry has topic, fields, align, default, max_age; or topic, image, size)"
+        )
     topic = entry.get("topic")
     if not isinstance(topic, str) or not topic:
         raise fail(f"{where}: no topic")
+    if "image" in entry:
+        return _image_stream(entry, where, topic, fail, images)
+    if "size" in entry:
+        raise fail(f"{where} ({topic}): size is for image entries ({{topic: {topic}, image: KEY, size: [height, width]}})")
     fields = entry.get("fields", [entry["field"]] if "field" in entry else None)
     if isinstance(fields, str):
         fields = [fields]
@@ -196,6 +223,35 @@ def _stream(entry: Any, where: str, align: str, fail: Any) -> Stream:
         if default is None:
             raise fail(f"{where} ({topic}): max_age needs a default (the value once the last message is too old)")
     return Stream(where, topic, tuple(fields), entry_align, default, float(max_age) if max_age is not None else None)
+
+
+def _image_stream(entry: dict[str, Any], where: str, topic: str, fail: Any, allowed: bool) -> Stream:
+    """An entry naming a camera topic, e.g. {topic: /camera/image_raw, image: front, size: [480, 640]}."""
+    prefix = f"{where} ({topic})"
+    if not allowed:
+        raise fail(f"{prefix}: images are observations only; move the entry under observation")
+    key = entry["image"]
+    if not isinstance(key, str) or not _IMAGE_KEY.fullmatch(key) or key == STATE_KEY:
+        raise fail(
+            f"{prefix}: image must be the key of its leaf in the observation, letters, digits, _ . - (not {STATE_KEY!r}, "
+            f"the numeric entries' leaf); got {str(key)[:40]!r}"
+        )
+    extra = sorted(set(entry) & {"fields", "field", "default", "max_age"})
+    if extra:
+        why = "the image is the whole message" if extra[0].startswith("field") else "the episode starts at its first frame"
+        raise fail(f"{prefix}: an image entry takes no {extra[0]} ({why})")
+    if entry.get("align", "hold") != "hold":
+        raise fail(f"{prefix}: images are held (the latest frame at each step), never interpolated; drop align")
+    size = entry.get("size")
+    if size is not None:
+        if not (
+            isinstance(size, list)
+            and len(size) == 2
+            and all(isinstance(side, int) and not isinstance(side, bool) and 0 < side <= MAX_IMAGE_SIDE for side in size)
+        ):
+            raise fail(f"{prefix}: size must be [height, width] in pixels, got {str(size)[:40]}")
+        size = (size[0], size[1])
+    return Stream(where, topic, (), "hold", None, None, image=key, size=size)
 
 
 def _split(spec: Any, fail: Any) -> EpisodeSplit:

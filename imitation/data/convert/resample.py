@@ -21,6 +21,12 @@ def regular_grid(start_ns: int, end_ns: int, rate_hz: float) -> np.ndarray:
     return start_ns + np.round(np.arange(count) * period_ns).astype(np.int64)
 
 
+def hold_index(times: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Index of the last sample at or before each grid time (-1 before the first): `hold`
+    without the values, for streams such as images that are not rows of numbers."""
+    return np.searchsorted(times, grid, side="right") - 1
+
+
 def sample(
     times: np.ndarray,
     values: np.ndarray,
@@ -34,7 +40,7 @@ def sample(
     k = values.shape[1]
     fill = default if default is not None else np.full(k, np.nan)
     out = np.empty((len(grid), k), dtype=np.float64)
-    last = np.searchsorted(times, grid, side="right") - 1  # index of the last sample at or before t
+    last = hold_index(times, grid)
     before = last < 0
     if align == "interpolate" and len(times) > 0:
         for column in range(k):

@@ -9,6 +9,10 @@ times 1…T (the reward that follows each action). So a span of S seconds gives 
 steps, and a bag with one message per topic still gives one. Episodes are `truncated`: a
 recording stops, it does not reach a terminal state.
 
+Camera topics (`image` entries, ros_images.py) become uint8 or uint16 (H, W, C) leaves of a Dict
+observation beside `state`, the numeric entries: each grid time holds the latest frame at or
+before it, decoded once however many steps hold it.
+
 Values keep their precision: each field's dtype is the float that holds every value of the type
 its definition declares (float32 for float32 and small integers, float64 for float64 and wider
 integers), and the observation (action) space is float64 as soon as one of its fields is.
@@ -16,7 +20,9 @@ integers), and the observation (action) space is float64 as soon as one of its f
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -26,10 +32,12 @@ from tqdm import tqdm
 from imitation.data.convert.bags import Bag, TopicInfo
 from imitation.data.convert.converted import Converted
 from imitation.data.convert.fields import FieldError, parse_field, read_field, resolve_numbers, value_dtype
-from imitation.data.convert.maps import RecordingMap, Stream
-from imitation.data.convert.resample import NS, regular_grid, sample, split_at_gaps, split_at_markers
-from imitation.data.types import Episode
+from imitation.data.convert.maps import STATE_KEY, RecordingMap, Stream
+from imitation.data.convert.resample import NS, hold_index, regular_grid, sample, split_at_gaps, split_at_markers
+from imitation.data.convert.ros_images import Frame, ImageError, decode, frame_of, image_kind
+from imitation.data.types import Episode, Tree
 from imitation.errors import ImitationError
+from imitation.limits import LIMITS, over_limit
 
 _STAMP = parse_field("header.stamp")
 
@@ -55,13 +63,85 @@ class _Column:
             names += [base] if width == 1 else [f"{base}[{i}]" for i in range(width)]
         return names
 
+    def add(self, message: Any, time_ns: int, log_ns: int) -> None:
+        self.times.append(time_ns)
+        self.rows.append(_row(message, self, log_ns))
+
+
+@dataclass
+class _ImageColumn:
+    """An image entry compiled against the bag: its frames, checked but not yet decoded."""
+
+    stream: Stream
+    kind: str  # ros_images.IMAGE or COMPRESSED
+    bag_path: Path
+    times: list[int]
+    frames: list[Frame]
+    labels: list[str]  # where each frame is in the bag, for errors: "frame 3 (logged at … ns)"
+
+    @property
+    def key(self) -> str:
+        assert self.stream.image is not None  # only image entries become image columns
+        return self.stream.image
+
+    def add(self, message: Any, time_ns: int, log_ns: int) -> None:
+        label = f"frame {len(self.frames)} (logged at {log_ns} ns)"
+        try:
+            frame = frame_of(message, self.kind)
+        except ImageError as error:
+            raise self.error(label, str(error)) from None
+        elements = frame.height * frame.width * frame.channels
+        if elements > LIMITS.sample_elements:  # before a pixel is decoded
+            raise over_limit(
+                f"{self.bag_path}: {self.stream.topic} {label}: numbers in one {frame.describe()} frame",
+                elements,
+                "sample_elements",
+            )
+        if self.stream.size is not None and (frame.height, frame.width) != self.stream.size:
+            height, width = self.stream.size
+            raise self.error(label, f"a {frame.describe()} frame; the map's size is [{height}, {width}] ({width}x{height})")
+        if self.frames and (frame.shape, frame.dtype) != (self.frames[0].shape, self.frames[0].dtype):
+            raise self.error(
+                label,
+                f"a {frame.describe()} frame, where the topic's first was {self.frames[0].describe()}: a camera whose "
+                "resolution changes mid-bag cannot be one observation leaf",
+            )
+        self.times.append(time_ns)
+        self.frames.append(frame)
+        self.labels.append(label)
+
+    def error(self, label: str, reason: str) -> ImitationError:
+        return ImitationError(f"{self.bag_path}: {self.stream.where} ({self.stream.topic}) {label}: {reason}")
+
+    def space(self) -> gym.spaces.Box:
+        first = self.frames[0]
+        return gym.spaces.Box(0, np.iinfo(first.dtype).max, shape=first.shape, dtype=first.dtype)
+
+    def on_grid(self, times: np.ndarray, order: np.ndarray, grid: np.ndarray) -> np.ndarray:
+        """The latest frame at or before each grid time, (len(grid), H, W, C); `order` sorts the
+        frames by `times`. Each frame is decoded once however many steps hold it."""
+        index = hold_index(times, grid)
+        assert index.min() >= 0  # image entries have no default: the grid starts at their first frame
+        first = self.frames[0]
+        out = np.empty((len(grid), *first.shape), dtype=first.dtype)
+        for row, i in enumerate(index):
+            if row > 0 and i == index[row - 1]:
+                out[row] = out[row - 1]
+                continue
+            k = int(order[i])
+            try:
+                out[row] = decode(self.frames[k])
+            except ImageError as error:
+                raise self.error(self.labels[k], str(error)) from None
+        return out
+
 
 def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = True) -> Converted:
     """Read the map's topics from `bag` and resample them into episodes."""
     topics = bag.topics()
     _check_topics(bag, recording_map, topics)
     columns = [_compile(bag, stream, recording_map) for stream in recording_map.streams]
-    by_topic: dict[str, list[_Column]] = {}
+    by_topic: dict[str, list[_Column | _ImageColumn]] = {}
     for column in columns:
         by_topic.setdefault(column.stream.topic, []).append(column)
     marker_topic = recording_map.episodes.topic
@@ -81,19 +161,25 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
             if topic == marker_topic:
                 markers.append(time_ns)
             for column in by_topic.get(topic, []):
-                column.times.append(time_ns)
-                column.rows.append(_row(message, column, log_ns))
+                column.add(message, time_ns, log_ns)
 
+    # (times, rows) of numeric columns, (times, order) of image columns: both sorted by time.
     arrays = {id(c): _sorted_samples(c) for c in columns}
     spans = _spans(recording_map, [arrays[id(c)][0] for c in columns], np.sort(np.asarray(markers, dtype=np.int64)))
     episodes: list[Episode] = []
     warnings: list[str] = []
     n_obs = len(recording_map.observation)
     n_act = len(recording_map.action)
-    observation_dtype = np.result_type(*(c.dtype for c in columns[:n_obs]))
-    action_dtype = np.result_type(*(c.dtype for c in columns[n_obs : n_obs + n_act]))
-    # Streams without a default have no value before their first sample: start the grid after it.
-    first_values = [int(arrays[id(c)][0][0]) for c in columns if c.default is None]
+    state = [c for c in columns[:n_obs] if isinstance(c, _Column)]
+    images = [c for c in columns[:n_obs] if isinstance(c, _ImageColumn)]
+    numeric = [c for c in columns if isinstance(c, _Column)]
+    acting = [c for c in columns[n_obs : n_obs + n_act] if isinstance(c, _Column)]  # maps.py keeps images to observations
+    reward = numeric[-1] if recording_map.reward else None
+    observation_dtype = np.result_type(*(c.dtype for c in state)) if state else np.dtype(np.float32)
+    action_dtype = np.result_type(*(c.dtype for c in acting))
+    observation_space = _observation_space(bag, state, images, observation_dtype)
+    # Streams without a default (images never have one) have no value before their first sample: start the grid after it.
+    first_values = [int(arrays[id(c)][0][0]) for c in columns if isinstance(c, _ImageColumn) or c.default is None]
     for index, (start, end) in enumerate(spans):
         begin = max([start, *first_values])
         if (end - begin) / NS * recording_map.rate_hz > MAX_EPISODE_STEPS:  # before allocating the grid
@@ -109,19 +195,27 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
             continue
         # One period past the last grid time: the last sampled action gets its following observation.
         grid = np.append(grid, grid[-1] + round(NS / recording_map.rate_hz))
-        values = [
-            sample(
+        values = {
+            id(c): sample(
                 *arrays[id(c)],
                 grid,
                 align=c.stream.align,
                 default=c.default,
                 max_age_ns=None if c.stream.max_age_s is None else round(c.stream.max_age_s * NS),
             )
-            for c in columns
-        ]
-        observations = np.concatenate(values[:n_obs], axis=1).astype(observation_dtype)
-        actions = np.concatenate(values[n_obs : n_obs + n_act], axis=1)[:-1].astype(action_dtype)
-        rewards = values[-1][1:, 0] if recording_map.reward else np.zeros(len(grid) - 1)
+            for c in numeric
+        }
+        vector = np.concatenate([values[id(c)] for c in state], axis=1).astype(observation_dtype) if state else None
+        observations: Tree
+        if images:
+            observations = {c.key: c.on_grid(*arrays[id(c)], grid) for c in images}
+            if vector is not None:
+                observations = {STATE_KEY: vector, **observations}
+        else:
+            assert vector is not None  # a map without images has numeric observation entries
+            observations = vector
+        actions = np.concatenate([values[id(c)] for c in acting], axis=1)[:-1].astype(action_dtype)
+        rewards = values[id(reward)][1:, 0] if reward else np.zeros(len(grid) - 1)
         episodes.append(
             Episode(
                 observations=observations,
@@ -134,12 +228,11 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
         )
     if not episodes:
         raise ImitationError(f"{bag.path}: no episode: the mapped topics never all have a value at the same time")
-    names = [c.names for c in columns]
     first = episodes[0]
-    assert isinstance(first.observations, np.ndarray) and isinstance(first.actions, np.ndarray)  # built as arrays above
+    assert isinstance(first.actions, np.ndarray)  # built as an array above
     return Converted(
         episodes=episodes,
-        observation_space=gym.spaces.Box(-np.inf, np.inf, shape=(first.observations.shape[1],), dtype=observation_dtype),
+        observation_space=observation_space,
         action_space=gym.spaces.Box(-np.inf, np.inf, shape=(first.actions.shape[1],), dtype=action_dtype),
         source=f"{bag.format} {bag.path}",
         env_id=recording_map.env_id or "",
@@ -149,9 +242,10 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
             "bag": str(bag.path),
             "bag_format": bag.format,
             "map": recording_map.raw,
-            "observation_names": [n for ns in names[:n_obs] for n in ns],
-            "action_names": [n for ns in names[n_obs : n_obs + n_act] for n in ns],
-            **({"reward_name": names[-1][0]} if recording_map.reward else {}),
+            "observation_names": [n for c in state for n in c.names],
+            **({"observation_images": _image_metadata(images)} if images else {}),
+            "action_names": [n for c in acting for n in c.names],
+            **({"reward_name": reward.names[0]} if reward else {}),
         },
         warnings=warnings,
     )
@@ -189,7 +283,7 @@ def _listing(names: list[str], limit: int = 12) -> str:
     return ", ".join(names[:limit]) + (f", … ({len(names)} topics)" if len(names) > limit else "")
 
 
-def _compile(bag: Bag, stream: Stream, recording_map: RecordingMap) -> _Column:
+def _compile(bag: Bag, stream: Stream, recording_map: RecordingMap) -> _Column | _ImageColumn:
     """Check the entry's fields on the topic's first message and learn their widths."""
     messages = bag.messages([stream.topic])
     try:
@@ -197,6 +291,23 @@ def _compile(bag: Bag, stream: Stream, recording_map: RecordingMap) -> _Column:
     finally:
         messages.close()
     prefix = f"{recording_map.path}: {stream.where} ({stream.topic})"
+    if recording_map.time == "header":
+        try:
+            read_field(first, _STAMP)
+        except FieldError:
+            raise ImitationError(f"{prefix}: its messages have no header.stamp; use time: log") from None
+    msgtype = bag.topics()[stream.topic].type
+    kind = image_kind(msgtype)
+    if stream.image is not None:
+        if kind is None:
+            raise ImitationError(
+                f"{prefix}: an image entry needs a sensor_msgs/Image or CompressedImage topic; in {bag.path} it is a {msgtype}"
+            )
+        return _ImageColumn(stream, kind, bag.path, [], [], [])
+    if kind is not None and any(text.split(".")[0].split("[")[0] == "data" for text in stream.fields):
+        raise ImitationError(
+            f"{prefix}: a camera topic ({msgtype} in {bag.path}): map its frames as {{topic: {stream.topic}, image: KEY}}"
+        )
     widths = []
     for text in stream.fields:
         try:
@@ -207,11 +318,6 @@ def _compile(bag: Bag, stream: Stream, recording_map: RecordingMap) -> _Column:
             raise ImitationError(f"{prefix}: field {text!r} is an empty array in the first message")
         widths.append(width)
     dtype = np.result_type(*(value_dtype(bag.field_type(stream.topic, text)) for text in stream.fields))
-    if recording_map.time == "header":
-        try:
-            read_field(first, _STAMP)
-        except FieldError:
-            raise ImitationError(f"{prefix}: its messages have no header.stamp; use time: log") from None
     default = None
     if stream.default is not None:
         width = sum(widths)
@@ -251,12 +357,37 @@ def _row(message: Any, column: _Column, log_ns: int) -> np.ndarray:
     return np.concatenate(parts)
 
 
-def _sorted_samples(column: _Column) -> tuple[np.ndarray, np.ndarray]:
-    """(times, rows) in time order: header stamps need not arrive in order."""
+def _sorted_samples(column: _Column | _ImageColumn) -> tuple[np.ndarray, np.ndarray]:
+    """(times, rows) in time order: header stamps need not arrive in order. An image column's
+    frames stay where they are: its second array is the order that sorts them."""
     times = np.asarray(column.times, dtype=np.int64)
-    rows = np.asarray(column.rows, dtype=np.float64).reshape(len(times), sum(column.widths))
     order = np.argsort(times, kind="stable")
+    if isinstance(column, _ImageColumn):
+        return times[order], order
+    rows = np.asarray(column.rows, dtype=np.float64).reshape(len(times), sum(column.widths))
     return times[order], rows[order]
+
+
+def _observation_space(bag: Bag, state: list[_Column], images: list[_ImageColumn], dtype: np.dtype) -> gym.Space:
+    """Box(-inf, inf) of the numeric entries; with images, a Dict of `state` and one Box per camera."""
+    width = sum(sum(c.widths) for c in state)
+    vector = gym.spaces.Box(-np.inf, np.inf, shape=(width,), dtype=dtype)
+    if not images:
+        return vector
+    leaves: dict[str, gym.Space] = {STATE_KEY: vector} if state else {}
+    leaves.update({c.key: c.space() for c in images})
+    # The demo file's reader refuses a space whose sample holds more (limits.py): refuse it here, before the grid.
+    elements = width + sum(math.prod(c.frames[0].shape) for c in images)
+    if elements > LIMITS.sample_elements:
+        raise over_limit(
+            f"{bag.path}: numbers in one observation (every camera's pixels and the state)", elements, "sample_elements"
+        )
+    return gym.spaces.Dict(leaves)
+
+
+def _image_metadata(images: list[_ImageColumn]) -> dict[str, dict[str, Any]]:
+    """Per camera leaf: its topic and what the bag sent (an encoding, or a compressed format)."""
+    return {c.key: {"topic": c.stream.topic, "sent_as": c.frames[0].source} for c in images}
 
 
 def _spans(recording_map: RecordingMap, stream_times: list[np.ndarray], markers: np.ndarray) -> list[tuple[int, int]]:
