@@ -572,7 +572,7 @@ CASE_LIST = [
     case("demo-2", lambda i: ["info", i.text("notes.mcap", "not mcap at all\n")]),
     case("demo-3", lambda i: ["info", TESTDATA / "ros2" / "replay_testing" / "cmd_vel_only.mcap"], testdata=True),
     case("demo-4", lambda i: _bc(i.demo_with("v-x.mcap", dataset=lambda d: d | {"format_version": "x"}))),
-    case("demo-5", lambda i: _bc(i.demo_with("v-2.mcap", dataset=lambda d: d | {"format_version": "2"}))),
+    case("demo-5", lambda i: _bc(i.demo_with("v-3.mcap", dataset=lambda d: d | {"format_version": "3"}))),
     case("demo-6", lambda i: _bc(i.demo_with("crc.mcap", dataset=lambda d: d | {"env_id": "Other-v0"}, crc=False))),
     case("demo-7", lambda i: _bc(i.demo_with("no-env.mcap", dataset=lambda d: {k: v for k, v in d.items() if k != "env_id"}))),
     case("demo-8 space-13", lambda i: _bc(i.demo_with("space.mcap", dataset=lambda d: d | {"observation_space": '{"type": "Bogus"}'}))),

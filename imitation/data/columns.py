@@ -9,9 +9,11 @@ release the GIL.
 
 A block's place follows from its message alone: its episode is the one whose time range holds
 the block's log time, and its first row is (log_time − t_start)/dt, which is how DemoWriter
-stamps the blocks of a recording without its own timestamps. Files with their own timestamps
-(a `/time` channel), and any file whose blocks do not tile every episode exactly, return None:
-the caller then takes the general path, which also reports damage with its own messages.
+stamps the blocks of a recording without its own timestamps. An image channel's message is one
+frame, placed the same way and decoded straight into its row. Files with their own timestamps
+(a `/time` channel), and any file whose blocks do not tile every episode exactly (a frame that
+does not decode included), return None: the caller then takes the general path, which also
+reports damage with its own messages.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from imitation.data.mcap.format import EPISODE_TOPIC, REWARD_FIELD, TIME_FIELD, Field, fields_for
+from imitation.data.mcap.images import decode_frame
 from imitation.data.mcap.reader import DemoFile
 from imitation.data.mcap.records import ChunkRef, Damage, chunk_header, chunk_records, decode_chunk
 from imitation.data.types import Transitions, tree_from_leaves
@@ -171,6 +174,12 @@ def _fill_file(
     if dt_ns <= 0:
         raise _NotTiled("no time step")
     topic_of = {channel_id: (f.topic if f is not None else EPISODE_TOPIC) for channel_id, f in file.channel_fields.items()}
+    codec_of: dict[int, str] = {}
+    for channel_id, f in file.channel_fields.items():
+        if f is not None and f.codec is not None and f.topic in columns:
+            if (f.dtype, f.shape) != (columns[f.topic].field.dtype, columns[f.topic].field.shape):
+                raise _NotTiled(f"{f.topic}: the image channel's layout differs from the space's")
+            codec_of[channel_id] = f.codec
     t_starts = [facts.t_start_ns for facts in file.episodes]
 
     def fill_chunk(fd: int, chunk: ChunkRef) -> list[tuple[str, int, int, int]]:
@@ -185,6 +194,8 @@ def _fill_file(
             ordinal = plan.ordinal_of.get(k)
             if column is None or ordinal is None:
                 continue
+            if channel_id in codec_of:
+                data = memoryview(decode_frame(codec_of[channel_id], column.field.shape, data)).cast("B")
             first_row, misaligned = divmod(log_time - t_starts[k], dt_ns)
             rows, partial = divmod(len(data), column.field.row_nbytes)
             if misaligned or partial or log_time > file.episodes[k].t_end_ns:

@@ -113,8 +113,8 @@ def test_mcap_without_our_metadata_is_named_as_such(tmp_path) -> None:
 
 def test_newer_format_version_is_refused(tmp_path) -> None:
     space = json.dumps({"type": "Discrete", "n": 2, "start": 0})
-    plain_mcap(tmp_path / "future.mcap", {"format_version": "2", "env_id": "X", "observation_space": space, "action_space": space})
-    with pytest.raises(DemoFileError, match="future.mcap: format version 2 is newer than this reader supports"):
+    plain_mcap(tmp_path / "future.mcap", {"format_version": "3", "env_id": "X", "observation_space": space, "action_space": space})
+    with pytest.raises(DemoFileError, match="future.mcap: format version 3 is newer than this reader supports"):
         DemoFile(tmp_path / "future.mcap")
 
 

@@ -13,6 +13,9 @@ of an episode, and the JSON and checksums of its metadata. docs/FORMAT.md specif
   index finds episode k by time without reading the others.
 - On close, an `imitation.episodes` Metadata record repeats every episode's facts, so `info` and
   random access need only the summary and two small records.
+- Image observations (uint8 (H, W[, C]) leaves) are the exception to blocks: one Foxglove image
+  message per frame, codec in the channel metadata (`images`). Files with such channels are
+  format version 2; all others stay version 1, byte for byte.
 """
 
 from __future__ import annotations
@@ -29,10 +32,15 @@ import numpy as np
 from mcap.records import Channel
 from mcap.writer import CompressionType
 
+from imitation.data.mcap.images import is_image_leaf
 from imitation.data.spaces import LeafPath, space_leaves
 from imitation.errors import ImitationError
 
-FORMAT_VERSION = 1
+# Version 2 adds image channels (one Foxglove image message per frame). The writer writes 1 for
+# files without them, so that readers of version 1 still read those; this reader reads both.
+PLAIN_FORMAT_VERSION = 1
+IMAGE_FORMAT_VERSION = 2
+FORMAT_VERSION = IMAGE_FORMAT_VERSION
 PROFILE = "imitation"
 DATASET_METADATA = "imitation.dataset"
 EPISODES_METADATA = "imitation.episodes"
@@ -110,6 +118,7 @@ class Field:
     path: LeafPath
     dtype: np.dtype | None  # None for JSON channels
     shape: tuple[int, ...]
+    codec: str | None = None  # image channels: "png" | "jpeg" | "raw", one message per frame; None: blocks
 
     # Cached: the reader asks for these once per block.
     @functools.cached_property
@@ -129,7 +138,8 @@ class Field:
     def channel_metadata(self) -> dict[str, str]:
         if self.dtype is None:
             return {"field": self.kind}
-        return {"field": self.kind, "dtype": self.dtype.newbyteorder("<").str, "shape": json.dumps(list(self.shape))}
+        layout = {"field": self.kind, "dtype": self.dtype.newbyteorder("<").str, "shape": json.dumps(list(self.shape))}
+        return layout if self.codec is None else {**layout, "codec": self.codec}
 
     @staticmethod
     def from_channel(topic: str, metadata: dict[str, str]) -> Field:
@@ -137,17 +147,19 @@ class Field:
         kind, path = parts[0], tuple(parts[1:])
         if "dtype" not in metadata:
             return Field(kind, path, None, ())
-        return Field(kind, path, np.dtype(metadata["dtype"]), tuple(json.loads(metadata["shape"])))
+        return Field(kind, path, np.dtype(metadata["dtype"]), tuple(json.loads(metadata["shape"])), metadata.get("codec"))
 
 
 REWARD_FIELD = Field("reward", (), np.dtype("<f8"), ())
 TIME_FIELD = Field("time", (), np.dtype("<i8"), ())
 
 
-def fields_for(observation_space: gym.Space, action_space: gym.Space) -> list[Field]:
-    """The channels a file of these spaces uses; dtypes are little-endian, as stored."""
+def fields_for(observation_space: gym.Space, action_space: gym.Space, image_codec: str | None = None) -> list[Field]:
+    """The channels a file of these spaces uses; dtypes are little-endian, as stored. With an
+    `image_codec`, the image leaves of the observation space are image channels of that codec."""
     fields = [
-        Field("observation", path, dtype.newbyteorder("<"), shape) for path, dtype, shape in space_leaves(observation_space)
+        Field("observation", path, dtype.newbyteorder("<"), shape, image_codec if is_image_leaf(dtype, shape) else None)
+        for path, dtype, shape in space_leaves(observation_space)
     ]
     fields += [Field("action", path, dtype.newbyteorder("<"), shape) for path, dtype, shape in space_leaves(action_space)]
     fields += [REWARD_FIELD, TIME_FIELD, Field("info", (), None, ())]

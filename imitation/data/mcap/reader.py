@@ -41,6 +41,7 @@ from imitation.data.mcap.format import (
     metadata_crc,
     to_json_text,
 )
+from imitation.data.mcap.images import FrameError, decode_frames, is_image_leaf
 from imitation.data.mcap.records import (
     OP_CHANNEL,
     OP_CHUNK,
@@ -117,8 +118,12 @@ class _EpisodeAssembler:
     def _build(self, facts: EpisodeFacts, blocks: dict[str, list[bytes | memoryview]]) -> Episode:
         steps = facts.length
 
+        images = {c.topic: c for c in self._channels.values() if c is not None and c.codec is not None}
+
         def rows(f: Field, count: int) -> np.ndarray:
             parts = blocks.get(f.topic, [])
+            if f.topic in images:
+                return _frames(f, images[f.topic], parts, count, facts.index)
             if f.row_nbytes == 0:
                 return np.zeros((count, *f.shape), dtype=f.native_dtype)
             data = parts[0] if len(parts) == 1 else b"".join(parts)
@@ -146,6 +151,20 @@ class _EpisodeAssembler:
             timestamps=timestamps,
             metadata=facts.metadata,
         )
+
+
+def _frames(f: Field, channel: Field, frames: list[bytes | memoryview], count: int, episode: int) -> np.ndarray:
+    """The rows of an image channel: one message per frame, decoded to the space's leaf."""
+    assert channel.codec is not None
+    if channel.dtype != f.dtype or channel.shape != f.shape or not is_image_leaf(f.dtype, f.shape):
+        raise ValueError(
+            f"{f.topic}: an image channel declaring {channel.dtype} {list(channel.shape)}, but the space's leaf is {f.dtype} "
+            f"{list(f.shape)}, not an image"
+        )
+    # Counted before anything is allocated: the frames are messages the file really holds.
+    if len(frames) != count:
+        raise ValueError(f"episode {episode}: {f.topic} holds {len(frames)} frames, expected {count}")
+    return decode_frames(channel.codec, f.shape, frames, topic=f.topic, episode=episode)
 
 
 def _check_episode_index(episodes: list[EpisodeFacts], content_bytes: int) -> None:
@@ -367,6 +386,8 @@ class DemoFile:
                     yield result[0], result[1]
         except Damage as error:
             raise DemoFileError(f"{self.path}: damaged chunk at byte {chunk.offset}: {error}") from None
+        except FrameError as error:
+            raise DemoFileError(f"{self.path}: {error}") from None
         except (
             ValueError,
             KeyError,

@@ -30,7 +30,8 @@ from imitation.data.mcap.format import (
     EPISODE_SCHEMA,
     EPISODE_TOPIC,
     EPISODES_METADATA,
-    FORMAT_VERSION,
+    IMAGE_FORMAT_VERSION,
+    PLAIN_FORMAT_VERSION,
     PROFILE,
     EpisodeFacts,
     Field,
@@ -38,6 +39,7 @@ from imitation.data.mcap.format import (
     metadata_crc,
     to_json_text,
 )
+from imitation.data.mcap.images import CODECS, DEFAULT_JPEG_QUALITY, IMAGE_ENCODING, encode_frames, schema_data, schema_name
 from imitation.data.mcap.reader import salvageable_episodes
 from imitation.data.spaces import space_to_json
 from imitation.data.types import Episode, check_fits_space, first_nonfinite, tree_leaves
@@ -95,6 +97,12 @@ class DemoWriter:
     NaN and ±inf in float observations, actions or rewards are refused where they enter, with the
     episode and step named; `finite_only=False` stores them as they are (bit-exact round trips of
     any data), and learners then refuse the file when they load it.
+
+    Image observations (uint8 leaves of shape (H, W) or (H, W, C), C in {1, 3, 4}) are written one
+    Foxglove image message per frame, which MCAP viewers show as video: `image_codec` "png"
+    (lossless, the default), "jpeg" (lossy and compact, at `jpeg_quality`; not for 4 channels) or
+    "raw" (lossless, left to the chunk compression). Such files are format version 2. With
+    `image_codec=None` they are blocks of rows like any other leaf, and the file version 1.
     """
 
     def __init__(
@@ -116,13 +124,26 @@ class DemoWriter:
         finite_only: bool = True,
         temporary: str | os.PathLike | None = None,
         lock: bool = True,
+        image_codec: str | None = "png",
+        jpeg_quality: int = DEFAULT_JPEG_QUALITY,
     ) -> None:
         self.path = Path(path)
         self._finite_only = finite_only
         self.partial_path = Path(temporary) if temporary is not None else self.path.with_name(self.path.name + ".partial")
         self.observation_space = observation_space
         self.action_space = action_space
-        self._fields = fields_for(observation_space, action_space)
+        if image_codec is not None and image_codec not in CODECS:
+            raise ImitationError(f"image_codec must be one of {', '.join(CODECS)} or None, got {image_codec!r}")
+        if not (isinstance(jpeg_quality, int) and 1 <= jpeg_quality <= 100):
+            raise ImitationError(f"jpeg_quality must be an integer from 1 to 100, got {jpeg_quality!r}")
+        self._jpeg_quality = jpeg_quality
+        self._fields = fields_for(observation_space, action_space, image_codec)
+        self._image_fields = [f for f in self._fields if f.codec is not None]
+        for f in self._image_fields:
+            if f.codec == "jpeg" and f.shape[2:] == (4,):
+                raise ImitationError(
+                    f"{f.topic}: JPEG has no alpha channel for its shape {list(f.shape)}; use image_codec png or raw"
+                )
         self._block_steps = block_steps
         self._durable = durable
         self._flush_episodes = flush_episodes or durable
@@ -135,7 +156,7 @@ class DemoWriter:
         self._facts: list[EpisodeFacts] = []
         # Everything that can fail on bad arguments happens before the file exists.
         dataset = {
-            "format_version": str(FORMAT_VERSION),
+            "format_version": str(IMAGE_FORMAT_VERSION if self._image_fields else PLAIN_FORMAT_VERSION),
             "env_id": env_id,
             "observation_space": json.dumps(space_to_json(observation_space)),
             "action_space": json.dumps(space_to_json(action_space)),
@@ -172,6 +193,7 @@ class DemoWriter:
         self._writer.start(profile=PROFILE, library=f"imitation-mcap {__version__}")
         self._writer.add_metadata(DATASET_METADATA, _with_crc(dataset))
         self._channels: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
         for f in self._fields:
             if f.kind in ("observation", "action", "reward"):
                 self._register(f)
@@ -199,8 +221,12 @@ class DemoWriter:
                     )
         times, time_shift_ns = self._episode_times(episode)
         columns: list[tuple[Field, np.ndarray]] = []
+        frames: list[tuple[Field, list[bytes]]] = []
         for f in self._fields:
-            if f.kind in ("observation", "action"):
+            if f.codec is not None:
+                pixels = dict(tree_leaves(episode.observations))[f.path]
+                frames.append((f, encode_frames(f.codec, pixels, times, jpeg_quality=self._jpeg_quality)))
+            elif f.kind in ("observation", "action"):
                 tree = episode.observations if f.kind == "observation" else episode.actions
                 columns.append((f, dict(tree_leaves(tree))[f.path]))
             elif f.kind == "reward":
@@ -210,7 +236,7 @@ class DemoWriter:
 
         try:
             with _interrupts_deferred():
-                return self._append(episode, columns, times, time_shift_ns, rewards)
+                return self._append(episode, columns, frames, times, time_shift_ns, rewards)
         except OSError as error:
             raise self._failed(error) from None
 
@@ -218,6 +244,7 @@ class DemoWriter:
         self,
         episode: Episode,
         columns: list[tuple[Field, np.ndarray]],
+        frames: list[tuple[Field, list[bytes]]],
         times: np.ndarray,
         time_shift_ns: int,
         rewards: np.ndarray,
@@ -245,6 +272,11 @@ class DemoWriter:
             if episode.infos is not None and start < steps:
                 infos = episode.infos[start : start + self._block_steps]
                 self._add("/info", int(times[start]), to_json_text(infos).encode())
+            # Each frame at its own row's time: after its block group (stamped with the group's
+            # first row), before the next group, row by row across image channels.
+            for row in range(start, min(start + self._block_steps, steps + 1)):
+                for f, messages in frames:
+                    self._add(f.topic, int(times[row]), messages[row])
         self._add(EPISODE_TOPIC, facts.t_end_ns, to_json_text(facts.to_json()).encode())
         self._facts.append(facts)
         self._next_time_ns = facts.t_end_ns + self._dt_ns
@@ -313,8 +345,15 @@ class DemoWriter:
             )
 
     def _register(self, f: Field) -> None:
-        encoding = "json" if f.dtype is None else BLOCK_ENCODING
-        self._channels[f.topic] = self._writer.register_channel(f.topic, encoding, 0, f.channel_metadata())
+        if f.codec is not None:
+            name = schema_name(f.codec)
+            if name not in self._schemas:
+                self._schemas[name] = self._writer.register_schema(name, IMAGE_ENCODING, schema_data(f.codec))
+            channel = self._writer.register_channel(f.topic, IMAGE_ENCODING, self._schemas[name], f.channel_metadata())
+        else:
+            encoding = "json" if f.dtype is None else BLOCK_ENCODING
+            channel = self._writer.register_channel(f.topic, encoding, 0, f.channel_metadata())
+        self._channels[f.topic] = channel
 
     def _add(self, topic: str, log_time: int, data: bytes) -> None:
         if topic not in self._channels:  # /time and /info exist only in files that use them
