@@ -5,8 +5,7 @@ Both codebase versions are read directly from the folder, with pyarrow: v3.0's `
 reads); v2.1's `meta/info.json`, `meta/episodes.jsonl` and one parquet file per episode (lerobot
 0.6 refuses v2.1). lerobot's own `LeRobotDataset` is not used for reading: it fetches whatever
 the folder lacks (an episode's video file, a missing episode) from the Hugging Face Hub, and a
-converter reads the local folder only. Videos are neither decoded nor required: the files the
-dataset's video features name and the folder lacks are listed in a warning.
+converter reads the local folder only.
 
 `meta/info.json`'s totals (`total_episodes`, `total_frames`) are compared with what the data
 holds; a difference is a warning, and what is present is converted.
@@ -14,12 +13,19 @@ holds; a difference is a warning, and what is present is converted.
 A LeRobot frame t holds the observation at t and the action taken at t. An episode of L frames
 becomes T = L - 1 steps: all L observations, the first L - 1 actions and `next.reward` values
 (the last frame's action led to an observation the dataset does not hold). `observation.*`
-features form the observation (a Dict space when there are several), `action` the action.
-`next.done` cannot tell a time limit from a termination, and the kept last frame is the state
-the last action was taken in, so every episode is truncated; with `--env`, each episode's
-`source_end` says whether it ended at the env's time limit (`imitation.data.convert.endings`).
-Image and video features are skipped with a warning, as are other features the demos have no
-place for.
+features form the observation (a Dict space keyed by the name after `observation.` when there
+are several), `action` the action. `next.done` cannot tell a time limit from a termination, and
+the kept last frame is the state the last action was taken in, so every episode is truncated;
+with `--env`, each episode's `source_end` says whether it ended at the env's time limit
+(`imitation.data.convert.endings`). Features the demos have no place for are skipped with a
+warning.
+
+Cameras (`observation.images.*`, dtype "video" or "image") become uint8 (H, W, C) leaves
+(`imitation.data.convert.cameras`), decoded one episode at a time. A video frame is found as
+lerobot finds it: at the episode's `videos/<key>/from_timestamp` (v3.0; 0 in v2.1's one file per
+episode) plus the row's `timestamp`, within lerobot's default tolerance of 1e-4 s. A video
+feature some of whose files the folder lacks is skipped with a warning naming them, and the
+other features convert.
 
 Datasets written by `imitation export --to lerobot` carry `meta/imitation.json`, which restores
 the env id, the exact spaces and each episode's flags and metadata.
@@ -29,30 +35,49 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import re
 import string
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
+from imitation.data.convert.cameras import Camera, camera_for, decoded_images
 from imitation.data.convert.converted import Converted, box_for, cast_rows, infer_action_space
 from imitation.data.convert.endings import SourceEnds
-from imitation.data.spaces import space_from_json
-from imitation.data.types import Episode
+from imitation.data.convert.video import frames_at
+from imitation.data.spaces import space_from_json, space_leaves
+from imitation.data.types import Episode, Tree
 from imitation.errors import ImitationError
+from imitation.limits import LIMITS, over_limit
 
 SIDECAR = "meta/imitation.json"
 _INDEX_FEATURES = {"timestamp", "frame_index", "episode_index", "index", "task_index"}
 _VISUAL = {"image", "video"}
+# lerobot's default `tolerance_s`: how far a video frame may lie from the timestamp asked for.
+TOLERANCE_S = 1e-4
 
 
-def lerobot_to_episodes(root: str | Path, *, progress: bool = True) -> Converted:
-    """Read the LeRobot dataset at `root` (v3.0 or v2.1)."""
+@dataclass
+class _Read:
+    """What the dataset's files hold: numeric columns (one row per frame), each image feature's
+    encoded frames, and where each video feature keeps each episode's frames."""
+
+    columns: dict[str, np.ndarray]
+    blobs: dict[str, Any]  # a pyarrow binary array per image feature, one entry per frame
+    # video key → episode index → (file name, or None where the dataset does not say; from_timestamp)
+    videos: dict[str, dict[int, tuple[str | None, float | None]]]
+
+
+def lerobot_to_episodes(root: str | Path, *, episodes: Collection[int] | None = None, progress: bool = True) -> Converted:
+    """Read the LeRobot dataset at `root` (v3.0 or v2.1); `episodes` keeps only the episodes of
+    those `episode_index` values."""
     root = Path(root)
     info_path = root / "meta" / "info.json"
     if not info_path.is_file():
@@ -66,41 +91,91 @@ def lerobot_to_episodes(root: str | Path, *, progress: bool = True) -> Converted
         raise ImitationError(f"{info_path}: 'features' must map each feature name to its description")
     if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 0 < fps < 1e6:
         raise ImitationError(f"{info_path}: 'fps' must be a positive number of frames per second, got {str(fps)[:40]}")
-    observation_keys, action_key, warnings = _choose_features(root, features)
+    observation_keys, cameras, action_key, warnings = _choose_features(root, info_path, features)
+    # A video frame is found by its row's timestamp: without that column no video converts.
+    if "timestamp" not in features:
+        warnings += [
+            f"{root}: video feature {c.key!r} skipped (no timestamp feature to find its frames by)"
+            for c in cameras
+            if c.dtype == "video"
+        ]
+        cameras = [camera for camera in cameras if camera.dtype != "video"]
     wanted = [*observation_keys, action_key, *(k for k in ("next.reward", "next.done") if k in features), "episode_index"]
+    wanted += ["timestamp"] if any(camera.dtype == "video" for camera in cameras) else []
+    image_keys = [camera.key for camera in cameras if camera.dtype == "image"]
     video_keys = [key for key, feature in features.items() if feature.get("dtype") == "video"]
     if version == "v3.0":
-        columns, videos = _read_v30(root, info, wanted, video_keys, progress)
+        read = _read_v30(root, info, wanted, image_keys, video_keys, progress)
     elif version == "v2.1":
-        columns, videos = _read_v21(root, info, wanted, video_keys, progress)
+        read = _read_v21(root, info, wanted, image_keys, video_keys, progress)
     else:
         raise ImitationError(f"{root}: LeRobot codebase version {version!r} is not supported (v3.0 or v2.1)")
-    columns = {key: _shaped(root, key, values, features.get(key, {})) for key, values in columns.items()}
+    columns = {key: _shaped(root, key, values, features.get(key, {})) for key, values in read.columns.items()}
     if len(columns["episode_index"]) == 0:
         raise ImitationError(f"{root}: the dataset holds no frames")
-    warnings += _missing_videos(root, videos)
+    files = {
+        key: list(dict.fromkeys(name for name, _ in where.values() if name is not None)) for key, where in read.videos.items()
+    }
+    warnings += _missing_videos(root, files)
+    cameras = [camera for camera in cameras if camera.dtype == "image" or _video_usable(root, camera.key, read, warnings)]
     warnings += _totals_differ(info_path, info, columns["episode_index"])
-    return _build(root, version, fps, features, observation_keys, action_key, columns, warnings)
+    if not observation_keys and not cameras:
+        raise ImitationError(f"{root}: no observation.* feature that converts (numeric, video or image)")
+    return _build(
+        root,
+        version,
+        fps,
+        features,
+        observation_keys,
+        cameras,
+        action_key,
+        _Read(columns, read.blobs, read.videos),
+        episodes,
+        warnings,
+        progress,
+    )
 
 
-def _choose_features(root: Path, features: dict[str, Any]) -> tuple[list[str], str, list[str]]:
+def _choose_features(root: Path, info_path: Path, features: dict[str, Any]) -> tuple[list[str], list[Camera], str, list[str]]:
     warnings = []
     observation_keys = []
+    cameras = []
     for key, feature in features.items():
         dtype = feature.get("dtype")
         if key in _INDEX_FEATURES or key in ("action", "next.reward", "next.done"):
             continue
-        if isinstance(dtype, str) and dtype in _VISUAL:
-            warnings.append(f"{root}: {dtype} feature {key!r} skipped (image demos are not supported yet)")
+        if isinstance(dtype, str) and dtype in _VISUAL and key.startswith("observation."):
+            camera = camera_for(info_path, key, feature)
+            if isinstance(camera, Camera):
+                cameras.append(camera)
+            else:
+                warnings.append(camera)
         elif key.startswith("observation.") and _numeric(dtype):
             observation_keys.append(key)
         else:
             warnings.append(f"{root}: feature {key!r} ({dtype}) has no place in the demos; skipped")
-    if not observation_keys:
-        raise ImitationError(f"{root}: no numeric observation.* feature (images and videos are skipped)")
+    if not observation_keys and not cameras:
+        raise ImitationError(f"{root}: no observation.* feature that converts (numeric, video or image)")
     if "action" not in features or not _numeric(features["action"].get("dtype")):
         raise ImitationError(f"{root}: no numeric 'action' feature")
-    return observation_keys, "action", warnings
+    return observation_keys, cameras, "action", warnings
+
+
+def _video_usable(root: Path, key: str, read: _Read, warnings: list[str]) -> bool:
+    """Whether every episode's frames of video feature `key` can be found: its files present (a
+    missing one was warned about already) and each episode's file and start time known."""
+    where = read.videos.get(key, {})
+    episodes = set(np.unique(read.columns["episode_index"].astype(np.int64)).tolist())  # as _build reads them
+    unknown = sorted(index for index in episodes if where.get(index, (None, None))[0] is None or where[index][1] is None)
+    if unknown:
+        warnings.append(
+            f"{root}: video feature {key!r} skipped (the dataset does not say which file holds episode {unknown[0]}'s frames)"
+        )
+        return False
+    if not all(_is_file(root / name) for name, _ in where.values() if name is not None):
+        warnings.append(f"{root}: video feature {key!r} skipped (the folder lacks its video files)")
+        return False
+    return True
 
 
 def _numeric(dtype: Any) -> bool:
@@ -114,10 +189,14 @@ def _numeric(dtype: Any) -> bool:
 def lerobot_quietly() -> Iterator[None]:
     """lerobot is imported here only, for its writer (`imitation export --to lerobot`; the import
     costs seconds). Its loaders look at the Hub unless told not to, it logs warnings about fields
-    it ignores, and its writer runs a `datasets` map per episode, each with a progress bar. We
-    write local folders and keep our own bar."""
+    it ignores, and its writer runs a `datasets` map per episode, each with a progress bar; its
+    video encoder (SVT-AV1) and muxer (FFmpeg) print to stderr for every episode. We write local
+    folders and keep our own bar."""
     # Before the import: huggingface_hub reads HF_HUB_OFFLINE once, when it is first imported.
     os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1's errors only; it reads this when an encoder starts
+    import av
+
     import datasets
 
     logger = logging.getLogger("lerobot")
@@ -125,19 +204,23 @@ def lerobot_quietly() -> Iterator[None]:
     logger.setLevel(logging.ERROR)
     bars = datasets.is_progress_bar_enabled()
     datasets.disable_progress_bars()
+    # lerobot hands FFmpeg's log back to FFmpeg's own printer after each encode: quiet it there.
+    av.logging.set_libav_level(av.logging.ERROR)
     try:
         yield
     finally:
         logger.setLevel(level)
+        av.logging.set_libav_level(av.logging.INFO)  # FFmpeg's default (it has no getter to save the old one)
         if bars:
             datasets.enable_progress_bars()
 
 
 def _read_v30(
-    root: Path, info: dict[str, Any], wanted: list[str], video_keys: list[str], progress: bool
-) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
-    """The `wanted` columns of every frame in data/*/*.parquet (in the order lerobot's loader
-    reads them), and the video files each video feature's episodes name (from meta/episodes)."""
+    root: Path, info: dict[str, Any], wanted: list[str], image_keys: list[str], video_keys: list[str], progress: bool
+) -> _Read:
+    """The `wanted` columns and the image features' frames of every frame in data/*/*.parquet (in
+    the order lerobot's loader reads them), and where each video feature keeps each episode's
+    frames (from meta/episodes)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
     from tqdm import tqdm
@@ -147,25 +230,33 @@ def _read_v30(
     if not files:
         raise ImitationError(f"{root / 'data'}: no frames (a v3.0 dataset keeps them in data/chunk-*/file-*.parquet)")
     parts: dict[str, list[np.ndarray]] = {key: [] for key in wanted}
+    blobs: dict[str, list[Any]] = {key: [] for key in image_keys}
     for path in tqdm(files, desc="read", unit="file", disable=None if progress else True, dynamic_ncols=True):
         try:
-            table = pq.read_table(path, columns=wanted)
+            table = pq.read_table(path, columns=[*wanted, *image_keys])
             columns = {key: _column(table.column(key)) for key in wanted} if table.num_rows else {}
+            images = {key: _image_bytes(table.column(key)) for key in image_keys} if table.num_rows else {}
         except (OSError, ValueError, KeyError, TypeError, pa.ArrowException) as error:
             raise ImitationError(f"{path}: cannot read its frames ({type(error).__name__}: {str(error)[:200]})") from None
         for key, values in columns.items():
             parts[key].append(values)
-    return _concatenated(root, parts), videos
+        for key, array in images.items():
+            blobs[key].append(array)
+    return _Read(_concatenated(root, parts), _joined(blobs), videos)
 
 
-def _v30_video_files(root: Path, info: dict[str, Any], video_keys: list[str]) -> dict[str, list[str]]:
-    """Each video feature's files, as meta/episodes/*/*.parquet and info.json's video_path name them."""
+def _v30_video_files(
+    root: Path, info: dict[str, Any], video_keys: list[str]
+) -> dict[str, dict[int, tuple[str | None, float | None]]]:
+    """Each video feature's file and from_timestamp for each episode, as meta/episodes/*/*.parquet
+    and info.json's video_path name them."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     listing = root / "meta" / "episodes"
-    wanted = [f"videos/{key}/{part}" for key in video_keys for part in ("chunk_index", "file_index")]
-    rows: dict[str, list[Any]] = {name: [] for name in wanted}
+    parts = ("chunk_index", "file_index", "from_timestamp")
+    wanted = [f"videos/{key}/{part}" for key in video_keys for part in parts]
+    rows: dict[str, list[Any]] = {name: [] for name in ["episode_index", *wanted]}
     try:
         files = sorted(listing.glob("*/*.parquet"))
         if not files:
@@ -173,17 +264,28 @@ def _v30_video_files(root: Path, info: dict[str, Any], video_keys: list[str]) ->
         for path in files:
             present = [name for name in wanted if name in pq.read_schema(path).names]
             table = pq.read_table(path, columns=["episode_index", *present])
+            rows["episode_index"] += table.column("episode_index").to_pylist()
             for name in wanted:
                 rows[name] += table.column(name).to_pylist() if name in present else [None] * table.num_rows
     except (OSError, ValueError, KeyError, TypeError, pa.ArrowException) as error:
         raise _unreadable_listing(listing, "v3.0", error) from None
     template = info.get("video_path")
-    videos: dict[str, list[str]] = {}
+    videos: dict[str, dict[int, tuple[str | None, float | None]]] = {}
     for key in video_keys:
-        chunks, numbers = rows[f"videos/{key}/chunk_index"], rows[f"videos/{key}/file_index"]
-        names = [_video_file(template, video_key=key, chunk_index=c, file_index=f) for c, f in zip(chunks, numbers)]
-        videos[key] = list(dict.fromkeys(name for name in names if name is not None))
+        chunks, numbers, starts = (rows[f"videos/{key}/{part}"] for part in parts)
+        videos[key] = {
+            int(index): (_video_file(template, video_key=key, chunk_index=c, file_index=f), _seconds(start))
+            for index, c, f, start in zip(rows["episode_index"], chunks, numbers, starts)
+            if isinstance(index, int)
+        }
     return videos
+
+
+def _seconds(value: Any) -> float | None:
+    """A from_timestamp as read from meta/episodes: a finite number of seconds, else None."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value):
+        return float(value)
+    return None
 
 
 def _unreadable_listing(path: Path, version: str, error: BaseException) -> ImitationError:
@@ -242,8 +344,9 @@ def _totals_differ(info_path: Path, info: dict[str, Any], episode_index: np.ndar
 
 
 def _read_v21(
-    root: Path, info: dict[str, Any], wanted: list[str], video_keys: list[str], progress: bool
-) -> tuple[dict[str, np.ndarray], dict[str, list[str]]]:
+    root: Path, info: dict[str, Any], wanted: list[str], image_keys: list[str], video_keys: list[str], progress: bool
+) -> _Read:
+    """As `_read_v30`, from v2.1's one parquet (and one video file per video feature) per episode."""
     import pyarrow as pa
     import pyarrow.parquet as pq
     from tqdm import tqdm
@@ -264,7 +367,8 @@ def _read_v21(
     ) as error:  # ValueError: JSON, UTF-8 or a number
         raise _unreadable_listing(episodes_path, "v2.1", error) from None
     parts: dict[str, list[np.ndarray]] = {key: [] for key in wanted}
-    videos: dict[str, list[str]] = {key: [] for key in video_keys}
+    blobs: dict[str, list[Any]] = {key: [] for key in image_keys}
+    videos: dict[str, dict[int, tuple[str | None, float | None]]] = {key: {} for key in video_keys}
     for line, entry in enumerate(
         tqdm(listed, desc="read", unit="episode", disable=None if progress else True, dynamic_ncols=True), 1
     ):
@@ -276,24 +380,27 @@ def _read_v21(
                 name = _video_file(
                     info.get("video_path"), episode_chunk=index // chunk_size, video_key=key, episode_index=index
                 )
-                videos[key] += [name] if name is not None else []
+                videos[key][index] = (name, 0.0)  # one file per episode: its frames start at 0
         except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as error:
             raise ImitationError(
                 f"{episodes_path}: line {line} is not an episode entry, or data_path does not fit it "
                 f"({type(error).__name__}: {str(error)[:100]})"
             ) from None
         try:
-            table = pq.read_table(path, columns=wanted)
+            table = pq.read_table(path, columns=[*wanted, *image_keys])
             columns = {key: _column(table.column(key)) for key in wanted}
+            images = {key: _image_bytes(table.column(key)) for key in image_keys}
         except (OSError, ValueError, KeyError, TypeError, pa.ArrowException) as error:
             raise ImitationError(f"{path}: cannot read episode {index} ({type(error).__name__}: {str(error)[:200]})") from None
         if length >= 0 and table.num_rows != length:
             raise ImitationError(f"{path}: episode {index} has {table.num_rows} frames, meta/episodes.jsonl says {length}")
         for key in wanted:
             parts[key].append(columns[key])
+        for key in image_keys:
+            blobs[key].append(images[key])
     if not listed:
         raise ImitationError(f"{episodes_path}: lists no episode")
-    return _concatenated(root, parts), videos
+    return _Read(_concatenated(root, parts), _joined(blobs), videos)
 
 
 def _concatenated(root: Path, parts: dict[str, list[np.ndarray]]) -> dict[str, np.ndarray]:
@@ -301,6 +408,26 @@ def _concatenated(root: Path, parts: dict[str, list[np.ndarray]]) -> dict[str, n
         return {key: np.concatenate(values) if values else np.empty(0) for key, values in parts.items()}
     except ValueError as error:  # rows of one feature differ in width between episodes (or files)
         raise ImitationError(f"{root}: episodes disagree on a feature's shape ({str(error)[:200]})") from None
+
+
+def _joined(blobs: dict[str, list[Any]]) -> dict[str, Any]:
+    import pyarrow as pa
+
+    return {key: pa.concat_arrays(arrays) if arrays else pa.array([], pa.large_binary()) for key, arrays in blobs.items()}
+
+
+def _image_bytes(column: Any) -> Any:
+    """An image feature's column as one binary array: `datasets` stores each image as a struct of
+    its encoded `bytes` and a `path` (kept for files beside the parquet, which lerobot never
+    writes: such a row has no bytes, and is refused when its episode is decoded)."""
+    import pyarrow as pa
+
+    array = column.combine_chunks()
+    if pa.types.is_struct(array.type):
+        array = array.field("bytes")
+    if not (pa.types.is_binary(array.type) or pa.types.is_large_binary(array.type)):
+        raise TypeError(f"an image column of type {array.type}")
+    return array.cast(pa.large_binary())
 
 
 def _column(column: Any) -> np.ndarray:
@@ -333,23 +460,31 @@ def _build(
     fps: float,
     features: dict[str, Any],
     observation_keys: list[str],
+    cameras: list[Camera],
     action_key: str,
-    columns: dict[str, np.ndarray],
+    read: _Read,
+    selected: Collection[int] | None,
     warnings: list[str],
+    progress: bool,
 ) -> Converted:
+    from tqdm import tqdm
+
+    columns = read.columns
     episode_index = columns["episode_index"].reshape(-1).astype(np.int64)
     starts = np.flatnonzero(np.diff(episode_index, prepend=episode_index[0] - 1) != 0)
     bounds = np.append(starts, len(episode_index))
+    kept = _kept(root, episode_index[starts], selected)
     sidecar = _sidecar(root, [int(b - a) for a, b in zip(bounds[:-1], bounds[1:])], warnings)
-    names = {key: key.removeprefix("observation.") for key in observation_keys}
+    leaves = _Leaves(root, features, observation_keys, cameras, read)
     if sidecar is not None:
-        observation_space = space_from_json(sidecar["observation_space"])
+        observation_space = leaves.fitted(space_from_json(sidecar["observation_space"]), warnings)
         action_space = space_from_json(sidecar["action_space"])
     else:
-        leaves: dict[str, gym.Space] = {names[key]: box_for(columns[key]) for key in observation_keys}
-        observation_space = next(iter(leaves.values())) if len(leaves) == 1 else gym.spaces.Dict(leaves)
+        observation_space = leaves.inferred()
         action_space = infer_action_space(columns[action_key])
-    observations = _observation_tree(columns, observation_keys, names, observation_space, root)
+    elements = sum(math.prod(shape) for _, _, shape in space_leaves(observation_space))
+    if elements > LIMITS.sample_elements:
+        raise over_limit(f"{root}: numbers per observation (all features together)", elements, "sample_elements")
     actions = (
         cast_rows(columns[action_key], action_space, f"{root}: action")
         if not isinstance(action_space, gym.spaces.Dict)
@@ -360,13 +495,15 @@ def _build(
     rewards = columns["next.reward"].reshape(-1) if "next.reward" in columns else None
     done = columns["next.done"].reshape(-1) if "next.done" in columns else None
     episodes = []
-    for k, (start, end) in enumerate(zip(bounds[:-1], bounds[1:])):
-        steps = int(end - start) - 1
+    bar = tqdm(kept, desc="decode", unit="episode", disable=None if progress and cameras else True, dynamic_ncols=True)
+    for k in bar:
+        start, end = int(bounds[k]), int(bounds[k + 1])
+        steps = end - start - 1
         # Without the sidecar the demo stops one step before the episode ended: truncated (see `ends` below).
         facts: dict[str, Any] = sidecar["episodes"][k] if sidecar else {"terminated": False, "truncated": True}
         episodes.append(
             Episode(
-                observations=_slice(observations, start, end),
+                observations=leaves.observations(observation_space, int(episode_index[start]), start, end),
                 actions=actions[start : start + steps],
                 rewards=rewards[start : start + steps].astype(np.float64) if rewards is not None else np.zeros(steps),
                 terminated=bool(facts.get("terminated", False)),
@@ -383,10 +520,21 @@ def _build(
     if sidecar is None:
         ends = SourceEnds(
             flag="next.done",
-            steps=[int(end - start) for start, end in zip(bounds[:-1], bounds[1:])],
-            done=[bool(done[end - 1]) for end in bounds[1:]] if done is not None else None,
+            steps=[int(bounds[k + 1] - bounds[k]) for k in kept],
+            done=[bool(done[bounds[k + 1] - 1]) for k in kept] if done is not None else None,
             final_observation=False,
         )
+    observed = list(leaves.used.values())
+    metadata: dict[str, Any] = {
+        "converter": "lerobot",
+        "root": str(root),
+        "codebase_version": version,
+        "observation_features": observed,
+        "action_feature": action_key,
+        "names": {key: features[key].get("names") for key in [*observed, action_key]},
+    }
+    if selected is not None:
+        metadata["episodes"] = sorted(int(episode_index[bounds[k]]) for k in kept)
     return Converted(
         episodes=episodes,
         observation_space=observation_space,
@@ -394,37 +542,101 @@ def _build(
         source=sidecar["source"] if sidecar else f"LeRobot {version} {root}",
         env_id=sidecar["env_id"] if sidecar else "",
         dt=sidecar["dt"] if sidecar else 1.0 / float(fps),
-        metadata=sidecar["user_metadata"]
-        if sidecar
-        else {
-            "converter": "lerobot",
-            "root": str(root),
-            "codebase_version": version,
-            "observation_features": observation_keys,
-            "action_feature": action_key,
-            "names": {key: features[key].get("names") for key in [*observation_keys, action_key]},
-        },
+        metadata=sidecar["user_metadata"] if sidecar else metadata,
         warnings=warnings,
         ends=ends,
     )
 
 
-def _observation_tree(
-    columns: dict[str, np.ndarray], keys: list[str], names: dict[str, str], space: gym.Space, root: Path
-) -> Any:
-    if isinstance(space, gym.spaces.Dict):
-        by_name = {names[key]: key for key in keys}
-        missing = [name for name in space.spaces if name not in by_name]
-        if missing:
-            raise ImitationError(f"{root}: {SIDECAR} names observation key {missing[0]!r}, which has no feature")
-        return {name: cast_rows(columns[by_name[name]], sub, f"{root}: {by_name[name]}") for name, sub in space.spaces.items()}
-    return cast_rows(columns[keys[0]], space, f"{root}: {keys[0]}")
+def _kept(root: Path, indices: np.ndarray, selected: Collection[int] | None) -> list[int]:
+    """Positions of the episodes (runs of one episode_index, whose values are `indices`) to convert."""
+    if selected is None:
+        return list(range(len(indices)))
+    absent = sorted(set(selected) - set(indices.tolist()))
+    if absent:
+        raise ImitationError(
+            f"{root}: no episode {absent[0]} in the dataset "
+            f"(it holds {len(indices)}, episode_index {indices.min()} to {indices.max()})"
+        )
+    return [k for k, index in enumerate(indices.tolist()) if index in selected]
 
 
-def _slice(tree: Any, start: int, end: int) -> Any:
-    if isinstance(tree, dict):
-        return {key: _slice(sub, start, end) for key, sub in tree.items()}
-    return tree[start:end]
+class _Leaves:
+    """The observation's leaves: each named after its feature, less `observation.`, in
+    info.json's order; numeric features come from the columns, cameras are decoded per episode."""
+
+    def __init__(self, root: Path, features: dict[str, Any], numeric: list[str], cameras: list[Camera], read: _Read) -> None:
+        self.root, self.read = root, read
+        self.cameras = {camera.key: camera for camera in cameras}
+        chosen = set(numeric) | set(self.cameras)
+        self.features = {key.removeprefix("observation."): key for key in features if key in chosen}
+        # A dataset without a camera that converts: its cameras' names, for a sidecar that names one.
+        self.skipped = {
+            key.removeprefix("observation."): key
+            for key, feature in features.items()
+            if feature.get("dtype") in _VISUAL and key not in self.cameras
+        }
+        self.used: dict[str, str] = {}  # leaf name ("" for a bare space) → feature, once the space is known
+
+    def inferred(self) -> gym.Space:
+        """The space the features give: one leaf's own, or a Dict of them all."""
+        spaces: dict[str, gym.Space] = {
+            name: self.cameras[key].space if key in self.cameras else box_for(self.read.columns[key])
+            for name, key in self.features.items()
+        }
+        if len(spaces) == 1:
+            self.used = {"": next(iter(self.features.values()))}
+            return next(iter(spaces.values()))
+        self.used = dict(self.features)
+        return gym.spaces.Dict(spaces)
+
+    def fitted(self, space: gym.Space, warnings: list[str]) -> gym.Space:
+        """The sidecar's space, less the cameras whose videos the folder lacks (warned about
+        already); the cameras it does not name are skipped with a warning."""
+        if isinstance(space, gym.spaces.Dict):
+            names = [name for name in space.spaces if name not in self.skipped]
+            missing = [name for name in names if name not in self.features]
+            if missing:
+                raise ImitationError(f"{self.root}: {SIDECAR} names observation key {missing[0]!r}, which has no feature")
+            self.used = {name: self.features[name] for name in names}
+            space = gym.spaces.Dict({name: space.spaces[name] for name in names})
+        else:
+            # A bare space: the camera whose frames it holds, else the first numeric feature.
+            fits = [key for key, camera in self.cameras.items() if (space.dtype, space.shape) == (np.uint8, camera.shape)]
+            numeric = [key for key in self.features.values() if key not in self.cameras]
+            self.used = {"": (fits or numeric or list(self.cameras))[0]}
+        for key in sorted(set(self.cameras) - set(self.used.values())):
+            warnings.append(f"{self.root}: camera feature {key!r} skipped (not in {SIDECAR}'s observation space)")
+        return space
+
+    def observations(self, space: gym.Space, episode: int, start: int, end: int) -> Tree:
+        """Rows start..end (one episode) of every leaf, as `space` holds them."""
+        if isinstance(space, gym.spaces.Dict):
+            return {name: self._rows(self.used[name], sub, episode, start, end) for name, sub in space.spaces.items()}
+        return self._rows(self.used[""], space, episode, start, end)
+
+    def _rows(self, key: str, space: gym.Space, episode: int, start: int, end: int) -> np.ndarray:
+        camera = self.cameras.get(key)
+        if camera is None:
+            return cast_rows(self.read.columns[key][start:end], space, f"{self.root}: {key}")
+        if not (isinstance(space, gym.spaces.Box) and space.dtype == np.uint8 and space.shape == camera.shape):
+            raise ImitationError(
+                f"{self.root}: {SIDECAR} gives camera {key!r} a space other than its uint8 {list(camera.shape)} frames"
+            )
+        if camera.dtype == "image":
+            blobs = self.read.blobs[key].slice(start, end - start).to_pylist()
+            return decoded_images(blobs, camera, f"{self.root}: episode {episode}")
+        name, offset = self.read.videos[key][episode]
+        assert name is not None and offset is not None  # episodes whose frames cannot be found skip the camera
+        # lerobot's query: from_timestamp plus the row's timestamp (a float32, widened exactly).
+        seconds = offset + self.read.columns["timestamp"][start:end].reshape(-1).astype(np.float64)
+        return frames_at(
+            self.root / name,
+            seconds,
+            tolerance_s=TOLERANCE_S,
+            shape=camera.shape,
+            what=f"video feature {key!r}, episode {episode}",
+        )
 
 
 def _sidecar(root: Path, frames: list[int], warnings: list[str]) -> dict[str, Any] | None:

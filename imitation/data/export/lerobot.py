@@ -7,6 +7,13 @@ observation, repeats the last action (LeRobot needs one in every frame; `imitati
 names: `observation.state` (or `observation.<key>` for each key of a Dict space), `action`,
 `next.reward` (float64), `next.done`. Scalars (Discrete actions, rewards) have shape (1,).
 
+Camera observations (uint8 (H, W, 3) leaves) become LeRobot video features of shape (H, W, 3),
+encoded by lerobot's writer with its default RGB encoder (AV1 by libsvtav1, crf 30, through
+PyAV; H.264 where SVT-AV1 cannot, see `_encoder`): frames are written as PNG files first and
+each episode encoded when it is saved (lerobot's streaming encoder drops frames when it falls
+behind). A bare image observation is `observation.image`. Video is lossy: converted back, the
+frames are close to, not equal to, the demos' (48 dB PSNR on SO-101's wrist camera).
+
 `meta/imitation.json` keeps what LeRobot has no field for: the env id, the exact spaces, dt,
 and each episode's terminated/truncated flags and metadata, so that converting the dataset back
 gives the same demos. fps is 1/dt rounded to an integer (LeRobot stores an integer).
@@ -36,11 +43,25 @@ from imitation.output import OutputLock, check_target, writing
 def _feature_names(space: gym.Space, role: str) -> dict[tuple[str, ...], str]:
     if isinstance(space, gym.spaces.Dict) and any(isinstance(sub, gym.spaces.Dict) for sub in space.spaces.values()):
         raise ImitationError(f"nested Dict {role} spaces cannot be exported to LeRobot")
-    base = "observation" if role == "observation" else "action"
-    return {
-        path: (f"{base}.state" if role == "observation" else base) if path == () else f"{base}.{path[0]}"
-        for path, _, _ in space_leaves(space)
-    }
+    if role != "observation":
+        return {path: "action" if path == () else f"action.{path[0]}" for path, _, _ in space_leaves(space)}
+    bare = (
+        "observation.image"
+        if _is_camera(np.dtype(space.dtype or "float64"), tuple(space.shape or ()))
+        else "observation.state"
+    )
+    return {path: bare if path == () else f"observation.{path[0]}" for path, _, _ in space_leaves(space)}
+
+
+def _is_camera(dtype: np.dtype, shape: tuple[int, ...]) -> bool:
+    """An RGB frame, channels last: what a LeRobot video feature holds."""
+    return dtype == np.uint8 and len(shape) == 3 and shape[2] == 3
+
+
+def _feature(dtype: np.dtype, shape: tuple[int, ...], role: str) -> dict[str, Any]:
+    if role == "observation" and _is_camera(dtype, shape):
+        return {"dtype": "video", "shape": shape, "names": ["height", "width", "channel"]}
+    return {"dtype": np.dtype(dtype).name, "shape": shape or (1,), "names": None}
 
 
 def export_lerobot(
@@ -59,9 +80,12 @@ def export_lerobot(
     observation_names = _feature_names(demo.observation_space, "observation")
     action_names = _feature_names(demo.action_space, "action")
     features: dict[str, dict[str, Any]] = {}
-    for space, names in ((demo.observation_space, observation_names), (demo.action_space, action_names)):
+    for space, names, role in (
+        (demo.observation_space, observation_names, "observation"),
+        (demo.action_space, action_names, "action"),
+    ):
         for path, dtype, shape in space_leaves(space):
-            features[names[path]] = {"dtype": np.dtype(dtype).name, "shape": tuple(shape) or (1,), "names": None}
+            features[names[path]] = _feature(dtype, tuple(shape), role)
     features["next.reward"] = {"dtype": "float64", "shape": (1,), "names": None}
     features["next.done"] = {"dtype": "bool", "shape": (1,), "names": None}
     fps = max(1, round(1.0 / demo.dt))
@@ -99,22 +123,32 @@ def _write(
         with lerobot_quietly():
             from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+            videos = [tuple(f["shape"]) for f in features.values() if f["dtype"] == "video"]
             dataset = LeRobotDataset.create(
-                repo_id=f"local/{out.name}", fps=fps, features=features, root=partial, use_videos=False
+                repo_id=f"local/{out.name}",
+                fps=fps,
+                features=features,
+                root=partial,
+                use_videos=bool(videos),
+                # The frames' PNG files are written by threads while the next frames are gathered.
+                image_writer_threads=4 if videos else 0,
+                rgb_encoder=_encoder(fps, videos),
             )
             try:
-                for episode in tqdm(
-                    demo,
-                    total=len(demo),
-                    desc="export",
-                    unit="episode",
-                    disable=None if progress else True,
-                    dynamic_ncols=True,
+                for index, episode in enumerate(
+                    tqdm(
+                        demo,
+                        total=len(demo),
+                        desc="export",
+                        unit="episode",
+                        disable=None if progress else True,
+                        dynamic_ncols=True,
+                    )
                 ):
                     for frame in _frames(episode, observation_names, action_names, features, task):
                         dataset.add_frame(frame)
                         frames += 1
-                    dataset.save_episode()
+                    _save_episode(dataset, demo, index)
             finally:
                 dataset.finalize()
         (partial / SIDECAR).write_text(
@@ -150,6 +184,29 @@ def _write(
     return frames
 
 
+def _encoder(fps: int, shapes: list[tuple[int, ...]]) -> Any:
+    """lerobot's default video encoder (AV1 by SVT-AV1, None here) where it works, else H.264 in
+    4:4:4 (any frame size, odd ones too): SVT-AV1 refuses more than 240 fps, and (as PyAV 15.1
+    builds it) dies of SIGFPE on frames narrower than 25 pixels (measured)."""
+    if fps <= 240 and all(shape[1] >= 32 for shape in shapes):
+        return None
+    from lerobot.configs import RGBEncoderConfig
+
+    return RGBEncoderConfig(vcodec="h264", pix_fmt="yuv444p")
+
+
+def _save_episode(dataset: Any, demo: DemoFile, index: int) -> None:
+    """lerobot's save_episode (which encodes the episode's videos), its failures one line."""
+    import av
+
+    try:
+        dataset.save_episode()
+    except (av.error.FFmpegError, RuntimeError, ValueError, OSError) as error:
+        raise ImitationError(
+            f"{demo.path}: episode {index}: lerobot could not save it ({type(error).__name__}: {str(error)[:200]})"
+        ) from None
+
+
 def _frames(episode: Episode, observation_names: dict, action_names: dict, features: dict, task: str) -> Any:
     """The T + 1 frames of one episode, as lerobot's add_frame wants them (arrays of the feature shape)."""
     steps = len(episode)
@@ -157,6 +214,8 @@ def _frames(episode: Episode, observation_names: dict, action_names: dict, featu
     actions = dict(tree_leaves(episode.actions))
 
     def shaped(value: npt.ArrayLike, name: str) -> np.ndarray:
+        if features[name]["dtype"] == "video":
+            return np.asarray(value)  # uint8 (H, W, 3) already
         return np.asarray(value, dtype=features[name]["dtype"]).reshape(features[name]["shape"])
 
     for t in range(steps + 1):

@@ -1,0 +1,84 @@
+"""LeRobot camera features (dtype "video" or "image") as image leaves of the observation.
+
+A camera becomes a uint8 Box(0, 255) of shape (H, W, C), channels last, whatever order info.json
+declares its shape in (lerobot writes (H, W, C) with names height/width/channel; older datasets
+(C, H, W) with names channels/height/width). Video features are decoded from their mp4 files
+(`imitation.data.convert.video`); image features hold one PNG (or JPEG) per frame in the
+parquet, decoded with Pillow.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from imitation.errors import ImitationError
+from imitation.limits import LIMITS, over_limit
+
+_MODES = {1: "L", 3: "RGB", 4: "RGBA"}  # Pillow's mode for each channel count
+
+
+@dataclass(frozen=True)
+class Camera:
+    """One camera feature: its LeRobot name, "video" or "image", and its frames' (H, W, C)."""
+
+    key: str
+    dtype: str
+    shape: tuple[int, int, int]
+
+    @property
+    def space(self) -> gym.spaces.Box:
+        return gym.spaces.Box(0, 255, shape=self.shape, dtype=np.uint8)
+
+
+def camera_for(info_path: Path, key: str, feature: dict[str, Any]) -> Camera | str:
+    """The camera info.json describes, or why it is skipped (a warning). A frame larger than the
+    limit `sample_elements` is refused: each frame is allocated whole."""
+    dtype, shape, names = feature.get("dtype"), feature.get("shape"), feature.get("names")
+    if not (isinstance(shape, list | tuple) and len(shape) == 3 and all(_size(n) for n in shape)):
+        return f"{info_path}: {dtype} feature {key!r} skipped (its shape {str(shape)[:40]} is not that of a frame)"
+    channels_first = isinstance(names, list | tuple) and len(names) == 3 and str(names[0]).startswith("channel")
+    height, width, channels = (shape[1], shape[2], shape[0]) if channels_first else tuple(shape)
+    if math.prod(shape) > LIMITS.sample_elements:
+        raise over_limit(f"{info_path}: {dtype} feature {key!r}: numbers per frame", math.prod(shape), "sample_elements")
+    video_info = feature.get("info") or feature.get("video_info") or {}
+    if dtype == "video" and isinstance(video_info, dict) and video_info.get("video.is_depth_map"):
+        return f"{info_path}: video feature {key!r} skipped (depth-map videos are not supported)"
+    if channels not in _MODES or (dtype == "video" and channels != 3):
+        return f"{info_path}: {dtype} feature {key!r} skipped ({channels} channels; cameras of 1, 3 or 4 are, videos of 3)"
+    return Camera(key, str(dtype), (height, width, channels))
+
+
+def _size(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value > 0
+
+
+def decoded_images(blobs: list[Any], camera: Camera, what: str) -> np.ndarray:
+    """The frames of an image feature: `blobs` holds each frame's encoded bytes (None where the
+    parquet row has none). `what` names the dataset and episode in errors."""
+    from PIL import Image, UnidentifiedImageError
+
+    out = np.empty((len(blobs), *camera.shape), dtype=np.uint8)
+    for row, blob in enumerate(blobs):
+        try:
+            if not isinstance(blob, bytes):
+                raise ValueError("the row holds no image bytes")
+            with Image.open(io.BytesIO(blob)) as image:
+                # Image.open reads the header alone: a frame of another size is refused before it is decompressed.
+                if image.size != (camera.shape[1], camera.shape[0]):
+                    raise ValueError(f"the image is {image.size[0]}x{image.size[1]}")
+                pixels = np.asarray(image.convert(_MODES[camera.shape[2]]))
+            out[row] = pixels.reshape(pixels.shape[:2] + (-1,))
+        except (OSError, ValueError, UnidentifiedImageError, Image.DecompressionBombError) as error:
+            raise ImitationError(
+                f"{what}: image feature {camera.key!r}, frame {row}: cannot decode it as a "
+                f"{camera.shape[1]}x{camera.shape[0]} image with {camera.shape[2]} channels "
+                f"({type(error).__name__}: {str(error)[:120]})"
+            ) from None
+    return out
