@@ -229,6 +229,14 @@ def _finite(text: str) -> float:
     return value
 
 
+def _megabytes(text: str) -> int:
+    """A size in megabytes (MiB, fractions allowed) → bytes; at least one byte."""
+    value = _finite(text)
+    if value * 2**20 < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive number of megabytes, got {text[:100]!r}")
+    return int(value * 2**20)
+
+
 def _hidden_sizes(text: str) -> list[int]:
     if text == "linear":
         return []
@@ -455,7 +463,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 # line's vocabulary meets the learners'. `_fields` builds configs from it, and a ConfigError that
 # names a field is reported with the flag the user typed.
 FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
-    "record": {"record": {"episodes": "--episodes"}},
+    "record": {"record": {"episodes": "--episodes", "frame_stack": "--frame-stack", "action_noise": "--action-noise"}},
     "train ppo": {
         "PPOConfig": {
             "total_steps": "--steps",
@@ -515,6 +523,7 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "frame_stack": "--frame-stack",
             "random_shift": "--random-shift",
             "observation_keys": "--observation-keys",
+            "stream_memory": "--stream-memory",
             "seed": "--seed",
             "device": "--device",
         },
@@ -1026,6 +1035,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="K,K",
         help="Dict observations: the keys the policy reads (default: the frames alone for demos recorded with --pixels, "
         "every key otherwise)",
+    )
+    bc.add_argument(
+        "--stream-memory",
+        type=_megabytes,
+        metavar="MB",
+        help="stream shuffled batches from the demos, holding at most MB megabytes of decoded transitions (plus one "
+        "episode), for image datasets larger than memory; no baseline scores then (default: load everything)",
     )
     bc.add_argument("--seed", type=int, metavar="S", help="seed (default: 0)")
     bc.add_argument("--device", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")

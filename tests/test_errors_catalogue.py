@@ -561,9 +561,15 @@ CASE_LIST = [
     # command line, environments, experts
     case("cli-1", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "0", "--out", i.path("e.mcap")], expect="--episodes must"),
     case("cli-2", lambda i: ["export", DATASETS / "CartPole-v1.mcap", "--to", "hdf5", i.path("x")]),
+    case("cli-5", lambda i: ["record", "--env", "CartPole-v1", "--pixels", "84", "--out", i.path("c5.mcap")]),
+    case("cli-6", lambda i: ["record", "--env", "CartPole-v1", "--pixels", "84x84", "--crop", "1,2,3", "--out", i.path("c6.mcap")]),
+    case("cli-7", lambda i: ["record", "--env", "CartPole-v1", "--pixels", "84x84", "--crop", "0,0,0,5", "--out", i.path("c7.mcap")]),
+    case("cli-8", lambda i: ["record", "--env", "CartPole-v1", "--action-noise", "2", "--out", i.path("c8.mcap")], expect="--action-noise must"),
     case("cli-4 demo-d13", lambda i: ["info", i.cut_at_record("cut-header.mcap", 4)]),
     case("env-1", lambda i: ["record", "--env", "NoSuchEnv-v0", "--out", i.path("n.mcap")]),
     case("env-3", lambda i: ["train", "irl", "--method", "mce", "--env", "CartPole-v1", "--demos", DATASETS / "CartPole-v1.mcap", "--out", i.root / "irl-cp"]),
+    case("env-8", lambda i: ["record", "--env", "CartPole-v1", "--pixels", "8x8", "--crop", "0,0,1000,1000", "--episodes", "1", "--quiet",
+                             "--out", i.path("e8.mcap")]),
     case("expert-1", lambda i: ["record", "--env", "CartPole-v1", "--expert", "oracle", "--out", i.path("o.mcap")]),
     case("expert-2", lambda i: ["record", "--env", "Acrobot-v1", "--expert", "scripted", "--out", i.path("a.mcap")]),
     case("expert-3", lambda i: ["record", "--env", "Pendulum-v1", "--expert", "keyboard", "--out", i.path("k.mcap")]),
@@ -667,6 +673,21 @@ CASE_LIST = [
     case("dagger-2", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--episodes-per-round", "0", "--out", i.root / "d2-episodes"],
          variant="episodes", expect="--episodes-per-round must"),
     case("dagger-3", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--beta-decay", "2", "--out", i.root / "d3"], expect="--beta-decay must"),
+    case("train-31", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--frame-stack", "0", "--out", i.root / "t31"), expect="--frame-stack must"),
+    case("train-32", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--random-shift", "-1", "--out", i.root / "t32"), expect="--random-shift must"),
+    case("train-33", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--frame-stack", "2", "--out", i.root / "t33"), expect="--frame-stack stacks"),
+    case("train-34", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--frame-stack", "2", "--out", i.root / "t34"],
+         expect="--frame-stack stacks"),
+    case("train-35", lambda i: _bc(i.episodes_file("t35.mcap", _cartpole_episodes(), "CartPole-v1.mcap", metadata={"pixels": {"size": [84]}}))),
+    case("train-36", lambda i: _bc(i.episodes_file("t36.mcap", _cartpole_episodes(), "CartPole-v1.mcap",
+                                                   metadata={"pixels": {"size": [84, 84], "grayscale": False, "frame_stack": 0}}))),
+    case("train-37", lambda i: ["train", "bc", "--demos", _dict_demos(i), "--observation-keys", "a,c", "--epochs", "1", "--quiet", "--out", i.root / "t37"]),
+    case("train-38", lambda i: ["train", "bc", "--demos", _multibinary_demos(i), "--epochs", "1", "--quiet", "--out", i.root / "t38"]),
+    case("train-40", lambda i: ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--pixels", "8x8", "--rounds", "1", "--episodes-per-round", "1",
+                                "--epochs", "1", "--quiet", "--out", i.root / "t40"]),
+    case("train-43", lambda i: ["train", "bc", "--demos", DATASETS / "Pendulum-v1.mcap", "--env", "Pendulum-v1", "--previous-action", "on", "--stream-memory", "64",
+                                "--epochs", "1", "--quiet", "--out", i.root / "t43"], expect="--stream-memory streams"),
+    case("train-44", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--stream-memory", "0.001", "--batch-size", "256", "--out", i.root / "t44")),
     case("irl-1", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--discount", "0", "--out", i.root / "i1"],
          expect="--discount must"),
     case("irl-6", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--iterations", "0", "--out", i.root / "i6"],
@@ -705,7 +726,7 @@ CASE_LIST = [
     case("run-11", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--out", i.root / "r11-ppo", "--reward", i.policy_run("r11")]),
     case("run-12", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--out", i.root / "r12-ppo",
                               "--reward", i.reward_run("r12", weights=lambda t: {k: v.T.contiguous() if v.dim() == 2 else v for k, v in t.items()})]),
-    case("run-14", lambda i: ["train", "bc", "--demos", _dict_demos(i), "--epochs", "1", "--out", i.root / "r14"]),
+    case("run-14", lambda i: ["train", "bc", "--demos", _multidiscrete_demos(i), "--epochs", "1", "--out", i.root / "r14"]),
     # stable-baselines3 zips
     case("sb3-1", lambda i: _sb3(i.text("not.zip", "not a zip"))),
     case("sb3-2", lambda i: _sb3(i.sb3_zip("no-pth.zip", members={"data": b"{}"}))),
@@ -837,6 +858,13 @@ CASE_LIST = [
     case("map-23", _map_case("m23.yaml", episodes={"split": "file", "seconds": 1}), testdata=True),
     case("map-24", _map_case("m24.yaml", episodes={"split": "gap"}), testdata=True),
     case("map-25", _map_case("m25.yaml", episodes={"split": "topic"}), testdata=True),
+    case("map-27", _entry_case("m27.yaml", size=[4, 4]), testdata=True),
+    case("map-28", _map_case("m28.yaml", action=[{"topic": "/turtle1/cmd_vel", "image": "cam"}]), testdata=True),
+    case("map-29", _map_case("m29.yaml", observation=[{"topic": "/turtle1/pose", "image": "state"}]), testdata=True),
+    case("map-30", _map_case("m30.yaml", observation=[{"topic": "/turtle1/pose", "image": "cam", "default": 0}]), testdata=True),
+    case("map-31", _map_case("m31.yaml", observation=[{"topic": "/turtle1/pose", "image": "cam", "align": "interpolate"}]), testdata=True),
+    case("map-32", _map_case("m32.yaml", observation=[{"topic": "/turtle1/pose", "image": "cam", "size": [480]}]), testdata=True),
+    case("map-33", _map_case("m33.yaml", observation=[{"topic": "/turtle1/pose", "image": "cam"}, {"topic": "/turtle1/cmd_vel", "image": "cam"}]), testdata=True),
     # ROS conversion
     case("ros-4", lambda i: _convert(TESTDATA / "ros2" / "rosbag2_tests" / "bag_with_topics_and_service_events", "--map", i.text("r4.yaml", yaml.safe_dump(
         {"rate_hz": 10, "observation": [{"topic": "/test_service1/_service_event", "fields": ["x"]}], "action": [{"topic": "/test_service1/_service_event", "fields": ["x"]}]})),
@@ -849,6 +877,7 @@ CASE_LIST = [
         testdata=True),
     case("ros-8", lambda i: _convert(TURTLE, "--map", i.turtle_map("r8.yaml", action=[{"topic": "/turtle1/cmd_vel", "fields": ["linear.x", "angular.z"], "default": [0.0, 0.0, 0.0]}])), testdata=True),
     case("ros-10", _map_case("r10.yaml", time="header"), testdata=True),
+    case("ros-15", _map_case("r15.yaml", observation=[{"topic": "/turtle1/pose", "image": "cam"}]), testdata=True),
     # export
     case("export-2", lambda i: ["export", i.episodes_file("nothing.mcap", [], "CartPole-v1.mcap"), "--to", "lerobot", i.root / "nothing-lerobot"]),
     case("export-3", lambda i: ["export", DATASETS / "CartPole-v1.mcap", "--to", "lerobot", i.text("full/keep.txt", "x").parent]),
@@ -961,6 +990,26 @@ def _dict_demos(i: Inputs) -> Path:
     space = gym.spaces.Dict({"a": gym.spaces.Box(-1, 1, (2,), np.float32), "b": gym.spaces.Box(-1, 1, (1,), np.float32)})
     episode = Episode(observations={"a": np.zeros((4, 2), np.float32), "b": np.zeros((4, 1), np.float32)}, actions=np.zeros((3, 1), np.float32), rewards=np.zeros(3))
     return write_episodes(i.path("dict-obs.mcap"), [episode, episode], env_id="", observation_space=space, action_space=gym.spaces.Box(-1, 1, (1,), np.float32))
+
+
+def _multidiscrete_demos(i: Inputs) -> Path:
+    """MultiDiscrete observations (not in a Dict), which no policy reads."""
+    from imitation.data.mcap.writer import write_episodes
+    from imitation.data.types import Episode
+
+    episode = Episode(observations=np.zeros((4, 2), np.int64), actions=np.zeros((3, 1), np.float32), rewards=np.zeros(3))
+    return write_episodes(i.path("multidiscrete-obs.mcap"), [episode, episode], env_id="", observation_space=gym.spaces.MultiDiscrete([3, 3]),
+                          action_space=gym.spaces.Box(-1, 1, (1,), np.float32))
+
+
+def _multibinary_demos(i: Inputs) -> Path:
+    """Dict observations with a MultiBinary leaf, which no policy reads."""
+    from imitation.data.mcap.writer import write_episodes
+    from imitation.data.types import Episode
+
+    space = gym.spaces.Dict({"a": gym.spaces.Box(-1, 1, (2,), np.float32), "keys": gym.spaces.MultiBinary(3)})
+    episode = Episode(observations={"a": np.zeros((4, 2), np.float32), "keys": np.zeros((4, 3), np.int8)}, actions=np.zeros((3, 1), np.float32), rewards=np.zeros(3))
+    return write_episodes(i.path("multibinary-obs.mcap"), [episode, episode], env_id="", observation_space=space, action_space=gym.spaces.Box(-1, 1, (1,), np.float32))
 
 
 # ------------------------------------------------------------------------------------------------

@@ -10,8 +10,10 @@ Mutations: bit flips, interesting bytes and integers at record boundaries, byte 
 deletion, truncation, splicing two seeds; and, aware of the formats, JSON and YAML documents
 mutated node by node (types swapped, numbers pushed to extremes, keys dropped, deep nesting),
 MCAP files re-written record by record with mutated metadata, channels, schemas and messages
-(with valid checksums, so the semantic checks behind them are reached), npz archives and
-parquet tables re-written with arrays and columns dropped, retyped, reshaped or truncated.
+(with valid checksums, so the semantic checks behind them are reached; image frames edited
+inside their Foxglove protobuf message: the PNG or JPEG bytes, PNG chunk CRCs made valid again, the
+format, size, step and encoding), npz archives and parquet tables re-written with arrays and
+columns dropped, retyped, reshaped or truncated.
 
 Input k of a target is mutated with random.Random(f"{target}:{seed}:{k}"), so a run is
 deterministic and any input can be regenerated from (target, seed, k).
@@ -281,10 +283,15 @@ def rewrite_mcap(data: bytes, rng: random.Random) -> bytes:
             if key is not None:
                 seen.add(key)
     body = unique
+    # Channels carrying Foxglove image messages (demo files' image leaves): their frames are edited
+    # inside the protobuf message, so that the PNG and JPEG payloads themselves are reached.
+    schemas = {r.id: r.name for r in body if isinstance(r, Schema)}
+    images = {r.id: schemas[r.schema_id] for r in body if isinstance(r, Channel) and schemas.get(r.schema_id, "").startswith("foxglove.")}
+    framed = [i for i, r in enumerate(body) if isinstance(r, Message) and r.channel_id in images]
     for _ in range(rng.choice((1, 1, 2, 3))):
         if not body:
             break
-        index = rng.randrange(len(body))
+        index = rng.choice(framed) if framed and rng.random() < 0.5 else rng.randrange(len(body))
         record = body[index]
         roll = rng.random()
         if roll < 0.08:
@@ -327,7 +334,9 @@ def rewrite_mcap(data: bytes, rng: random.Random) -> bytes:
                                  encoding=record.encoding if rng.random() < 0.9 else rng.choice(("ros2msg", "ros2idl", "jsonschema", "")), data=new)
         elif isinstance(record, Message):
             payload = record.data
-            if payload[:1] == b"{" and rng.random() < 0.7:
+            if record.channel_id in images and rng.random() < 0.8:
+                payload = mutate_image_message(payload, images[record.channel_id], rng)
+            elif payload[:1] == b"{" and rng.random() < 0.7:
                 payload = mutate_json_text(payload, rng)
             elif rng.random() < 0.7:
                 payload = mutate_bytes(payload, rng)
@@ -346,6 +355,68 @@ def rewrite_mcap(data: bytes, rng: random.Random) -> bytes:
             writer.add_message(record.channel_id, log_time=record.log_time, data=record.data, publish_time=record.publish_time, sequence=record.sequence)
     writer.finish()
     return out.getvalue()
+
+
+def png_chunk_offsets(data: bytes) -> list[int]:
+    """Where a PNG's chunks start (length, type), for biased byte mutations; [] if it is no PNG."""
+    if not data.startswith(b"\x89PNG\r\n\x1a\n"):
+        return []
+    offsets, at = [], 8
+    while at + 12 <= len(data):
+        offsets.append(at)
+        (length,) = struct.unpack_from(">I", data, at)
+        at += 12 + length
+    return offsets
+
+
+def fix_png_crcs(data: bytes) -> bytes:
+    """Recompute every chunk's CRC, so a mutated PNG gets past the checksums to its header fields
+    and zlib stream."""
+    import zlib
+
+    out, at = bytearray(data), 8
+    while at + 12 <= len(out):
+        (length,) = struct.unpack_from(">I", out, at)
+        end = at + 8 + length
+        if end + 4 > len(out):
+            break
+        struct.pack_into(">I", out, end, zlib.crc32(bytes(out[at + 4:end])))
+        at = end + 4
+    return bytes(out)
+
+
+def mutate_image_message(payload: bytes, schema: str, rng: random.Random) -> bytes:
+    """A foxglove.CompressedImage or RawImage message with its fields edited: most often the
+    picture's bytes (PNG chunks with their CRCs made valid again, JPEG markers, raw rows), else its
+    format, size, encoding or step."""
+    if schema == "foxglove.RawImage":
+        from foxglove_schemas_protobuf.RawImage_pb2 import RawImage as Class
+    elif schema == "foxglove.CompressedImage":
+        from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage as Class
+    else:
+        return mutate_bytes(payload, rng)
+    message = Class()
+    try:
+        message.ParseFromString(payload)
+    except Exception:  # noqa: BLE001 - an earlier edit broke it: damage the bytes instead
+        return mutate_bytes(payload, rng)
+    roll = rng.random()
+    if roll < 0.7 or not message.data:
+        data = bytes(message.data)
+        hot = png_chunk_offsets(data) or [i for i in range(len(data) - 1) if data[i] == 0xFF and data[i + 1] not in (0, 0xFF)][:64]
+        data = mutate_bytes(data, rng, hot=hot) if data else bytes(rng.randrange(256) for _ in range(rng.randrange(64)))
+        if png_chunk_offsets(data) and rng.random() < 0.6:
+            data = fix_png_crcs(data)
+        message.data = data
+    elif schema == "foxglove.CompressedImage":
+        message.format = rng.choice(("png", "jpeg", "PNG", "jpg", "raw", "", "webp", _string_variant(message.format, rng)))
+    else:
+        edit = rng.choice(("width", "height", "step", "encoding"))
+        if edit == "encoding":
+            message.encoding = rng.choice(("mono8", "rgb8", "rgba8", "bgr8", "mono16", "16UC1", "", _string_variant(message.encoding, rng)))
+        else:
+            setattr(message, edit, rng.choice((0, 1, getattr(message, edit) + 1, max(0, getattr(message, edit) - 1), 2**31 - 1, 2**32 - 1)))
+    return message.SerializeToString()
 
 
 def _register(writer: Any, record: Any) -> None:
@@ -531,7 +602,33 @@ def demo_seeds(work: Path) -> list[Files]:
     path = work / "dict.mcap"
     write_episodes(path, episodes, env_id="Fuzz-v0", observation_space=observation_space, action_space=action_space, block_steps=3, compression="none")
     seeds.append({"demo.mcap": path.read_bytes()})
+    seeds.extend({"demo.mcap": image_demo(work / f"images-{codec}.mcap", codec).read_bytes()} for codec in ("png", "jpeg", "raw"))
     return seeds
+
+
+def image_demo(path: Path, codec: str) -> Path:
+    """Image observations, one Foxglove image message per frame (format version 2): an RGB
+    (16, 16, 3) and a mono (8, 8) leaf beside a float vector, frames written with `codec`,
+    uncompressed so that the mutations reach the frames' bytes."""
+    import gymnasium as gym
+    import numpy as np
+
+    from imitation.data.mcap.writer import write_episodes
+    from imitation.data.types import Episode
+
+    observation_space = gym.spaces.Dict({"rgb": gym.spaces.Box(0, 255, (16, 16, 3), np.uint8), "mono": gym.spaces.Box(0, 255, (8, 8), np.uint8),
+                                         "vec": gym.spaces.Box(-1, 1, (3,), np.float32)})
+    rng = np.random.default_rng(1)
+    episodes = []
+    for i, steps in enumerate((4, 6)):
+        ramp = np.linspace(0, 255, 16 * 16 * 3).reshape(16, 16, 3)  # smooth pictures, as cameras see them
+        episodes.append(Episode(
+            observations={"rgb": np.stack([np.roll(ramp, t, axis=1) for t in range(steps + 1)]).astype(np.uint8),
+                          "mono": rng.integers(0, 256, (steps + 1, 8, 8), dtype=np.uint8), "vec": rng.uniform(-1, 1, (steps + 1, 3)).astype(np.float32)},
+            actions=rng.integers(0, 2, steps), rewards=np.ones(steps), terminated=i == 0, truncated=i == 1,
+        ))
+    return write_episodes(path, episodes, env_id="FuzzPixels-v0", observation_space=observation_space, action_space=gym.spaces.Discrete(2),
+                          compression="none", image_codec=codec)
 
 
 def demo_mutate(files: Files, rng: random.Random, seeds: list[Files]) -> Files:
@@ -693,15 +790,45 @@ def lerobot_seeds(work: Path) -> list[Files]:
     for index in range(keep):
         name = f"data/chunk-000/episode_{index:06d}.parquet"
         v21["ds/" + name] = (g1 / name).read_bytes()
-    v30 = _read_folder(TESTDATA / "lerobot" / "so101_v30", prefix="ds/")  # videos too: the converter checks they are there
-    return [v21, v30]
+    # so101's 1,782-frame AV1 camera takes seconds to decode: without its videos/ folder the
+    # converter skips the camera (with a warning) and converts the state; the cameras are fuzzed
+    # on a small dataset of our own export instead.
+    v30 = _read_folder(TESTDATA / "lerobot" / "so101_v30", prefix="ds/", skip=("videos",))
+    return [v21, v30, _read_folder(small_lerobot_video(work), prefix="ds/")]
+
+
+def small_lerobot_video(work: Path) -> Path:
+    """A LeRobot v3.0 dataset with a camera: 2 episodes × 10 steps of a (32, 48, 3) image leaf
+    beside a float vector, exported as `cli.py export --to lerobot` does (H.264 for frames this
+    small), built once per work folder."""
+    import gymnasium as gym
+    import numpy as np
+
+    from imitation.data.export.lerobot import export_lerobot
+    from imitation.data.mcap.writer import write_episodes
+    from imitation.data.types import Episode
+
+    out = work / "lerobot-video"
+    if (out / "meta" / "info.json").exists():
+        return out
+    observation_space = gym.spaces.Dict({"front": gym.spaces.Box(0, 255, (32, 48, 3), np.uint8), "state": gym.spaces.Box(-1, 1, (2,), np.float32)})
+    rng = np.random.default_rng(2)
+    ramp = np.linspace(0, 255, 32 * 48 * 3).reshape(32, 48, 3)
+    episodes = [Episode(observations={"front": np.stack([np.roll(ramp, 2 * t, axis=1) for t in range(11)]).astype(np.uint8),
+                                      "state": rng.uniform(-1, 1, (11, 2)).astype(np.float32)},
+                        actions=rng.uniform(-1, 1, (10, 2)).astype(np.float32), rewards=np.zeros(10), terminated=True, truncated=False)
+                for _ in range(2)]
+    demo = write_episodes(work / "lerobot-video.mcap", episodes, env_id="FuzzCamera-v0", observation_space=observation_space,
+                          action_space=gym.spaces.Box(-1, 1, (2,), np.float32))
+    export_lerobot(demo, out, progress=False)
+    return out
 
 
 def lerobot_mutate(files: Files, rng: random.Random, seeds: list[Files]) -> Files:
     files = dict(files)
 
     def weight(name: str) -> float:
-        return 0.0 if "/videos/" in name else 6.0 if name.endswith("info.json") else 3.0 if name.endswith(".parquet") else 1.0
+        return 3.0 if name.endswith(".mp4") else 6.0 if name.endswith("info.json") else 3.0 if name.endswith(".parquet") else 1.0
 
     name = _pick(files, rng, weight)
     data = files[name]
@@ -811,7 +938,46 @@ def ros2_seeds(work: Path) -> list[Files]:
         if bag_map is not None:
             files["map.yaml"] = _yaml(bag_map)
         seeds.append(files)
+    # Cameras: a sensor_msgs/Image and a CompressedImage (PNG) topic, mapped with image entries.
+    camera_map = {"rate_hz": 10, "observation": [{"topic": "/joint", "fields": ["position"]}, {"topic": "/camera/raw", "image": "front", "size": [8, 12]},
+                                                 {"topic": "/camera/compressed", "image": "wrist"}],
+                  "action": [{"topic": "/cmd", "fields": ["data"]}]}
+    seeds.append({**_read_folder(camera_bag(work / "camera"), prefix="bag/"), "map.yaml": _yaml(camera_map)})
     return seeds
+
+
+def camera_bag(folder: Path) -> Path:
+    """A ROS 2 MCAP bag (rosbag2 folder) of 6 steps at 10 Hz: 8x12 frames on a raw rgb8 topic with
+    padded rows and a PNG CompressedImage topic, a joint state and a command."""
+    import numpy as np
+    from PIL import Image
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    types = store.types
+    start = 1_700_000_000 * 10**9
+    shutil.rmtree(folder, ignore_errors=True)
+    with Writer(folder, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        topics = {topic: writer.add_connection(topic, msgtype, typestore=store) for topic, msgtype in (
+            ("/camera/raw", "sensor_msgs/msg/Image"), ("/camera/compressed", "sensor_msgs/msg/CompressedImage"),
+            ("/joint", "sensor_msgs/msg/JointState"), ("/cmd", "std_msgs/msg/Float64"))}
+
+        def write(topic: str, time_ns: int, message: Any) -> None:
+            writer.write(topics[topic], time_ns, store.serialize_cdr(message, message.__msgtype__))
+
+        for i in range(6):
+            t = start + i * 10**8
+            header = types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9), frame_id="camera")
+            pixels = ((np.arange(8 * 12 * 3).reshape(8, 12, 3) * 3 + 20 * i) % 256).astype(np.uint8)
+            rows = np.concatenate([pixels.reshape(8, -1), np.full((8, 4), 0xAB, np.uint8)], axis=1)
+            write("/camera/raw", t, types["sensor_msgs/msg/Image"](header=header, height=8, width=12, encoding="rgb8", is_bigendian=0, step=rows.shape[1], data=rows.reshape(-1)))
+            png = io.BytesIO()
+            Image.fromarray(pixels).save(png, format="PNG")
+            write("/camera/compressed", t, types["sensor_msgs/msg/CompressedImage"](header=header, format="png", data=np.frombuffer(png.getvalue(), np.uint8)))
+            write("/joint", t + 10**6, types["sensor_msgs/msg/JointState"](header=header, name=["a"], position=np.array([0.1 * i]), velocity=np.zeros(1), effort=np.zeros(0)))
+            write("/cmd", t + 2 * 10**6, types["std_msgs/msg/Float64"](data=float(i % 3)))
+    return folder
 
 
 def ros2_mutate(files: Files, rng: random.Random, seeds: list[Files]) -> Files:
@@ -1018,11 +1184,11 @@ def cli_seeds(work: Path) -> list[Files]:
 TARGETS = {
     target.name: target
     for target in (
-        Target("demo", "MCAP demo reader + info + bulk loader (bundled datasets/*.mcap and a Dict-space file)", demo_seeds, demo_mutate, demo_run),
+        Target("demo", "MCAP demo reader + info + bulk loader (bundled datasets/*.mcap, a Dict-space file, image files: png, jpeg, raw)", demo_seeds, demo_mutate, demo_run),
         Target("run", "run directories: load_policy and load_reward (config.json + model.safetensors)", run_seeds, run_mutate, run_run),
         Target("npz", "npz converter (SB GAIL and imitation layouts)", npz_seeds, npz_mutate, npz_run, needs_testdata=True),
-        Target("lerobot", "LeRobot converter (v2.1 and v3.0: meta/*.json(l), parquet)", lerobot_seeds, lerobot_mutate, lerobot_run, needs_testdata=True),
-        Target("ros2", "ROS 2 MCAP bags: inspect + convert (files and rosbag2 folders)", ros2_seeds, ros2_mutate, ros2_run, needs_testdata=True),
+        Target("lerobot", "LeRobot converter (v2.1 and v3.0: meta/*.json(l), parquet, an H.264 camera video)", lerobot_seeds, lerobot_mutate, lerobot_run, needs_testdata=True),
+        Target("ros2", "ROS 2 MCAP bags: inspect + convert (files and rosbag2 folders, a camera bag: Image and CompressedImage)", ros2_seeds, ros2_mutate, ros2_run, needs_testdata=True),
         Target("ros1", "ROS 1 bag: inspect + convert", ros1_seeds, ros1_mutate, ros1_run, needs_testdata=True),
         Target("sqlite", "rosbag2 sqlite: inspect + convert (.db3 and metadata.yaml)", sqlite_seeds, sqlite_mutate, sqlite_run, needs_testdata=True),
         Target("map", "conversion-map YAML: load_map + convert with it", map_seeds, map_mutate, map_run, needs_testdata=True),

@@ -39,6 +39,7 @@ from imitation.checkpoints import (
     unprefixed,
 )
 from imitation.data.loader import MinibatchLoader, TransitionTensors, resolve_device
+from imitation.data.stream import StreamingLoader
 from imitation.errors import ConfigError, ImitationError
 from imitation.policies import ActorCritic
 
@@ -80,6 +81,10 @@ class BCConfig:
     random_shift: int = 4
     observation_keys: list[str] | None = None
     cnn: dict[str, Any] | None = None
+    # Bytes of decoded transitions a streaming run may hold (imitation.data.stream): None loads
+    # the demos into memory; a number streams shuffled batches from them, for image datasets
+    # larger than memory.
+    stream_memory: int | None = None
     seed: int = 0
     device: str = "auto"
     threads: int = 1
@@ -99,6 +104,8 @@ class BCConfig:
             raise ConfigError("frame_stack", f"must be in [1, 64], got {self.frame_stack}", owner="BCConfig")
         if self.random_shift < 0:
             raise ConfigError("random_shift", f"must be at least 0 pixels, got {self.random_shift}", owner="BCConfig")
+        if self.stream_memory is not None and self.stream_memory < 1:
+            raise ConfigError("stream_memory", f"must be at least 1 byte, got {self.stream_memory}", owner="BCConfig")
         for name in ("epochs", "batch_size", "patience"):
             if getattr(self, name) < 1:
                 raise ConfigError(name, f"must be at least 1, got {getattr(self, name)}", owner="BCConfig")
@@ -132,15 +139,31 @@ def bc_loss(policy: ActorCritic, batch: TransitionTensors, config: BCConfig) -> 
     return loss, {"fit": fit.item()}
 
 
-def _mean_loss(policy: ActorCritic, data: TransitionTensors, config: BCConfig) -> float:
+def _mean_loss(policy: ActorCritic, data: TransitionTensors | StreamingLoader, config: BCConfig) -> float:
+    streamed = isinstance(data, StreamingLoader)
+    batches = data if isinstance(data, StreamingLoader) else MinibatchLoader(data, batch_size=4096, shuffle=False)
+    count = data.transitions if isinstance(data, StreamingLoader) else len(data)
+    device = next(policy.parameters()).device
     with torch.no_grad():
         policy.eval()
-        losses = [
-            bc_loss(policy, batch, config)[1]["fit"] * len(batch)
-            for batch in MinibatchLoader(data, batch_size=4096, shuffle=False)
-        ]
+        losses = [bc_loss(policy, batch.to(device) if streamed else batch, config)[1]["fit"] * len(batch) for batch in batches]
         policy.train()
-        return float(np.sum(losses) / len(data))
+        return float(np.sum(losses) / count)
+
+
+def _fit_normalizers(policy: ActorCritic, stream: StreamingLoader, device: torch.device) -> None:
+    """The normalisers' statistics from one ordered pass over a stream (skipped when the policy
+    has none to fit): the observations' folded in batch by batch, the actions' from all of them
+    (one small column)."""
+    fits_actions = policy.is_continuous and policy.config.normalize_actions
+    if policy.obs_rms is None and not fits_actions:
+        return
+    actions = []
+    for batch in stream.in_order():
+        policy.update_normalizer(batch.to(device).observations)
+        assert isinstance(batch.actions, torch.Tensor)  # a policy takes no Dict actions
+        actions.append(batch.actions)
+    policy.fit_action_normalizer(torch.cat(actions).to(device), None)
 
 
 class BehaviouralCloning:
@@ -148,7 +171,11 @@ class BehaviouralCloning:
     early on `validation`'s loss; the best weights so far are kept and are the result.
 
     `evaluate(policy)` (e.g. the env return) is logged every `evaluate_every` epochs and at the
-    last one. The policy's observation normaliser is refitted to `train` first."""
+    last one. The policy's observation normaliser is refitted to `train` first.
+
+    `train` and `validation` may be streams (`BCConfig.stream_memory`): batches are then decoded
+    as they are needed, and the normalisers fitted in one extra ordered pass when the policy has
+    any. Policies of the previous action take in-memory data only."""
 
     name = "BC"
     unit = "epoch"
@@ -156,8 +183,8 @@ class BehaviouralCloning:
     def __init__(
         self,
         policy: ActorCritic,
-        train: TransitionTensors,
-        validation: TransitionTensors | None,
+        train: TransitionTensors | StreamingLoader,
+        validation: TransitionTensors | StreamingLoader | None,
         config: BCConfig,
         *,
         evaluate: Callable[[ActorCritic], float] | None = None,
@@ -168,19 +195,33 @@ class BehaviouralCloning:
         torch.manual_seed(config.seed)
         device = resolve_device(config.device)
         self.policy = policy.to(device).train()
-        self.train, self.validation = train.to(device), validation.to(device) if validation is not None else None
-        if policy.obs_rms is not None:
-            policy.obs_rms.reset_parameters()
-            policy.update_normalizer(self.train.observations)
-        assert isinstance(self.train.actions, torch.Tensor)  # a policy takes no Dict actions
-        policy.fit_action_normalizer(self.train.actions, self.train.observations)
+        self.device = device
+        self.validation: TransitionTensors | StreamingLoader | None
+        self.loader: MinibatchLoader | StreamingLoader
+        if isinstance(train, StreamingLoader):
+            if policy.config.previous_action:
+                raise ConfigError(
+                    "stream_memory", "streams no data for a policy of the previous action; leave it unset", owner="BCConfig"
+                )
+            self.validation, self.loader = validation, train
+            if policy.obs_rms is not None:
+                policy.obs_rms.reset_parameters()
+            _fit_normalizers(policy, train, device)
+        else:
+            assert not isinstance(validation, StreamingLoader)  # streamed validation goes with streamed training
+            self.train, self.validation = train.to(device), validation.to(device) if validation is not None else None
+            if policy.obs_rms is not None:
+                policy.obs_rms.reset_parameters()
+                policy.update_normalizer(self.train.observations)
+            assert isinstance(self.train.actions, torch.Tensor)  # a policy takes no Dict actions
+            policy.fit_action_normalizer(self.train.actions, self.train.observations)
+            self.loader = MinibatchLoader(
+                self.train, batch_size=config.batch_size, seed=config.seed, min_samples=config.epoch_samples
+            )
         self.config = config
         self.total = config.epochs
         self.evaluate, self.evaluate_every = evaluate, evaluate_every
         self.optimizer = torch.optim.Adam(policy.parameters(), lr=config.learning_rate)
-        self.loader = MinibatchLoader(
-            self.train, batch_size=config.batch_size, seed=config.seed, min_samples=config.epoch_samples
-        )
         self.epochs = 0
         self.best_loss, self.best_epoch, self.best_state = float("inf"), 0, copy.deepcopy(policy.state_dict())
         self.samples = 0
@@ -208,7 +249,10 @@ class BehaviouralCloning:
         self.clock.start()
         epoch = self.epochs + 1
         fits = []
+        streamed = isinstance(self.loader, StreamingLoader)
         for batch in self.loader:
+            if streamed:  # streamed batches arrive on the CPU
+                batch = batch.to(self.device)
             loss, parts = bc_loss(self.policy, batch, self.config)
             if not torch.isfinite(loss):
                 raise ImitationError(f"BC epoch {epoch}: the loss is {loss.item()} (diverged; try a lower learning rate)")

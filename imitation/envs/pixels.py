@@ -17,7 +17,9 @@
 
 from __future__ import annotations
 
+import os
 import re
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, SupportsFloat
@@ -153,6 +155,10 @@ class PixelObservation(gym.ObservationWrapper):
 
     def __init__(self, env: gym.Env, recipe: PixelRecipe) -> None:
         super().__init__(env)
+        # pygame's renderers need no display for rgb_array frames; without these it complains on stderr.
+        os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+        os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+        warnings.filterwarnings("ignore", message="pkg_resources is deprecated")  # raised by importing pygame; harmless
         self.recipe = recipe
         self._from_observation = is_image_space(env.observation_space)
         if not self._from_observation and env.render_mode != "rgb_array":

@@ -21,6 +21,7 @@ from imitation.data.loader import (
     split_episodes,
     transitions_to_torch,
 )
+from imitation.data.stream import StreamingLoader
 from imitation.data.types import Transitions
 from imitation.envs.make import make_env
 from imitation.envs.pixels import PIXELS_KEY, PixelRecipe, image_keys, make_pixel_env, stack_frames, stacked_space
@@ -69,9 +70,14 @@ def bc_job(
     keys = image_keys(spaces.observation_space)
     if frames > 1 and not keys:
         raise ConfigError("frame_stack", "stacks image observations, and the demos hold none", owner="BCConfig")
-    train, validation, split = _split(
-        dataset, config, offline=env is None, previous_action=previous_action, frames=frames, image_keys=keys
-    )
+    train: TransitionTensors | StreamingLoader
+    validation: TransitionTensors | StreamingLoader | None
+    if config.stream_memory is not None:
+        train, validation, split = _streams(dataset, config, previous_action=previous_action, frames=frames, image_keys=keys)
+    else:
+        train, validation, split = _split(
+            dataset, config, offline=env is None, previous_action=previous_action, frames=frames, image_keys=keys
+        )
     observation_space = (
         previous_action_space(spaces.observation_space, spaces.action_space)
         if previous_action
@@ -90,7 +96,7 @@ def bc_job(
             observation_space,
             spaces.action_space,
             previous_action=previous_action,
-            **policy_options(config, len(train)),
+            **policy_options(config, _transitions(train)),
             **pixel_options,
         )
     except ImitationError as error:
@@ -138,8 +144,8 @@ def bc_job(
             "env_id": env_id,
             "offline": env is None,
             "previous_action": previous_action,
-            "train_transitions": len(train),
-            "validation_transitions": len(validation) if validation is not None else 0,
+            "train_transitions": _transitions(train),
+            "validation_transitions": _transitions(validation) if validation is not None else 0,
             "epochs": len(run.history),
             "best_epoch": learner.best_epoch,
             "best_validation_loss": min((row["validation_loss"] for row in run.history), default=None),
@@ -158,8 +164,8 @@ def bc_job(
 
 def _yardstick(
     learner: BehaviouralCloning,
-    train: TransitionTensors,
-    validation: TransitionTensors | None,
+    train: TransitionTensors | StreamingLoader,
+    validation: TransitionTensors | StreamingLoader | None,
     config: BCConfig,
     action_space: gym.Space,
     states: Callable[[TransitionTensors], TransitionTensors],
@@ -167,7 +173,8 @@ def _yardstick(
     """How the run ended, and the policy beside the trivial baselines on the held-out transitions
     (`imitation.evaluation.baselines`, on the `states` alone where the policy saw x_t): scores, which
     baselines it beats (lower NLL and lower squared error or error rate), the baselines' values
-    of the plotted loss, and what a user must be told."""
+    of the plotted loss, and what a user must be told. Streamed data is not scored: the scores
+    take the held-out transitions in memory."""
     warnings = []
     if learner.stopped:
         stopped = f"no better validation loss for {config.patience} epochs (best at epoch {learner.best_epoch})"
@@ -178,8 +185,9 @@ def _yardstick(
                 f"BC stopped at its epoch limit ({config.epochs}) while the validation loss was still improving "
                 f"(best at epoch {learner.best_epoch}): more epochs would likely fit better"
             )
-    if validation is None or not len(validation):
+    if validation is None or not len(validation) or isinstance(validation, StreamingLoader):
         return {"stopped": stopped, "validation": None, "baselines": {}, "beats": {}, "references": {}, "warnings": warnings}
+    assert not isinstance(train, StreamingLoader)  # streamed validation goes with streamed training
     scores = policy_scores(learner.policy.cpu(), validation.to("cpu"))
     baselines = baseline_scores(states(train), states(validation), action_space)
     beats = {name: all(scores[key] < value for key, value in baseline.items()) for name, baseline in baselines.items()}
@@ -300,3 +308,31 @@ def _split(
             "validation_transitions": len(validation_rows),
         },
     )
+
+
+def _transitions(data: TransitionTensors | StreamingLoader) -> int:
+    return data.transitions if isinstance(data, StreamingLoader) else len(data)
+
+
+def _streams(
+    dataset: DemoDataset, config: BCConfig, *, previous_action: bool, frames: int, image_keys: list[str]
+) -> tuple[StreamingLoader, StreamingLoader | None, dict[str, Any]]:
+    """`_split` for `config.stream_memory`: whole episodes held out (never episode tails), each
+    side streamed within the memory budget; validation in order, one batch at a time."""
+    assert config.stream_memory is not None  # the caller streams only then
+    if previous_action:
+        raise ConfigError(
+            "stream_memory", "streams no data for a policy of the previous action; leave it unset", owner="BCConfig"
+        )
+    train_ids, validation_ids = split_episodes(len(dataset), validation_fraction=config.validation_fraction, seed=config.seed)
+    options: dict[str, Any] = {
+        "batch_size": config.batch_size,
+        "memory": config.stream_memory,
+        "frames": frames,
+        "image_keys": image_keys,
+    }
+    train = StreamingLoader(dataset, train_ids, seed=config.seed, min_samples=config.epoch_samples, **options)
+    if train.transitions == 0:
+        raise ImitationError("no transitions to load: the demos hold no steps")
+    validation = StreamingLoader(dataset, validation_ids, shuffle=False, **options) if validation_ids else None
+    return train, validation, {"train_episodes": train_ids, "validation_episodes": validation_ids}

@@ -574,7 +574,7 @@ class _Leaves:
         self.skipped = {
             key.removeprefix("observation."): key
             for key, feature in features.items()
-            if feature.get("dtype") in _VISUAL and key not in self.cameras
+            if isinstance(feature.get("dtype"), str) and feature["dtype"] in _VISUAL and key not in self.cameras
         }
         self.used: dict[str, str] = {}  # leaf name ("" for a bare space) → feature, once the space is known
 

@@ -1,0 +1,111 @@
+"""Pixel CartPole: BC and DAgger from rendered frames, through the command line, as a user runs them.
+
+The issue's acceptance: BC's deterministic `eval policy` normalised ≥ 0.9 over 20 episodes on 2
+of 3 seeds, trained on 2 CPU cores in ≤ 15 min, from scripted-expert demos of 84×84 (or smaller)
+frames with a frame stack ≥ 2; DAgger with the scripted expert reaching the same with fewer
+expert labels.
+
+For each seed: `record --pixels` (scripted expert, DART action noise: the env executes a random
+action with probability `--action-noise` while the file stores the expert's label), `train bc`
+on those demos, `train dagger --pixels` with the same frames, then `eval policy` of each on 20
+episodes. Normalised return = (R − R_random) / (R_expert − R_random) with R_expert = 500 (the
+scripted expert's return) and R_random CartPole's uniform-random return over the same 20 seeds.
+Wall times and expert labels are printed beside the returns.
+
+Usage: python bench/pixels_cartpole.py [--seeds 0 1 2] [--episodes 20] [--bc-epochs 40] [--rounds 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+BENCH = Path(__file__).resolve().parent
+CLI = [sys.executable, str(BENCH.parent / "cli.py")]
+PIXELS = ["--pixels", "84x84", "--grayscale", "--crop", "150,216,168,168"]
+EXPERT_RETURN = 500.0
+
+
+def cli(*args: str) -> tuple[dict[str, Any], float]:
+    """Run one command with --json; its result and wall time."""
+    started = time.perf_counter()
+    done = subprocess.run([*CLI, *args, "--json"], capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(args[:2])} failed: {done.stderr.strip().splitlines()[-1:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1]), time.perf_counter() - started
+
+
+def random_return(episodes: int) -> float:
+    import gymnasium as gym
+    import numpy as np
+
+    env = gym.make("CartPole-v1")
+    env.action_space.seed(0)
+    returns = []
+    for i in range(episodes):
+        env.reset(seed=i)
+        total, done = 0.0, False
+        while not done:
+            _, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+            total, done = total + float(reward), terminated or truncated
+        returns.append(total)
+    return float(np.mean(returns))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--episodes", type=int, default=20, help="demo episodes per seed")
+    parser.add_argument("--action-noise", type=float, default=0.3)
+    parser.add_argument("--frame-stack", type=int, default=4)
+    parser.add_argument("--bc-epochs", type=int, default=40)
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--eval-episodes", type=int, default=20)
+    args = parser.parse_args()
+    baseline = random_return(args.eval_episodes)
+    print(f"random policy: {baseline:.1f}; expert: {EXPERT_RETURN:.0f}")
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="pixels-cartpole-") as folder:
+        work = Path(folder)
+        for seed in args.seeds:
+            demos = work / f"demos-{seed}.mcap"
+            recorded, record_s = cli(
+                "record", "--env", "CartPole-v1", *PIXELS, "--frame-stack", str(args.frame_stack),
+                "--action-noise", str(args.action_noise), "--episodes", str(args.episodes), "--seed", str(1000 + 100 * seed),
+                "--out", str(demos), "--quiet",
+            )  # fmt: skip
+            labels = int(round(recorded["mean_return"] * recorded["episodes"]))
+            _, bc_s = cli(
+                "train", "bc", "--demos", str(demos), "--env", "CartPole-v1", "--epochs", str(args.bc_epochs),
+                "--seed", str(seed), "--out", str(work / f"bc-{seed}"), "--quiet",
+            )  # fmt: skip
+            dagger, dagger_s = cli(
+                "train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", *PIXELS,
+                "--frame-stack", str(args.frame_stack), "--rounds", str(args.rounds), "--seed", str(seed),
+                "--out", str(work / f"dagger-{seed}"), "--quiet",
+            )  # fmt: skip
+            for name, run, seconds, used in (
+                ("BC", work / f"bc-{seed}", record_s + bc_s, labels),
+                ("DAgger", work / f"dagger-{seed}", dagger_s, dagger["expert_labels"]),
+            ):
+                evaluated, _ = cli("eval", "policy", str(run), "--env", "CartPole-v1", "--episodes", str(args.eval_episodes))
+                normalised = (evaluated["mean_return"] - baseline) / (EXPERT_RETURN - baseline)
+                rows.append((name, seed, evaluated["mean_return"], normalised, used, seconds))
+                print(
+                    f"{name:6s} seed {seed}: return {evaluated['mean_return']:6.1f}  normalised {normalised:5.2f}  "
+                    f"expert labels {used:6d}  wall {seconds / 60:5.1f} min",
+                    flush=True,
+                )
+    for name in ("BC", "DAgger"):
+        passed = sum(1 for row in rows if row[0] == name and row[3] >= 0.9)
+        print(f"{name}: normalised ≥ 0.9 on {passed} of {len(args.seeds)} seeds (criterion: 2 of 3)")
+
+
+if __name__ == "__main__":
+    main()
