@@ -603,6 +603,16 @@ def _add_pixel_arguments(parser: argparse.ArgumentParser, what: str) -> None:
     )
 
 
+def _add_random_shift(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--random-shift",
+        type=int,
+        metavar="P",
+        help="image observations: shift training frames by up to P pixels, edges replicated (DrQ); 0 turns it off "
+        "(default: 4)",
+    )
+
+
 def _names(text: str) -> list[str]:
     """A comma-separated list of names, e.g. `pixels,state`."""
     names = [name.strip() for name in text.split(",")]
@@ -1022,13 +1032,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="K",
         help="image observations: frames stacked per image (default: as the demos were recorded, else 1)",
     )
-    bc.add_argument(
-        "--random-shift",
-        type=int,
-        metavar="P",
-        help="image observations: shift training frames by up to P pixels, edges replicated (DrQ); 0 turns it off "
-        "(default: 4)",
-    )
+    _add_random_shift(bc)
     bc.add_argument(
         "--observation-keys",
         type=_names,
@@ -1081,12 +1085,7 @@ def build_parser() -> argparse.ArgumentParser:
     dagger.add_argument(
         "--frame-stack", type=int, metavar="K", help="with --pixels: frames the learner stacks per observation (default: 1)"
     )
-    dagger.add_argument(
-        "--random-shift",
-        type=int,
-        metavar="P",
-        help="with --pixels: shift training frames by up to P pixels, edges replicated (DrQ); 0 turns it off (default: 4)",
-    )
+    _add_random_shift(dagger)
     dagger.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     dagger.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
     _add_run_output(dagger)

@@ -748,11 +748,11 @@ def make_acting_env(config: PolicyConfig, env_id: str) -> gym.Env:
     return make_pixel_env(env_id, PixelRecipe.from_json(config.pixels))
 
 
-def pixel_observer(policy: ActorCritic, rendered: gym.Env) -> gym.Env:
-    """A rendering env as `policy` observes it, but for the previous action: its frames for a
-    policy trained on rendered frames, stacked for a policy of frame stacks."""
-    env = PixelObservation(rendered, PixelRecipe.from_json(policy.config.pixels)) if policy.config.pixels else rendered
-    return StackFrames(env, policy.config.frame_stack) if policy.config.frame_stack > 1 else env
+def observed_rendering(policy: ActorCritic, rendered: gym.Env) -> gym.Env:
+    """An env made with render_mode="rgb_array" (for a video) as `policy` observes it: its
+    rendered frames for a policy trained on them, then `acting_env`."""
+    pixels = policy.config.pixels
+    return acting_env(policy, PixelObservation(rendered, PixelRecipe.from_json(pixels)) if pixels is not None else rendered)
 
 
 def check_policy_fits_env(policy: Predictor, env: gym.Env, where: str) -> None:

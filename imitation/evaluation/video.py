@@ -11,7 +11,6 @@ import gymnasium as gym
 import numpy as np
 
 from imitation.envs.make import make_env
-from imitation.envs.previous_action import PreviousActionObservation
 from imitation.envs.rollout import Policy
 from imitation.errors import ImitationError
 
@@ -24,13 +23,12 @@ def record_video(
     path: str | os.PathLike,
     *,
     seed: int,
-    previous_action: bool = False,
     observe: Callable[[gym.Env], gym.Env] | None = None,
 ) -> dict[str, float]:
     """Play one episode (reset with `seed`) rendered as rgb_array frames and write them to
     `path` (written under a temporary name, then renamed). Returns its return, length and fps.
-    With `previous_action` the policy observes x_t (`imitation.envs.previous_action`); `observe`
-    wraps the rendering env into the one the policy acts in (pixel observations, frame stacks)."""
+    `observe` wraps the rendering env into the one the policy acts in (its rendered frames, frame
+    stacks, the previous action: `imitation.policies.observed_rendering`)."""
     path = Path(path)
     if path.suffix.lower() not in VIDEO_SUFFIXES:
         raise ImitationError(f"--video {path}: the file name must end in {' or '.join(VIDEO_SUFFIXES)}")
@@ -39,7 +37,7 @@ def record_video(
     os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="pkg_resources is deprecated")  # raised by importing pygame; harmless
-        frames, episode_return, fps = _play(env_id, policy, seed, previous_action, observe)
+        frames, episode_return, fps = _play(env_id, policy, seed, observe)
     temporary = path.with_name(f".{path.name}.partial{path.suffix}")
     try:
         (_write_gif if path.suffix.lower() == ".gif" else _write_mp4)(temporary, frames, fps)
@@ -51,11 +49,10 @@ def record_video(
 
 
 def _play(
-    env_id: str, policy: Policy, seed: int, previous_action: bool, observe: Callable[[gym.Env], gym.Env] | None
+    env_id: str, policy: Policy, seed: int, observe: Callable[[gym.Env], gym.Env] | None
 ) -> tuple[list[np.ndarray], float, float]:
     rendered = make_env(env_id, render_mode="rgb_array")
     env = observe(rendered) if observe is not None else rendered
-    env = PreviousActionObservation(env) if previous_action else env
     try:
         frames, episode_return = [], 0.0
         observation, _ = env.reset(seed=seed)

@@ -16,7 +16,7 @@ from imitation.policies import (
     check_policy_fits_env,
     load_policy,
     make_acting_env,
-    pixel_observer,
+    observed_rendering,
 )
 from imitation.runs import read_run
 
@@ -54,8 +54,7 @@ def eval_policy_job(
                 actor,
                 video,
                 seed=seed,
-                previous_action=policy.config.previous_action,
-                observe=lambda env: pixel_observer(policy, env),
+                observe=lambda env: observed_rendering(policy, env),
             ),
         }
     return {"run": str(run), "env_id": env_id, "deterministic": not stochastic, **result}

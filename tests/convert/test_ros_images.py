@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from support import run_cli_many, write_map
 from test_cli import assert_one_line_error
+from test_ros_real_logs import BagWriter
 
 from imitation.data.convert.job import convert
 from imitation.data.convert.maps import parse_map
@@ -50,45 +51,16 @@ def cartpole_frames(count: int) -> tuple[list[np.ndarray], np.ndarray, np.ndarra
     return frames, np.asarray(states, dtype=np.float64), np.asarray(actions, dtype=np.float64)
 
 
-class BagWriter:
-    """Topics and messages → a bag, through rosbags' writers: "ros2 mcap", "ros2 sqlite" or "ros1"."""
-
-    def __init__(self, path: Path, kind: str) -> None:
-        from rosbags.rosbag1 import Writer as Writer1
-        from rosbags.rosbag2 import StoragePlugin
-        from rosbags.rosbag2 import Writer as Writer2
-        from rosbags.typesys import Stores, get_typestore
-
-        self.ros1 = kind == "ros1"
-        self.store = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
-        if self.ros1:
-            self.writer: Any = Writer1(path)
-        else:
-            plugin = StoragePlugin.MCAP if kind == "ros2 mcap" else StoragePlugin.SQLITE3
-            self.writer = Writer2(path, version=9, storage_plugin=plugin)
-        self.connections: dict[str, Any] = {}
-
-    def __enter__(self) -> BagWriter:
-        self.writer.open()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.writer.close()
+class CameraBagWriter(BagWriter):
+    """test_ros_real_logs' bag writer whose topics connect on their first message, with camera messages."""
 
     def write(self, topic: str, time_ns: int, message: Any) -> None:
-        msgtype = message.__msgtype__
         if topic not in self.connections:
-            self.connections[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store)
-        serialise = self.store.serialize_ros1 if self.ros1 else self.store.serialize_cdr
-        self.writer.write(self.connections[topic], time_ns, serialise(message, msgtype))
+            self.topic(topic, message.__msgtype__)
+        super().write(topic, time_ns, message)
 
-    def msg(self, msgtype: str, **values: Any) -> Any:
-        return self.store.types[msgtype](**values)
-
-    def header(self, time_ns: int) -> Any:
-        stamp = self.msg("builtin_interfaces/msg/Time", sec=time_ns // NS, nanosec=time_ns % NS)
-        extra = {"seq": 0} if self.ros1 else {}
-        return self.msg("std_msgs/msg/Header", stamp=stamp, frame_id="camera", **extra)
+    def header(self, time_ns: int, frame: str = "camera") -> Any:
+        return super().header(time_ns, frame)
 
     def image(self, time_ns: int, pixels: np.ndarray, encoding: str, *, padding: int = 0, big_endian: bool = False) -> Any:
         """A sensor_msgs/Image of `pixels` (H, W, C) as sent: rows padded by `padding` bytes."""
@@ -156,7 +128,7 @@ def camera_bag(path: Path, kind: str) -> dict[str, Any]:
     big-endian mono16 "depth" camera at 10 Hz. Returns what was written."""
     frames, states, actions = cartpole_frames(2 * STEPS)
     greys = [cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY) for frame in frames]
-    with BagWriter(path, kind) as bag:
+    with CameraBagWriter(path, kind) as bag:
         for i, frame in enumerate(frames):  # 20 Hz
             t = START_NS + i * NS // 20
             bgr = np.ascontiguousarray(frame[..., ::-1])
@@ -236,7 +208,7 @@ def test_a_camera_alone_and_the_command_line(tmp_path: Path) -> None:
 
 def small_bag(path: Path, camera: list[Any], *, kind: str = "ros2 mcap") -> Path:
     """A bag with a 12x8 camera (messages from `camera(bag, i, t)`, None to skip) and a command."""
-    with BagWriter(path, kind) as bag:
+    with CameraBagWriter(path, kind) as bag:
         for i in range(6):
             t = START_NS + i * NS // 10
             message = camera[i](bag, t) if i < len(camera) else camera[-1](bag, t)

@@ -144,9 +144,12 @@ def test_record_train_and_eval_pixel_cartpole_through_the_cli(tmp_path) -> None:
     policy = load_policy(run)
     assert policy.config.frame_stack == 2 and policy.config.observation_keys == ["pixels"]
     assert policy.observation_space["pixels"].shape == (2, 36, 36, 1)
-    evaluated = run_cli("eval", "policy", str(run), "--env", "CartPole-v1", "--episodes", "2", "--json")
+    video = tmp_path / "bc.gif"
+    evaluated = run_cli("eval", "policy", str(run), "--env", "CartPole-v1", "--episodes", "2", "--video", str(video), "--json")
     assert evaluated.returncode == 0, evaluated.stderr
-    assert json.loads(evaluated.stdout)["episodes"] == 2
+    result = json.loads(evaluated.stdout)
+    assert result["episodes"] == 2 and video.stat().st_size > 0
+    assert result["video"]["return"] == result["returns"][0]  # the video's episode is eval's first, seen as in training
 
 
 def test_dagger_on_pixels_writes_single_frames_and_learns_on_stacks(tmp_path) -> None:
