@@ -1,7 +1,8 @@
 """Image encoders for pixel observations, and the random-shift augmentation BC trains them with.
 
-A frame stack of uint8 images, (k, H, W, C) per sample, is fed to a convolutional network as
-k·C input planes scaled to [0, 1]. The default torso is the "Nature CNN" of Mnih et al. (2015):
+A frame stack of images, (k, H, W, C) per sample and already scaled to floats by the policy
+(standardised per channel, or divided by 255), is fed to a convolutional network as k·C input
+planes. The default torso is the "Nature CNN" of Mnih et al. (2015):
 
     conv 32 × 8×8 stride 4 → ReLU → conv 64 × 4×4 stride 2 → ReLU → conv 64 × 3×3 stride 1 → ReLU
     → flatten → linear to 512 → ReLU
@@ -61,7 +62,7 @@ class CNNConfig:
 
 
 class ImageEncoder(nn.Module):
-    """uint8 frames (batch, k, H, W, C) → features (batch, config.features)."""
+    """Scaled float frames (batch, k, H, W, C) → features (batch, config.features)."""
 
     def __init__(self, frames: int, height: int, width: int, channels: int, config: CNNConfig) -> None:
         super().__init__()
@@ -79,7 +80,7 @@ class ImageEncoder(nn.Module):
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         batch, k, height, width, channels = frames.shape
         planes = frames.permute(0, 1, 4, 2, 3).reshape(batch, k * channels, height, width)
-        return self.linear(self.convolutions(planes.float() / 255.0))
+        return self.linear(self.convolutions(planes))
 
 
 def conv_output_sides(height: int, width: int, config: CNNConfig) -> tuple[int, int]:

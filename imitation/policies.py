@@ -374,6 +374,13 @@ class ActorCritic(nn.Module):
             obs_size, config.hidden_sizes, action_logits_size(self.action_space) if known else 0, shared=config.shared_trunk
         )
         self.obs_rms = RunningMeanStd((normalized_size,)) if config.normalize_observations and normalized_size else None
+        # Pixels standardised per channel by the demos' statistics: a rendered scene is mostly one
+        # background value, and /255 alone leaves the moving parts a small dent in a field of ones.
+        self.pixel_rms = (
+            nn.ModuleList(RunningMeanStd((leaf.channels,)) for leaf in self.layout.images)
+            if config.normalize_observations and self.layout is not None and self.layout.images
+            else None
+        )
         self.actor_trunk = _mlp(obs_size, config.hidden_sizes, config.activation)
         self.critic_trunk = self.actor_trunk if config.shared_trunk else _mlp(obs_size, config.hidden_sizes, config.activation)
         self.value_head = _layer(hidden, 1, 1.0)
@@ -471,7 +478,8 @@ class ActorCritic(nn.Module):
         """Raw observations (batch first) → flat float features, normalised if configured."""
         if self.layout is not None:
             parts = [
-                encoder(self._frames(observations, leaf)) for leaf, encoder in zip(self.layout.images, self.image_encoders)
+                encoder(self._scaled_frames(observations, index))
+                for index, encoder in enumerate(self.image_encoders)
             ]
             if self.layout.vectors:
                 vector = self._vector(observations)
@@ -486,13 +494,27 @@ class ActorCritic(nn.Module):
             return torch.cat([features, flat[:, self.previous_columns]], dim=1)
         return features
 
+    def _scaled_frames(self, observations: Any, index: int) -> torch.Tensor:
+        """Image leaf `index` of a batch as float (batch, k, H, W, C): standardised per channel
+        with `normalize_observations`, else scaled to [0, 1]."""
+        assert self.layout is not None
+        frames = self._frames(observations, self.layout.images[index]).float()
+        return self.pixel_rms[index].normalize(frames) if self.pixel_rms is not None else frames / 255.0
+
+    @property
+    def observation_normalizers(self) -> list[RunningMeanStd]:
+        """The statistics `update_normalizer` fits: the vector leaves' and each image leaf's."""
+        return [*([self.obs_rms] if self.obs_rms is not None else []), *(self.pixel_rms or [])]
+
     def update_normalizer(self, observations: Any) -> None:
-        if self.obs_rms is None:
-            return
-        if self.layout is not None:
-            self.obs_rms.update(self._vector(observations))
-        else:
-            self.obs_rms.update(observations.reshape(observations.shape[0], -1))
+        if self.obs_rms is not None:
+            flat = self._vector(observations) if self.layout is not None else observations.reshape(observations.shape[0], -1)
+            self.obs_rms.update(flat)
+        if self.pixel_rms is not None:
+            assert self.layout is not None
+            for leaf, statistics in zip(self.layout.images, self.pixel_rms):
+                # The newest frame of each stack: every stored frame counted once.
+                statistics.update(self._frames(observations, leaf)[:, -1])
 
     def fit_action_normalizer(self, actions: torch.Tensor, observations: Any) -> None:
         """Standardise the Gaussian head's units by the mean and std per dimension of what it

@@ -156,7 +156,7 @@ def _fit_normalizers(policy: ActorCritic, stream: StreamingLoader, device: torch
     has none to fit): the observations' folded in batch by batch, the actions' from all of them
     (one small column)."""
     fits_actions = policy.is_continuous and policy.config.normalize_actions
-    if policy.obs_rms is None and not fits_actions:
+    if not policy.observation_normalizers and not fits_actions:
         return
     actions = []
     for batch in stream.in_order():
@@ -204,15 +204,15 @@ class BehaviouralCloning:
                     "stream_memory", "streams no data for a policy of the previous action; leave it unset", owner="BCConfig"
                 )
             self.validation, self.loader = validation, train
-            if policy.obs_rms is not None:
-                policy.obs_rms.reset_parameters()
+            for statistics in policy.observation_normalizers:
+                statistics.reset_parameters()
             _fit_normalizers(policy, train, device)
         else:
             assert not isinstance(validation, StreamingLoader)  # streamed validation goes with streamed training
             self.train, self.validation = train.to(device), validation.to(device) if validation is not None else None
-            if policy.obs_rms is not None:
-                policy.obs_rms.reset_parameters()
-                policy.update_normalizer(self.train.observations)
+            for statistics in policy.observation_normalizers:
+                statistics.reset_parameters()
+            policy.update_normalizer(self.train.observations)
             assert isinstance(self.train.actions, torch.Tensor)  # a policy takes no Dict actions
             policy.fit_action_normalizer(self.train.actions, self.train.observations)
             self.loader = MinibatchLoader(

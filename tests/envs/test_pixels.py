@@ -108,6 +108,26 @@ def test_cnn_policy_reads_only_its_keys() -> None:
         make_policy(env.observation_space, env.action_space, frame_stack=2, cnn=CNNConfig().to_json())
 
 
+def test_pixels_are_standardised_per_channel_by_the_newest_frames() -> None:
+    space = gym.spaces.Dict({"pixels": gym.spaces.Box(0, 255, (2, 20, 20, 3), np.uint8)})
+    policy = make_policy(space, gym.spaces.Discrete(2), frame_stack=2, normalize_observations=True, cnn=SMALL_CNN)
+    generator = torch.Generator().manual_seed(0)
+    frames = torch.randint(0, 256, (50, 2, 20, 20, 3), dtype=torch.uint8, generator=generator)
+    frames[:, 0] = 255  # the older frame of each stack is a repeat: it must not count twice
+    frames[..., 1] //= 4
+    policy.update_normalizer({"pixels": frames})
+    newest = frames[:, -1].reshape(-1, 3).double()
+    (statistics,) = policy.pixel_rms
+    torch.testing.assert_close(statistics.mean, newest.mean(0))
+    torch.testing.assert_close(statistics.var, newest.var(0, unbiased=False), rtol=1e-6, atol=1e-6)
+    scaled = policy._scaled_frames({"pixels": frames}, 0)
+    expected = ((frames.double() - newest.mean(0)) / newest.std(0, unbiased=False)).clamp(-10, 10)
+    torch.testing.assert_close(scaled, expected.float(), rtol=1e-5, atol=1e-5)
+    raw = make_policy(space, gym.spaces.Discrete(2), frame_stack=2, cnn=SMALL_CNN)
+    assert raw.pixel_rms is None
+    torch.testing.assert_close(raw._scaled_frames({"pixels": frames}, 0), frames.float() / 255)
+
+
 def test_action_noise_executes_random_actions_and_keeps_the_label() -> None:
     env = ActionNoise(gym.make("CartPole-v1"), 1.0, seed=0)
     env.reset(seed=0)
