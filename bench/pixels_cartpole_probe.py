@@ -1,0 +1,150 @@
+"""Pixel CartPole BC probe: variants of the image pipeline, trained outside the command line.
+
+One recording (`record --pixels 84x84 --grayscale --crop 150,216,168,168 --frame-stack 4
+--action-noise P`), its last 4 episodes held out, and a BC network trained on the rest for a
+fixed number of Adam steps (batch 128, random shift 4), then rolled out deterministically. The
+variants measured in bench/RESULTS.md:
+
+- `--scale raw|standardised`: pixels divided by 255, or standardised by the training frames' mean
+  and std (what the policies do with normalised observations);
+- `--head plain|library`: a Nature CNN with a 512 → 256 → 2 head in PyTorch's default
+  initialisation, or the toolkit's policy (Nature CNN, MLP 256-256, orthogonal initialisation);
+- `--state-aux C`: add C × the squared error of predicting the standardised state (x, ẋ, θ, θ̇)
+  from the CNN's features, the state recorded beside the frames;
+- `--differences`: feed the frame differences as extra planes;
+- `--stride S`: stack every S-th frame, so that the stack spans (k − 1)·S steps.
+
+Usage: python bench/pixels_cartpole_probe.py DEMOS.mcap [--scale standardised] [--seed 0] …
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import gymnasium as gym
+import numpy as np
+import torch
+from torch import nn
+
+from imitation.data.loader import load_transitions
+from imitation.encoders import random_shift
+from imitation.envs.pixels import PixelRecipe, StackFrames, frame_stack_index, make_pixel_env
+from imitation.policies import make_policy
+
+RECIPE = PixelRecipe.parse("84x84", grayscale=True, crop="150,216,168,168")
+
+
+class PlainNet(nn.Module):
+    """Nature CNN → 512 → 256 → 2 logits, with the 512 features kept for the auxiliary head."""
+
+    def __init__(self, planes: int) -> None:
+        super().__init__()
+        self.convolutions = nn.Sequential(
+            nn.Conv2d(planes, 32, 8, 4), nn.ReLU(), nn.Conv2d(32, 64, 4, 2), nn.ReLU(),
+            nn.Conv2d(64, 64, 3, 1), nn.ReLU(), nn.Flatten(),
+        )  # fmt: skip
+        size = self.convolutions(torch.zeros(1, planes, 84, 84)).shape[1]
+        self.features = nn.Sequential(nn.Linear(size, 512), nn.ReLU())
+        self.head = nn.Sequential(nn.Linear(512, 256), nn.ReLU(), nn.Linear(256, 2))
+
+    def forward(self, planes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        features = self.features(self.convolutions(planes))
+        return self.head(features), features
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("demos")
+    parser.add_argument("--scale", choices=["raw", "standardised"], default="standardised")
+    parser.add_argument("--head", choices=["plain", "library"], default="plain")
+    parser.add_argument("--state-aux", type=float, default=0.0)
+    parser.add_argument("--differences", action="store_true")
+    parser.add_argument("--stride", type=int, default=1)
+    parser.add_argument("--frames", type=int, default=4)
+    parser.add_argument("--lr", type=float, default=3e-4)
+    parser.add_argument("--steps", type=int, default=1500)
+    parser.add_argument("--episodes", type=int, default=8, help="evaluation episodes")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    torch.manual_seed(args.seed)
+    torch.set_num_threads(2)
+
+    data = load_transitions(args.demos, next_observations=False)
+    span = (args.frames - 1) * args.stride + 1
+    stacks = data.observations["pixels"][frame_stack_index(data.episode_index, span)[:, :: args.stride]]
+    frames, labels = torch.as_tensor(stacks), torch.as_tensor(np.asarray(data.actions, dtype=np.int64))
+    held_out = torch.as_tensor(np.isin(data.episode_index, np.unique(data.episode_index)[-4:]))
+    state = torch.as_tensor(np.asarray(data.observations["state"], dtype=np.float32))
+    state = (state - state[~held_out].mean(0)) / state[~held_out].std(0)
+    sample = frames[~held_out][::7].float()
+    mean, std = (sample.mean(), sample.std()) if args.scale == "standardised" else (torch.tensor(0.0), torch.tensor(255.0))
+
+    def planes(batch: torch.Tensor) -> torch.Tensor:
+        b, k, h, w, c = batch.shape
+        x = (batch.permute(0, 1, 4, 2, 3).reshape(b, k * c, h, w).float() - mean) / std
+        return torch.cat([x, 5 * (x[:, 1:] - x[:, :-1])], 1) if args.differences else x
+
+    if args.head == "library":
+        space = gym.spaces.Dict({"pixels": gym.spaces.Box(0, 255, tuple(frames.shape[1:]), np.uint8)})
+        policy = make_policy(
+            space, gym.spaces.Discrete(2), frame_stack=args.frames, observation_keys=["pixels"],
+            hidden_sizes=[256, 256], activation="relu", normalize_observations=args.scale == "standardised",
+        )  # fmt: skip
+        policy.update_normalizer({"pixels": frames[~held_out]})
+        auxiliary = nn.Linear(policy.image_encoders[0].features, 4)
+
+        def forward(batch: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            features = policy.encode({"pixels": batch})
+            return policy.distribution(features).logits, features
+
+        parameters = [*policy.parameters(), *auxiliary.parameters()]
+    else:
+        net = PlainNet(planes(frames[:1]).shape[1])
+        auxiliary = nn.Linear(512, 4)
+
+        def forward(batch: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+            return net(planes(batch))
+
+        parameters = [*net.parameters(), *auxiliary.parameters()]
+    optimiser = torch.optim.Adam(parameters, lr=args.lr)
+    rows, rng = np.flatnonzero(~held_out.numpy()), np.random.default_rng(args.seed)
+
+    def held_out_fit() -> tuple[float, float]:
+        with torch.no_grad():
+            index = torch.nonzero(held_out).reshape(-1)
+            logits = torch.cat([forward(frames[index[i : i + 512]])[0] for i in range(0, len(index), 512)])
+            accuracy = (logits.argmax(1) == labels[index]).float().mean()
+            return float(nn.functional.cross_entropy(logits, labels[index])), float(accuracy)
+
+    started = time.perf_counter()
+    for step in range(1, args.steps + 1):
+        batch = rng.choice(rows, 128)
+        logits, features = forward(random_shift(frames[batch], 4))
+        loss = nn.functional.cross_entropy(logits, labels[batch])
+        if args.state_aux:
+            loss = loss + args.state_aux * ((auxiliary(features) - state[batch]) ** 2).mean()
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+        if step % 500 == 0:
+            nll, accuracy = held_out_fit()
+            seconds = time.perf_counter() - started
+            print(f"step {step}: held-out NLL {nll:.3f}, accuracy {accuracy:.3f} ({seconds:.0f} s)", flush=True)
+
+    env = StackFrames(make_pixel_env("CartPole-v1", RECIPE), span)
+    returns = []
+    for episode in range(args.episodes):
+        observation, _ = env.reset(seed=5000 + episode)
+        total, done = 0.0, False
+        while not done:
+            with torch.no_grad():
+                action = int(forward(torch.as_tensor(observation["pixels"][:: args.stride][None]))[0].argmax())
+            observation, reward, terminated, truncated, _ = env.step(action)
+            total, done = total + float(reward), terminated or truncated
+        returns.append(total)
+    print(f"returns {returns}: mean {np.mean(returns):.1f}")
+
+
+if __name__ == "__main__":
+    main()
