@@ -477,10 +477,7 @@ class ActorCritic(nn.Module):
     def encode(self, observations: Any) -> torch.Tensor:
         """Raw observations (batch first) → flat float features, normalised if configured."""
         if self.layout is not None:
-            parts = [
-                encoder(self._scaled_frames(observations, index))
-                for index, encoder in enumerate(self.image_encoders)
-            ]
+            parts = [encoder(self._scaled_frames(observations, index)) for index, encoder in enumerate(self.image_encoders)]
             if self.layout.vectors:
                 vector = self._vector(observations)
                 parts.append(self.obs_rms.normalize(vector) if self.obs_rms is not None else vector)
@@ -499,20 +496,25 @@ class ActorCritic(nn.Module):
         with `normalize_observations`, else scaled to [0, 1]."""
         assert self.layout is not None
         frames = self._frames(observations, self.layout.images[index]).float()
-        return self.pixel_rms[index].normalize(frames) if self.pixel_rms is not None else frames / 255.0
+        pixels = self.pixel_statistics
+        return pixels[index].normalize(frames) if pixels else frames / 255.0
+
+    @property
+    def pixel_statistics(self) -> list[RunningMeanStd]:
+        """Each image leaf's pixel statistics (none without `normalize_observations`)."""
+        return [cast(RunningMeanStd, statistics) for statistics in self.pixel_rms or []]
 
     @property
     def observation_normalizers(self) -> list[RunningMeanStd]:
         """The statistics `update_normalizer` fits: the vector leaves' and each image leaf's."""
-        return [*([self.obs_rms] if self.obs_rms is not None else []), *(self.pixel_rms or [])]
+        return [*([self.obs_rms] if self.obs_rms is not None else []), *self.pixel_statistics]
 
     def update_normalizer(self, observations: Any) -> None:
         if self.obs_rms is not None:
             flat = self._vector(observations) if self.layout is not None else observations.reshape(observations.shape[0], -1)
             self.obs_rms.update(flat)
-        if self.pixel_rms is not None:
-            assert self.layout is not None
-            for leaf, statistics in zip(self.layout.images, self.pixel_rms):
+        if self.layout is not None:
+            for leaf, statistics in zip(self.layout.images, self.pixel_statistics):
                 # The newest frame of each stack: every stored frame counted once.
                 statistics.update(self._frames(observations, leaf)[:, -1])
 

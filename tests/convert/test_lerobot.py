@@ -150,6 +150,36 @@ def test_one_value_features_keep_their_shape(tmp_path: Path) -> None:
     assert converted.episodes[0].actions.tolist() == [[0.5]] * 3 and converted.episodes[0].rewards.tolist() == [1.0] * 3
 
 
+@pytest.mark.parametrize(
+    "tamper",
+    [
+        lambda sidecar: sidecar | {"env_id": 7},
+        lambda sidecar: sidecar | {"source": ["x"]},
+        lambda sidecar: sidecar | {"dt": "fast"},
+        lambda sidecar: sidecar | {"user_metadata": []},
+        lambda sidecar: sidecar | {"episodes": [e | {"terminated": True, "truncated": True} for e in sidecar["episodes"]]},
+        lambda sidecar: sidecar | {"episodes": [e | {"metadata": 3} for e in sidecar["episodes"]]},
+        lambda sidecar: "[" * 100_000 + "]" * 100_000,  # nested past the recursion limit
+    ],
+    ids=["env_id", "source", "dt", "user_metadata", "both_ends", "metadata", "deep"],
+)
+def test_a_hostile_sidecar_is_ignored_with_a_warning(tmp_path: Path, tamper) -> None:
+    from imitation.data.export.lerobot import export_lerobot
+
+    episode = Episode(observations=np.zeros((3, 2), np.float32), actions=np.ones((2, 2), np.float32), rewards=np.ones(2),
+                      terminated=True)
+    space = gym.spaces.Box(-5, 5, shape=(2,), dtype=np.float32)
+    export_lerobot(write_episodes(tmp_path / "d.mcap", [episode], env_id="imitation/Test-v0", observation_space=space,
+                                  action_space=space), tmp_path / "ds", progress=False)
+    path = tmp_path / "ds" / "meta" / "imitation.json"
+    tampered = tamper(json.loads(path.read_text()))
+    path.write_text(tampered if isinstance(tampered, str) else json.dumps(tampered))
+    converted = lerobot_to_episodes(tmp_path / "ds", progress=False)
+    assert any(str(path) in w and "ignored" in w for w in converted.warnings)
+    assert converted.env_id == "" and converted.episodes[0].truncated  # the dataset's own facts, not the sidecar's
+    assert converted.episodes[0].actions.tolist() == [[1.0, 1.0]] * 2
+
+
 # ------------------------------------------------------------------------------------------------
 # Datasets without their video files, and info.json totals that disagree with the data (issue 17)
 

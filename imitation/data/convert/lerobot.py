@@ -639,6 +639,23 @@ class _Leaves:
         )
 
 
+def _check_sidecar(sidecar: dict[str, Any]) -> None:
+    """TypeError or ValueError for a sidecar whose fields are not what `export --to lerobot` writes."""
+    if not isinstance(sidecar["env_id"], str) or not isinstance(sidecar["source"], str):
+        raise TypeError("env_id and source must be strings")
+    dt = sidecar["dt"]
+    if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not 0 < dt < 1e6:
+        raise ValueError(f"dt must be a positive number of seconds, got {str(dt)[:40]}")
+    if not isinstance(sidecar["user_metadata"], dict):
+        raise TypeError("user_metadata must be an object")
+    for episode in sidecar["episodes"]:
+        terminated, truncated = episode.get("terminated", False), episode.get("truncated", False)
+        if not isinstance(terminated, bool) or not isinstance(truncated, bool) or (terminated and truncated):
+            raise ValueError("an episode's terminated and truncated must be true or false, not both true")
+        if not isinstance(episode.get("metadata", {}), dict):
+            raise TypeError("an episode's metadata must be an object")
+
+
 def _sidecar(root: Path, frames: list[int], warnings: list[str]) -> dict[str, Any] | None:
     """meta/imitation.json if present and consistent with the frames found (else a warning)."""
     path = root / SIDECAR
@@ -649,8 +666,9 @@ def _sidecar(root: Path, frames: list[int], warnings: list[str]) -> dict[str, An
         lengths = [int(e["length"]) + 1 for e in sidecar["episodes"]]
         for key in ("observation_space", "action_space", "env_id", "dt", "source", "user_metadata"):
             sidecar[key]
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError) as error:
-        warnings.append(f"{path}: unreadable ({error}); ignored")
+        _check_sidecar(sidecar)
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError, RecursionError) as error:
+        warnings.append(f"{path}: unreadable ({type(error).__name__}: {str(error)[:200]}); ignored")
         return None
     if lengths != frames:
         warnings.append(f"{path}: describes other episodes than the dataset holds (edited since export?); ignored")
