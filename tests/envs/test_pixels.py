@@ -164,6 +164,8 @@ def test_record_train_and_eval_pixel_cartpole_through_the_cli(tmp_path) -> None:
     policy = load_policy(run)
     assert policy.config.frame_stack == 2 and policy.config.observation_keys == ["pixels"]
     assert policy.observation_space["pixels"].shape == (2, 36, 36, 1)
+    (pixels,) = policy.pixel_statistics  # fitted by BC: a mostly white render, not the unfitted (0, 1)
+    assert 150 < float(pixels.mean) < 255 and float(pixels.var) > 100 and float(pixels.count) > 36 * 36
     video = tmp_path / "bc.gif"
     evaluated = run_cli("eval", "policy", str(run), "--env", "CartPole-v1", "--episodes", "2", "--video", str(video), "--json")
     assert evaluated.returncode == 0, evaluated.stderr
