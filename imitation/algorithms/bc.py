@@ -198,20 +198,18 @@ class BehaviouralCloning:
         self.device = device
         self.validation: TransitionTensors | StreamingLoader | None
         self.loader: MinibatchLoader | StreamingLoader
+        for statistics in policy.observation_normalizers:
+            statistics.reset_parameters()
         if isinstance(train, StreamingLoader):
             if policy.config.previous_action:
                 raise ConfigError(
                     "stream_memory", "streams no data for a policy of the previous action; leave it unset", owner="BCConfig"
                 )
             self.validation, self.loader = validation, train
-            for statistics in policy.observation_normalizers:
-                statistics.reset_parameters()
             _fit_normalizers(policy, train, device)
         else:
             assert not isinstance(validation, StreamingLoader)  # streamed validation goes with streamed training
             self.train, self.validation = train.to(device), validation.to(device) if validation is not None else None
-            for statistics in policy.observation_normalizers:
-                statistics.reset_parameters()
             policy.update_normalizer(self.train.observations)
             assert isinstance(self.train.actions, torch.Tensor)  # a policy takes no Dict actions
             policy.fit_action_normalizer(self.train.actions, self.train.observations)
