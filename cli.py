@@ -166,10 +166,14 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_train_ppo(args: argparse.Namespace) -> int:
+    from imitation.envs.pixels import PixelRecipe
     from imitation.jobs.ppo import ppo_job
     from imitation.jobs.presets import ppo_config
 
-    config = ppo_config(args.env, learned_reward=args.reward is not None, **_fields(args, "PPOConfig"))
+    pixels = (
+        {"pixels": PixelRecipe.parse(args.pixels, grayscale=args.grayscale, crop=args.crop).to_json()} if args.pixels else {}
+    )
+    config = ppo_config(args.env, learned_reward=args.reward is not None, **_fields(args, "PPOConfig") | pixels)
     result = ppo_job(config, args.out, reward_run=args.reward, progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
@@ -470,6 +474,7 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "objective": "--objective",
             "n_envs": "--n-envs",
             "async_envs": "--async",
+            "frame_stack": "--frame-stack",
             "seed": "--seed",
             "device": "--device",
             "threads": "--threads",
@@ -909,6 +914,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ppo.add_argument("--n-envs", dest="n_envs", type=int, metavar="K", help="parallel environments (default: per env)")
     ppo.add_argument("--async", action="store_true", help="step the environments in subprocesses")
+    _add_pixel_arguments(ppo, "the policy sees (through a CNN) are")
+    ppo.add_argument(
+        "--frame-stack",
+        type=int,
+        metavar="K",
+        help="image observations (--pixels, or an env whose observations are images): frames stacked per image (default: 1)",
+    )
     ppo.add_argument("--seed", type=int, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
     ppo.add_argument("--device", metavar="auto|cpu|cuda", help="where the networks run (default: auto)")
     ppo.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (default: 1, fastest for small networks)")

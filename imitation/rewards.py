@@ -1,5 +1,14 @@
 """Reward models r_φ(s), r_φ(s, a) or r_φ(s, a, s'): linear or MLP, and loading them.
 
+Image observations (uint8 frames or frame stacks, and Dicts holding them beside vectors) are read
+as the policies read them (`imitation.policies.observation_layout`): each image leaf, scaled to
+[0, 1], through its own CNN (`imitation.encoders.ImageEncoder`, shared by s and s'), the other
+leaves flattened (one-hot for Discrete), and the MLP on their concatenation,
+
+    r_φ(s, a, s') = MLP([CNN_1(s_1), …, CNN_m(s_m), CNN_1(s'_1), …, vec(s), vec(s'), a]),
+
+with the parts the inputs ("s", "sa", "sas") leave out omitted.
+
 A reward run directory (written by the IRL jobs) holds config.json with
 {"kind": "reward", "env_id": ..., "reward": RewardConfig} and model.safetensors with the
 weights under "reward." (with a tabular reward's per-state feature table and the fixed
@@ -11,6 +20,7 @@ one way a learned reward enters training.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -20,9 +30,20 @@ import torch
 from torch import nn
 
 from imitation.data.spaces import space_from_json, space_to_json
+from imitation.encoders import CNNConfig, ImageEncoder, cnn_weight_count, conv_output_sides
+from imitation.envs.pixels import PixelRecipe
 from imitation.envs.rollout import Rollout
 from imitation.errors import ImitationError, SpaceError
-from imitation.policies import ACTIVATIONS, check_layer_widths, check_weights_cover, mlp_weight_count, observation_size
+from imitation.policies import (
+    ACTIVATIONS,
+    ImageLeaf,
+    ObservationLayout,
+    check_layer_widths,
+    check_weights_cover,
+    mlp_weight_count,
+    observation_layout,
+    observation_size,
+)
 from imitation.runs import read_run
 
 REWARD_INPUTS = ("s", "sa", "sas")
@@ -42,6 +63,13 @@ class RewardConfig:
     # Box observations: standardised by fixed statistics (set once, e.g. from the demos, and
     # saved with the weights).
     normalize_observations: bool = False
+    # Image observations: the top-level leaves read (None: all), frames per image leaf, the CNN
+    # (encoders.CNNConfig; None: Nature CNN), and how the env renders its frames (PixelRecipe JSON),
+    # so that PPO on this reward sees what it was learnt on.
+    observation_keys: list[str] | None = None
+    frame_stack: int = 1
+    cnn: dict[str, Any] | None = None
+    pixels: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -64,20 +92,73 @@ class RewardConfig:
             isinstance(features, bool) or not isinstance(features, int) or not 1 <= features <= 2**20
         ):
             raise ValueError(f"state_features must be a width in [1, 2^20] or null, got {str(features)[:40]}")
+        if config.observation_keys is not None and not (
+            isinstance(config.observation_keys, list) and all(isinstance(key, str) for key in config.observation_keys)
+        ):
+            raise TypeError("observation_keys must be a list of names")
+        if (
+            isinstance(config.frame_stack, bool)
+            or not isinstance(config.frame_stack, int)
+            or not 1 <= config.frame_stack <= 64
+        ):
+            raise ValueError(f"frame_stack must be an integer in [1, 64], got {str(config.frame_stack)[:40]}")
+        if config.cnn is not None:
+            CNNConfig.from_json(config.cnn)
+        if config.pixels is not None:
+            PixelRecipe.from_json(config.pixels)
         return config
+
+
+def reward_layout(config: RewardConfig) -> ObservationLayout | None:
+    """How an image or Dict observation is read (None for a plain Box or Discrete one)."""
+    return observation_layout(space_from_json(config.observation_space), config.observation_keys, config.frame_stack)
+
+
+def _state_size(config: RewardConfig, layout: ObservationLayout | None) -> int:
+    """The width of one encoded state: the CNNs' features and the vector leaves, or the flat state."""
+    if layout is None:
+        return observation_size(space_from_json(config.observation_space))
+    return CNNConfig.from_json(config.cnn or {}).features * len(layout.images) + layout.vector_size
 
 
 def _planned_weights(config: RewardConfig) -> int:
     """How many numbers a RewardNet of this config holds at least: its feature table and weight matrices."""
     observations, actions = space_from_json(config.observation_space), space_from_json(config.action_space)
-    size = observation_size(observations)
+    layout = reward_layout(config)
+    state = size = _state_size(config, layout)
     table = 0
     if config.state_features is not None and isinstance(observations, gym.spaces.Discrete):
         table, size = int(observations.n) * config.state_features, config.state_features
-    size += (observation_size(actions) if "a" in config.inputs else 0) + (
-        observation_size(observations) if config.inputs == "sas" else 0
+    size += (observation_size(actions) if "a" in config.inputs else 0) + (state if config.inputs == "sas" else 0)
+    cnn = CNNConfig.from_json(config.cnn or {})
+    encoders = sum(
+        cnn_weight_count(leaf.frames * leaf.channels, leaf.height, leaf.width, cnn)
+        for leaf in (layout.images if layout else [])
     )
-    return table + mlp_weight_count(size, config.hidden_sizes, 1)
+    return table + encoders + mlp_weight_count(size, config.hidden_sizes, 1)
+
+
+# Samples per forward pass of `RewardNet.rewards_of`: bounds the activations' memory.
+_CHUNK = 4096
+
+
+def _frames(observations: Any, leaf: ImageLeaf) -> torch.Tensor:
+    """An image leaf of a batch as (batch, k, H, W, C)."""
+    frames = observations
+    for key in leaf.path:
+        frames = frames[key]
+    return frames.reshape(frames.shape[0], leaf.frames, leaf.height, leaf.width, leaf.channels)
+
+
+def _vector(observations: Any, layout: ObservationLayout) -> torch.Tensor:
+    """The non-image leaves of a batch, flattened (Discrete ones one-hot) side by side."""
+    parts = []
+    for path, space in layout.vectors:
+        values = observations
+        for key in path:
+            values = values[key]
+        parts.append(_one_hot_or_flat(values, space))
+    return torch.cat(parts, dim=1)
 
 
 def _one_hot_or_flat(values: torch.Tensor, space: gym.Space) -> torch.Tensor:
@@ -102,7 +183,11 @@ class RewardNet(nn.Module):
         self.config = config
         self.observation_space = space_from_json(config.observation_space)
         self.action_space = space_from_json(config.action_space)
-        size = observation_size(self.observation_space)
+        self.layout = reward_layout(config)
+        self.encoders = nn.ModuleList(self._image_encoders())
+        state = size = _state_size(config, self.layout)
+        if self.layout is not None and (config.state_features is not None or config.normalize_observations):
+            raise ImitationError("a reward on image or Dict observations has no feature table and no observation statistics")
         if config.state_features is not None:
             if not isinstance(self.observation_space, gym.spaces.Discrete) or config.inputs != "s":
                 raise ImitationError("a per-state feature table needs Discrete observations and a reward on s alone")
@@ -111,13 +196,12 @@ class RewardNet(nn.Module):
         if config.normalize_observations:
             if not isinstance(self.observation_space, gym.spaces.Box):
                 raise ImitationError("reward observation normalisation needs Box observations")
-            flat = observation_size(self.observation_space)
-            self.register_buffer("observation_mean", torch.zeros(flat))
-            self.register_buffer("observation_std", torch.ones(flat))
+            self.register_buffer("observation_mean", torch.zeros(state))
+            self.register_buffer("observation_std", torch.ones(state))
         if "a" in config.inputs:
             size += observation_size(self.action_space)
         if config.inputs == "sas":
-            size += observation_size(self.observation_space)
+            size += state
         layers: list[nn.Module] = []
         for hidden in config.hidden_sizes:
             layers += [nn.Linear(size, hidden), ACTIVATIONS[config.activation]()]
@@ -142,14 +226,54 @@ class RewardNet(nn.Module):
         half_range = (high - low) / 2
         self.observation_std.copy_(torch.where(torch.isfinite(half_range), half_range, spreads))
 
+    def _image_encoders(self) -> list[ImageEncoder]:
+        if self.layout is None:
+            return []
+        cnn = CNNConfig.from_json(self.config.cnn or {})
+        for leaf in self.layout.images:
+            if min(conv_output_sides(leaf.height, leaf.width, cnn)) < 1:
+                raise ImitationError(
+                    f"{leaf.height}×{leaf.width} frames are too small for the reward's CNN (kernels {cnn.kernels}, strides "
+                    f"{cnn.strides}): give larger frames or smaller kernels"
+                )
+        return [ImageEncoder(leaf.frames, leaf.height, leaf.width, leaf.channels, cnn) for leaf in self.layout.images]
+
     def _encode_observations(self, observations: torch.Tensor) -> torch.Tensor:
         encoded = _one_hot_or_flat(observations, self.observation_space)
         if self.config.normalize_observations:
             encoded = (encoded - self.observation_mean) / self.observation_std
         return encoded
 
-    def inputs(self, observations: torch.Tensor, actions: torch.Tensor, next_observations: torch.Tensor) -> torch.Tensor:
-        """The network's input vector: encoded (normalised, one-hot) s, and a and s' if used."""
+    def prepare(self, observations: Any, actions: torch.Tensor, next_observations: Any) -> list[torch.Tensor]:
+        """The float tensors r_φ is a differentiable function of (`score`): the input vector of a
+        flat reward; for an image reward each image leaf of s (then of s') as (batch, k, H, W, C)
+        scaled to [0, 1], then the vector of the other parts."""
+        if self.layout is None:
+            return [self._flat_inputs(observations, actions, next_observations)]
+        states = [observations, next_observations] if self.config.inputs == "sas" else [observations]
+        frames = [_frames(state, leaf).float() / 255.0 for state in states for leaf in self.layout.images]
+        rest = [_vector(state, self.layout) for state in states if self.layout.vectors]
+        if "a" in self.config.inputs:
+            rest.append(_one_hot_or_flat(actions, self.action_space))
+        return [*frames, torch.cat(rest, dim=-1)] if rest else frames
+
+    def features(self, prepared: list[torch.Tensor]) -> torch.Tensor:
+        """The MLP's input vector from `prepare`'s tensors: image leaves through their CNNs."""
+        if self.layout is None:
+            return prepared[0]
+        images = len(self.layout.images)
+        encoded = [self.encoders[i % images](part) for i, part in enumerate(prepared) if part.dim() == 5]
+        return torch.cat([*encoded, *(part for part in prepared if part.dim() != 5)], dim=-1)
+
+    def score(self, prepared: list[torch.Tensor]) -> torch.Tensor:
+        """r_φ of `prepare`'s tensors, one per sample."""
+        return self.net(self.features(prepared)).squeeze(-1)
+
+    def inputs(self, observations: Any, actions: torch.Tensor, next_observations: Any) -> torch.Tensor:
+        """The MLP's input vector: encoded (normalised, one-hot, CNN-read) s, and a and s' if used."""
+        return self.features(self.prepare(observations, actions, next_observations))
+
+    def _flat_inputs(self, observations: torch.Tensor, actions: torch.Tensor, next_observations: torch.Tensor) -> torch.Tensor:
         if self.config.state_features is not None:
             assert isinstance(self.observation_space, gym.spaces.Discrete)  # a feature table requires it (__init__)
             return self.state_features[observations.long().reshape(-1) - int(self.observation_space.start)]
@@ -160,24 +284,42 @@ class RewardNet(nn.Module):
             parts.append(self._encode_observations(next_observations))
         return torch.cat(parts, dim=-1)
 
-    def forward(self, observations: torch.Tensor, actions: torch.Tensor, next_observations: torch.Tensor) -> torch.Tensor:
-        return self.net(self.inputs(observations, actions, next_observations)).squeeze(-1)
+    def forward(self, observations: Any, actions: torch.Tensor, next_observations: Any) -> torch.Tensor:
+        return self.score(self.prepare(observations, actions, next_observations))
+
+    def rewards_of(self, observations: Any, actions: torch.Tensor, next_observations: Any) -> torch.Tensor:
+        """r_φ of a batch of any size, without gradients, `_CHUNK` samples at a time (a CNN's
+        activations for a whole demo set would not fit in memory), where the model is."""
+        device = next(self.parameters()).device
+        chunks = []
+        with torch.no_grad():
+            for start in range(0, len(actions), _CHUNK):
+                rows = slice(start, start + _CHUNK)
+                chunks.append(self(*(tree_index(part, rows, device) for part in (observations, actions, next_observations))))
+        return torch.cat(chunks)
 
     def relabel(self, rollout: Rollout) -> torch.Tensor:
         """r_φ(s_t, a_t, s_{t+1}) for every step of a rollout, shape (T, n_envs), where the rollout is."""
         steps, n_envs = rollout.env_rewards.shape
-        device = next(self.parameters()).device
-        inputs = (
-            flat_batch(getattr(rollout, name), 2).to(device) for name in ("observations", "env_actions", "next_observations")
-        )
-        with torch.no_grad():
-            rewards = self(*inputs)
-        return rewards.reshape(steps, n_envs).to(rollout.env_rewards.device)
+        inputs = (flat_batch(getattr(rollout, name), 2) for name in ("observations", "env_actions", "next_observations"))
+        return self.rewards_of(*inputs).reshape(steps, n_envs).to(rollout.env_rewards.device)
 
 
-def flat_batch(tensor: torch.Tensor, leading_dims: int) -> torch.Tensor:
-    """The first `leading_dims` dimensions (e.g. time × envs) merged into one batch dimension."""
-    return tensor.reshape(-1, *tensor.shape[leading_dims:])
+def tree_map(fn: Callable[[torch.Tensor], torch.Tensor], tree: Any) -> Any:
+    """`fn` applied to every tensor of a tree (a tensor, or a dict of trees), the tree kept."""
+    if isinstance(tree, dict):
+        return {key: tree_map(fn, sub) for key, sub in tree.items()}
+    return fn(tree)
+
+
+def tree_index(tree: Any, index: Any, device: torch.device | str | None = None) -> Any:
+    """tree[index], leaf by leaf (moved to `device` when given)."""
+    return tree_map(lambda tensor: tensor[index] if device is None else tensor[index].to(device), tree)
+
+
+def flat_batch(tree: Any, leading_dims: int) -> Any:
+    """The first `leading_dims` dimensions (e.g. time × envs) of every leaf merged into one batch dimension."""
+    return tree_map(lambda tensor: tensor.reshape(-1, *tensor.shape[leading_dims:]), tree)
 
 
 def all_state_rewards(model: RewardNet, n_states: int) -> torch.Tensor:
@@ -236,9 +378,7 @@ def _fresh_like(model: RewardNet) -> RewardNet:
     """A new network of `model`'s configuration with its fixed buffers (feature table,
     observation statistics) and freshly initialised weights."""
     fresh = RewardNet(model.config)
-    fresh.load_state_dict(
-        {name: tensor for name, tensor in model.state_dict().items() if not name.startswith("net.")}, strict=False
-    )
+    fresh.load_state_dict(dict(model.named_buffers()), strict=False)
     return fresh.eval()
 
 

@@ -66,3 +66,29 @@ def test_bad_irl_input(grid_demos, tmp_path) -> None:
 def test_a_reward_model_of_another_env_is_refused(mce_run, tmp_path) -> None:
     out, _ = mce_run
     assert_one_line_error(run_cli("train", "ppo", "--env", "CartPole-v1", "--reward", str(out), "--steps", "2048", "--out", str(tmp_path / "p")), "reward model")
+
+
+def test_gcl_on_pixel_demos_learns_a_cnn_reward_that_ppo_on_the_same_frames_optimises(tmp_path) -> None:
+    import torch
+
+    from imitation.algorithms.gcl import GCLConfig
+    from imitation.algorithms.ppo import PPOConfig
+    from imitation.jobs.irl import gcl_job
+    from imitation.rewards import load_reward
+
+    env_id, demos = "CartPole-v1", tmp_path / "pixels.mcap"  # not fixed-horizon: its final evaluations render 10 short episodes
+    last_json(run_cli("record", "--env", env_id, "--expert", "scripted", "--episodes", "1", "--pixels", "36x36", "--grayscale", "--frame-stack", "2", "--out", str(demos), "--json"))
+    ppo = PPOConfig(env_id=env_id, n_envs=2, n_steps=16, batch_size=16, n_epochs=1, total_steps=32, normalize_rewards=True,
+                    cnn={"channels": [4], "kernels": [8], "strides": [4], "features": 16})
+    result = gcl_job([str(demos)], env_id, GCLConfig(hidden_sizes=[8], warmup_steps=2, reward_steps=1, batch_size=16), ppo, tmp_path / "gcl", progress=False)
+    assert result["steps"] == 32 and 0.0 <= result["demo_accuracy"] <= 1.0
+    reward = load_reward(tmp_path / "gcl")
+    assert reward.config.pixels == {"size": [36, 36], "grayscale": True} and reward.config.frame_stack == 2 and len(reward.encoders) == 1
+    frames = {"pixels": torch.randint(0, 256, (5, 2, 36, 36, 1), dtype=torch.uint8), "state": torch.zeros(5, 4)}
+    rewards = reward(frames, torch.zeros(5), frames)
+    assert rewards.shape == (5,) and rewards.std() > 0, "the reward reads the frames"
+    pixels = ("--pixels", "36x36", "--grayscale", "--frame-stack", "2")
+    last_json(run_cli("eval", "policy", str(tmp_path / "gcl"), "--env", env_id, "--episodes", "1", "--json"))
+    on_reward = last_json(run_cli("train", "ppo", "--env", env_id, "--reward", str(tmp_path / "gcl"), *pixels, "--n-envs", "2", "--steps", "64", "--out", str(tmp_path / "ppo"), "--json", timeout=300))
+    assert on_reward["steps"] == 64
+    assert_one_line_error(run_cli("train", "ppo", "--env", env_id, "--reward", str(tmp_path / "gcl"), "--steps", "512", "--out", str(tmp_path / "p2")), "reward model's observation space")

@@ -7,6 +7,7 @@ import json
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch
 from support import run_cli
 from test_cli import assert_one_line_error, last_json
 
@@ -93,3 +94,71 @@ def test_train_on_a_learned_reward_from_the_cli(tmp_path) -> None:
 def test_unknown_env_and_bad_steps(tmp_path) -> None:
     assert_one_line_error(run_cli("train", "ppo", "--env", "Nope-v9", "--out", str(tmp_path / "r")), "Nope-v9")
     assert_one_line_error(run_cli("train", "ppo", "--env", "CartPole-v1", "--steps", "10", "--out", str(tmp_path / "r")), "less than one rollout")
+
+
+# -- pixels: a CNN policy on CartPole's rendered frames ------------------------------------------
+
+PIXEL_FLAGS = ("--pixels", "36x36", "--grayscale", "--frame-stack", "2", "--n-envs", "2")
+
+
+@pytest.fixture(scope="module")
+def pixel_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("pixels") / "cartpole"
+    args = ("train", "ppo", "--env", "CartPole-v1", *PIXEL_FLAGS, "--steps", "128", "--seed", "1", "--quiet", "--out", str(out), "--json")
+    return out, last_json(run_cli(*args, timeout=300))
+
+
+def test_train_ppo_on_pixels_saves_a_cnn_policy_that_eval_rebuilds_its_env_for(pixel_run) -> None:
+    out, result = pixel_run
+    assert result["steps"] == 128 and result["eval"]["episodes"] == 10
+    config = json.loads((out / "config.json").read_text())
+    assert config["ppo"]["pixels"] == {"size": [36, 36], "grayscale": True} and config["ppo"]["frame_stack"] == 2
+    policy = config["policy"]
+    assert policy["observation_keys"] == ["pixels"] and policy["frame_stack"] == 2 and policy["pixels"] == config["ppo"]["pixels"]
+    assert policy["observation_space"]["spaces"]["pixels"]["shape"] == [2, 36, 36, 1]
+    evaluated = last_json(run_cli("eval", "policy", str(out), "--env", "CartPole-v1", "--episodes", "2", "--json"))
+    assert evaluated["episodes"] == 2 and evaluated["mean_return"] >= 8
+
+
+def test_a_pixel_rollout_keeps_frames_as_uint8_and_the_update_trains_the_cnn() -> None:
+    from imitation.algorithms.ppo import PPO, PPOConfig
+
+    config = PPOConfig(env_id="CartPole-v1", pixels={"size": [36, 36], "grayscale": True}, frame_stack=2, n_envs=2, n_steps=8,
+                       batch_size=8, n_epochs=1, total_steps=16, cnn={"channels": [4], "kernels": [8], "strides": [4], "features": 16})
+    learner = PPO(config)
+    try:
+        rollout = learner.collect_rollout()
+        frames, state = rollout.observations["pixels"], rollout.observations["state"]
+        assert frames.dtype == torch.uint8 and frames.shape == (8, 2, 2, 36, 36, 1) and frames.float().std() > 0
+        assert rollout.next_observations["pixels"].dtype == torch.uint8 and state.dtype == torch.float32
+        assert learner._buffers.features is None, "an image policy keeps no fixed features: its CNN is trained"
+        before = learner.policy.image_encoders[0].convolutions[0].weight.detach().clone()
+        learner.update(rollout, rollout.env_rewards)
+        assert not torch.equal(before, learner.policy.image_encoders[0].convolutions[0].weight)
+    finally:
+        learner.close()
+
+
+def test_a_pixel_checkpoint_resumes_the_same_policy() -> None:
+    from imitation.algorithms.ppo import PPO, PPOConfig
+
+    config = PPOConfig(env_id="CartPole-v1", pixels={"size": [36, 36], "grayscale": True}, frame_stack=2, n_envs=2, n_steps=8,
+                       batch_size=8, n_epochs=1, total_steps=32, normalize_observations=True,
+                       cnn={"channels": [4], "kernels": [8], "strides": [4], "features": 16})
+    learner, resumed = PPO(config), PPO(config)
+    try:
+        learner.step()
+        tensors, state = learner.state_dict()
+        resumed.load_state_dict(({name: t.clone() for name, t in tensors.items()}, json.loads(json.dumps(state))))
+        for name, tensor in learner.policy.state_dict().items():
+            assert torch.equal(tensor, resumed.policy.state_dict()[name]), name
+        assert resumed.updates == 1 and resumed.policy.pixel_statistics[0].count > 100
+        frames = {"pixels": torch.randint(0, 256, (3, 2, 36, 36, 1), dtype=torch.uint8), "state": torch.zeros(3, 4)}
+        assert torch.equal(learner.policy.value(learner.policy.encode(frames)), resumed.policy.value(resumed.policy.encode(frames)))
+    finally:
+        learner.close()
+        resumed.close()
+
+
+def test_frame_stack_needs_image_observations(tmp_path) -> None:
+    assert_one_line_error(run_cli("train", "ppo", "--env", "CartPole-v1", "--frame-stack", "4", "--out", str(tmp_path / "r")), "frame stacking needs image observations")

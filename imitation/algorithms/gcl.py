@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -69,11 +70,11 @@ from torch import nn
 
 from imitation.algorithms.ppo import PPO
 from imitation.checkpoints import CheckpointData, optimizer_checkpoint, prefixed, restore_optimizer, restoring, unprefixed
-from imitation.data.loader import TransitionTensors
+from imitation.data.loader import TensorTree, TransitionTensors
 from imitation.envs.rollout import Rollout
 from imitation.errors import ConfigError, ImitationError
 from imitation.policies import ActorCritic, PolicyConfig
-from imitation.rewards import RewardNet, flat_batch
+from imitation.rewards import RewardNet, flat_batch, tree_index, tree_map
 
 OBJECTIVES = ("discriminator", "importance")
 
@@ -110,9 +111,9 @@ class GCLConfig:
 
 @dataclass
 class _Samples:
-    observations: torch.Tensor
+    observations: TensorTree
     env_actions: torch.Tensor
-    next_observations: torch.Tensor
+    next_observations: TensorTree
     # log Σ_k π_k(a|s) over the samplers so far (log q + log K).
     log_mass: torch.Tensor
 
@@ -145,10 +146,17 @@ class RewardLearner:
         steps, shaped as the rollout, on the CPU."""
         # A CPU copy: PPO refills its rollout buffers in place (on its own device), and the pool
         # outlives this rollout.
-        rollout = Rollout(**{name: getattr(rollout, name).to("cpu", copy=True) for name in Rollout.__dataclass_fields__})
+        rollout = Rollout(
+            **{
+                name: tree_map(lambda t: t.to("cpu", copy=True), getattr(rollout, name))
+                for name in Rollout.__dataclass_fields__
+            }
+        )
         if self.reward.config.normalize_observations and self.pool is None:
             # Where the space is unbounded, the first policy's states widen the demos' spread.
-            self.reward.set_observation_statistics(self._demo_steps()[0], flat_batch(rollout.observations, 2))
+            demo_observations = self._demo_steps()[0]
+            assert isinstance(demo_observations, torch.Tensor)  # statistics are of Box observations (RewardNet)
+            self.reward.set_observation_statistics(demo_observations, flat_batch(rollout.observations, 2))
         observations, env_actions = flat_batch(rollout.observations, 2), flat_batch(rollout.env_actions, 2)
         sampler = copy.deepcopy(policy).to("cpu").eval()
         own_log_probs = _env_action_log_probs(sampler, observations, env_actions)
@@ -170,7 +178,7 @@ class RewardLearner:
                 self.pool.log_mass, _env_action_log_probs(sampler, self.pool.observations, self.pool.env_actions)
             )
             self.pool = _Samples(
-                **{name: torch.cat([getattr(self.pool, name), getattr(new, name)]) for name in _Samples.__dataclass_fields__}
+                **{name: _cat(getattr(self.pool, name), getattr(new, name)) for name in _Samples.__dataclass_fields__}
             )
         self.samplers.append(sampler)
         return own_log_probs.reshape(rollout.env_rewards.shape)
@@ -202,7 +210,7 @@ class RewardLearner:
             }
         )
         if self.pool is not None:
-            tensors |= prefixed("pool", vars(self.pool))
+            tensors |= prefixed("pool", _flat_names(vars(self.pool)))
         for k, sampler in enumerate(self.samplers):
             tensors |= prefixed(f"sampler.{k}", sampler.state_dict())
         samplers = self.samplers[0].config.to_json() if self.samplers else None
@@ -223,7 +231,7 @@ class RewardLearner:
         self.generator.set_state(tensors["generator"])
         self.demo_log_mass = tensors["demo_log_mass"].clone()
         pool = unprefixed("pool", tensors)
-        self.pool = _Samples(**pool) if pool else None
+        self.pool = _Samples(**_tree_of_names(pool)) if pool else None
         self.samplers = []
         for k in range(int(state["samplers"])):
             sampler = ActorCritic(PolicyConfig.from_json(state["sampler_policy"]))
@@ -236,12 +244,15 @@ class RewardLearner:
         demo_index = torch.randint(len(self.demos), (size,), generator=self.generator)
         samples = self._sample_batch(size)
         demo_observations, demo_actions, demo_next_observations = self._demo_steps()
-        inputs = self.reward.inputs(
-            torch.cat([demo_observations[demo_index], samples.observations]),
-            torch.cat([demo_actions[demo_index], samples.env_actions]),
-            torch.cat([demo_next_observations[demo_index], samples.next_observations]),
-        ).requires_grad_(self.config.gradient_penalty > 0)
-        rewards = self.reward.net(inputs).squeeze(-1)
+        inputs = [
+            part.requires_grad_(self.config.gradient_penalty > 0)
+            for part in self.reward.prepare(
+                _cat(tree_index(demo_observations, demo_index), samples.observations),
+                torch.cat([demo_actions[demo_index], samples.env_actions]),
+                _cat(tree_index(demo_next_observations, demo_index), samples.next_observations),
+            )
+        ]
+        rewards = self.reward.score(inputs)
         log_q = torch.cat([self.demo_log_mass[demo_index], samples.log_mass]) - np.log(len(self.samplers))
         logits = rewards - self.log_partition - log_q
         demo_logits, sample_logits = logits[:size], logits[size:]
@@ -252,9 +263,12 @@ class RewardLearner:
             loss = nn.functional.binary_cross_entropy_with_logits(logits, labels)
         if self.config.gradient_penalty > 0:
             # A smooth reward ranks states by how near they come to the demos' states, which is
-            # what lets PPO find them from scratch; a sharp one is flat everywhere else.
-            (gradient,) = torch.autograd.grad(rewards.sum(), inputs, create_graph=True)
-            loss = loss + self.config.gradient_penalty * gradient.pow(2).sum(-1).mean()
+            # what lets PPO find them from scratch; a sharp one is flat everywhere else. An image
+            # reward is smoothed in its pixels, not in its CNN's features, which could grow to
+            # escape the penalty.
+            gradients = torch.autograd.grad(rewards.sum(), inputs, create_graph=True)
+            squared = sum(gradient.pow(2).reshape(len(gradient), -1).sum(-1) for gradient in gradients)
+            loss = loss + self.config.gradient_penalty * cast(torch.Tensor, squared).mean()
         if not torch.isfinite(loss):
             raise ImitationError(
                 f"GCL reward update {self.learned + 1}, step {step}/{steps}: the loss is {loss.item()} (diverged; try a "
@@ -280,41 +294,71 @@ class RewardLearner:
         worth about 0 and everything else costs, than when every value sits at some large
         offset (bench/RESULTS.md)."""
         with torch.no_grad():
-            demos = self.demos
-            offset = self.reward(demos.observations, demos.actions, demos.next_observations).mean()
-            self.reward.net[-1].bias -= offset
+            offset = self.reward.rewards_of(*self._demo_steps()).mean()
+            last = self.reward.net[-1]
+            assert isinstance(last, nn.Linear)
+            last.bias.sub_(offset)
             self.log_partition.sub_(offset)  # in place, as `-=` did (without re-registering the parameter)
 
-    def _demo_steps(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The demos' s, a and s' (tensors: a reward model takes Box or Discrete spaces, never Dict;
-        s' is checked present in __init__)."""
+    def _demo_steps(self) -> tuple[TensorTree, torch.Tensor, TensorTree]:
+        """The demos' s, a and s' (s and s' dicts of tensors for Dict observations; a reward model
+        takes no Dict actions; s' is checked present in __init__)."""
         demos = self.demos
-        assert isinstance(demos.observations, torch.Tensor) and isinstance(demos.actions, torch.Tensor)
-        assert isinstance(demos.next_observations, torch.Tensor)
+        assert isinstance(demos.actions, torch.Tensor) and demos.next_observations is not None
         return demos.observations, demos.actions, demos.next_observations
 
     def _sample_batch(self, size: int) -> _Samples:
         """`size` pooled steps drawn uniformly."""
         assert self.pool is not None
         index = torch.randint(len(self.pool.log_mass), (size,), generator=self.generator)
-        return _Samples(**{name: getattr(self.pool, name)[index] for name in _Samples.__dataclass_fields__})
+        return _Samples(**{name: tree_index(getattr(self.pool, name), index) for name in _Samples.__dataclass_fields__})
 
 
 # Steps per forward pass when a sampler scores the pool: bounds the activations' memory.
 _CHUNK = 65_536
 
 
-def _env_action_log_probs(policy: ActorCritic, observations: torch.Tensor, env_actions: torch.Tensor) -> torch.Tensor:
+def _env_action_log_probs(policy: ActorCritic, observations: TensorTree, env_actions: torch.Tensor) -> torch.Tensor:
     """log π(a|s) of env actions (clipped ones as the mass at the bound, on the same footing for
     demos and samples: `ActorCritic.env_action_log_prob`), computed where the policy is, returned on the CPU."""
     with torch.no_grad():
         device = policy.action_head.weight.device
         parts = []
-        for start in range(0, len(observations), _CHUNK):
+        for start in range(0, len(env_actions), _CHUNK):
             chunk = slice(start, start + _CHUNK)
-            distribution = policy.distribution(policy.encode(observations[chunk].to(device)))
+            distribution = policy.distribution(policy.encode(tree_index(observations, chunk, device)))
             parts.append(policy.env_action_log_prob(distribution, env_actions[chunk].to(device)).cpu())
         return torch.cat(parts)
+
+
+def _cat(first: Any, second: Any) -> Any:
+    """Two batches (tensors, or dicts of them alike) one after the other."""
+    if isinstance(first, dict):
+        return {key: _cat(first[key], second[key]) for key in first}
+    return torch.cat([first, second])
+
+
+def _flat_names(trees: dict[str, TensorTree]) -> dict[str, torch.Tensor]:
+    """Trees as one flat name → tensor map for a checkpoint: a dict leaf `key` of `name` is `name.key`."""
+    flat: dict[str, torch.Tensor] = {}
+    for name, tree in trees.items():
+        if isinstance(tree, dict):
+            flat |= prefixed(name, _flat_names(tree))
+        else:
+            flat[name] = tree
+    return flat
+
+
+def _tree_of_names(flat: dict[str, torch.Tensor]) -> dict[str, Any]:
+    """`_flat_names` undone."""
+    trees: dict[str, Any] = {}
+    for name, tensor in flat.items():
+        *path, leaf = name.split(".")
+        node = trees
+        for key in path:
+            node = node.setdefault(key, {})
+        node[leaf] = tensor
+    return trees
 
 
 class GuidedCostLearning:

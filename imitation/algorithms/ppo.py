@@ -23,6 +23,16 @@ envs, orthogonal init (in imitation.policies), Adam eps 1e-5, learning-rate anne
 minibatch advantage normalisation, optional value clipping, entropy bonus, global gradient
 clipping, optional KL early stop, running observation normalisation and reward scaling.
 
+Observations may be images or Dicts holding them (`--pixels`: the env's rendered frames,
+`imitation.envs.pixels`; `frame_stack` k: the last k frames of each image leaf). The policy then
+encodes each image leaf with a CNN (`imitation.policies`), which the update must train: the
+rollout keeps the observations themselves, image leaves as uint8 (a float32 copy would be four
+times the size), and each minibatch is encoded afresh with gradients. A flat policy's features
+are fixed functions of the observation, computed once at collection and reused. An image
+policy's observation statistics (with `normalize_observations`) are folded in once per rollout,
+after its update, so that the rollout's π_k and the update's π_θ read frames through the same
+statistics and the first ratio r_t(θ) is exactly 1.
+
 The rewards optimised are the environment's, or a learned reward's (`reward`, any object with
 `relabel(rollout)`, such as `imitation.rewards.RewardNet`); an outer loop that learns a reward
 (guided cost learning) calls `collect_rollout` and `update` itself.
@@ -32,6 +42,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from typing import Any, Protocol
 
@@ -52,11 +63,13 @@ from imitation.checkpoints import (
     rng_checkpoint,
     unprefixed,
 )
-from imitation.data.loader import resolve_device
+from imitation.data.loader import TensorTree, resolve_device
 from imitation.envs.make import make_env
+from imitation.envs.pixels import PIXELS_KEY, PixelRecipe, StackFrames, make_pixel_env
 from imitation.envs.rollout import Rollout
 from imitation.errors import ConfigError, ImitationError
-from imitation.policies import ActorCritic, RunningMeanStd, make_policy, require_flat_observations
+from imitation.policies import ActorCritic, RunningMeanStd, batch_of_one, make_policy, tensor_tree
+from imitation.rewards import flat_batch, tree_index
 
 OBJECTIVES = ("clip", "kl")
 
@@ -92,6 +105,13 @@ class PPOConfig:
     shared_trunk: bool = False
     log_std_init: float = 0.0
     async_envs: bool = False
+    # Image observations: how frames are rendered (a PixelRecipe's JSON; None: the env's own
+    # observations), frames stacked per image leaf, the leaves the policy reads (None: the frames
+    # alone with `pixels`, every leaf otherwise) and its CNN (encoders.CNNConfig; None: Nature CNN).
+    pixels: dict[str, Any] | None = None
+    frame_stack: int = 1
+    observation_keys: list[str] | None = None
+    cnn: dict[str, Any] | None = None
     seed: int = 0
     device: str = "auto"
     threads: int = 1
@@ -114,6 +134,18 @@ class PPOConfig:
             raise ConfigError(
                 "learning_rate", f"must be a positive number below 1e30, got {self.learning_rate}", owner="PPOConfig"
             )
+        if not 1 <= self.frame_stack <= 64:
+            raise ConfigError("frame_stack", f"must be in [1, 64], got {self.frame_stack}", owner="PPOConfig")
+        if self.pixels is not None:
+            try:
+                PixelRecipe.from_json(self.pixels)
+            except ValueError as error:
+                raise ConfigError("pixels", str(error), owner="PPOConfig") from None
+
+    @property
+    def recipe(self) -> PixelRecipe | None:
+        """How the env's frames are rendered, None when it is observed as it is."""
+        return PixelRecipe.from_json(self.pixels) if self.pixels is not None else None
 
     @staticmethod
     def from_json(data: dict[str, Any]) -> PPOConfig:
@@ -197,14 +229,23 @@ class RewardScaler:
         return np.clip(rewards / np.sqrt(self.stats.var.item() + 1e-8), -10.0, 10.0)
 
 
-def make_vector_env(env_id: str, n_envs: int, *, asynchronous: bool = False) -> gym.vector.VectorEnv:
-    """n copies of env_id with same-step autoreset (the final observation comes in
-    info["final_obs"], so truncated episodes can be bootstrapped from their true last state),
-    recording each episode's return of the environment's own reward."""
-    make_env(env_id).close()  # fail here, with one line, on an unknown id
+def make_observed_env(env_id: str, pixels: PixelRecipe | None = None, frame_stack: int = 1) -> gym.Env:
+    """env_id as PPO's policy observes it: its rendered frames with `pixels`, the last
+    `frame_stack` frames of each image leaf (`StackFrames`) when that is above 1."""
+    env = make_pixel_env(env_id, pixels) if pixels is not None else make_env(env_id)
+    return StackFrames(env, frame_stack) if frame_stack > 1 else env
+
+
+def make_vector_env(
+    env_id: str, n_envs: int, *, asynchronous: bool = False, pixels: PixelRecipe | None = None, frame_stack: int = 1
+) -> gym.vector.VectorEnv:
+    """n copies of env_id (observed as `make_observed_env` says) with same-step autoreset (the
+    final observation comes in info["final_obs"], so truncated episodes can be bootstrapped from
+    their true last state), recording each episode's return of the environment's own reward."""
+    make_observed_env(env_id, pixels, frame_stack).close()  # fail here, with one line, on an unknown id or no images
 
     def factory() -> gym.Env:
-        return gym.wrappers.RecordEpisodeStatistics(make_env(env_id))
+        return gym.wrappers.RecordEpisodeStatistics(make_observed_env(env_id, pixels, frame_stack))
 
     if asynchronous:
         # spawn, not fork: forking a process that already runs torch threads can deadlock.
@@ -212,6 +253,13 @@ def make_vector_env(env_id: str, n_envs: int, *, asynchronous: bool = False) -> 
             [factory] * n_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP, context="spawn"
         )
     return gym.vector.SyncVectorEnv([factory] * n_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+
+
+def observation_leaves(name: str, observations: Any) -> dict[str, np.ndarray]:
+    """A batch of observations (an array, or a dict of them) as `check_finite_step`'s named arrays."""
+    if isinstance(observations, dict):
+        return {f"{name}_{key}": np.asarray(value) for key, value in observations.items()}
+    return {name: np.asarray(observations)}
 
 
 def check_finite_step(env_id: str, step: int, copies: np.ndarray | None = None, **values: np.ndarray) -> None:
@@ -240,10 +288,11 @@ def finished_episode_returns(info: dict[str, Any]) -> list[float]:
 
 @dataclass
 class UpdateBatch:
-    """A rollout flattened for the update: the encoded states, π_k's actions and log π_k(a|s),
-    Â and R = Â + V, the critic's V at collection, and π_k's parameters (and σ) to rebuild π_k(·|s)."""
+    """A rollout flattened for the update: the policy's inputs (`batch_features`), π_k's actions
+    and log π_k(a|s), Â and R = Â + V, the critic's V at collection, and π_k's parameters (and σ)
+    to rebuild π_k(·|s)."""
 
-    features: torch.Tensor
+    inputs: TensorTree
     actions: torch.Tensor
     log_probs: torch.Tensor
     advantages: torch.Tensor
@@ -263,6 +312,30 @@ class UpdateStatistics:
     clip_fraction: float
     entropy: float
     stopped_early: bool
+
+
+def batch_features(policy: ActorCritic, inputs: TensorTree, index: torch.Tensor | None = None) -> torch.Tensor:
+    """The features π_θ and V_θ read, of the update's inputs (at `index`). A flat policy's inputs
+    are its features, fixed at collection; an image policy's are its observations, encoded here
+    with gradients, so that its CNN learns."""
+    if policy.layout is None:
+        assert isinstance(inputs, torch.Tensor)
+        return inputs if index is None else inputs[index]
+    return policy.encode(inputs if index is None else tree_index(inputs, index))
+
+
+def over_batch(
+    policy: ActorCritic, batch: UpdateBatch, size: int, measure: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+) -> torch.Tensor:
+    """`measure(features, index)` of the whole batch without gradients, `size` samples at a time
+    (an image policy's activations for a whole rollout can take gigabytes)."""
+    rows = len(batch.log_probs)
+    with torch.no_grad():
+        parts = []
+        for start in range(0, rows, size):
+            index = torch.arange(start, min(start + size, rows), device=batch.log_probs.device)
+            parts.append(measure(batch_features(policy, batch.inputs, index), index))
+        return torch.cat(parts)
 
 
 def ppo_update(
@@ -292,7 +365,8 @@ def ppo_update(
         order = torch.randperm(size, device=batch.log_probs.device)
         for start in range(0, size, config.batch_size):
             index = order[start : start + config.batch_size]
-            distribution = policy.distribution(batch.features[index])
+            features = batch_features(policy, batch.inputs, index)
+            distribution = policy.distribution(features)
             log_ratio = policy.log_prob(distribution, batch.actions[index]) - batch.log_probs[index]
             ratio = log_ratio.exp()
             advantages = batch.advantages[index]
@@ -305,7 +379,7 @@ def ppo_update(
                 old = policy.distribution_from(batch.parameters[index], batch.old_log_std)
                 policy_loss = -kl_penalty_objective(ratio, advantages, old, distribution, beta).mean()
 
-            new_values, old_values, returns = policy.value(batch.features[index]), batch.values[index], batch.returns[index]
+            new_values, old_values, returns = policy.value(features), batch.values[index], batch.returns[index]
             if config.clip_value_loss:
                 clipped_values = old_values + torch.clamp(new_values - old_values, -config.clip_range, config.clip_range)
                 value_loss = 0.5 * torch.max((new_values - returns) ** 2, (clipped_values - returns) ** 2).mean()
@@ -333,8 +407,7 @@ def ppo_update(
             stopped_early = True
             break
     policy_loss_mean, value_loss_mean, kl_mean, clip_fraction_mean = torch.stack(statistics).mean(0).tolist()
-    with torch.no_grad():
-        entropy = policy.entropy(policy.distribution(batch.features)).mean().item()
+    entropy = over_batch(policy, batch, config.batch_size, lambda f, _: policy.entropy(policy.distribution(f))).mean().item()
     return UpdateStatistics(policy_loss_mean, value_loss_mean, kl_mean, clip_fraction_mean, entropy, stopped_early)
 
 
@@ -347,15 +420,45 @@ class RolloutReward(Protocol):
 
 @dataclass
 class _Buffers:
-    """What a rollout leaves for its update besides the `Rollout` itself: the encoded states,
-    V(s_t), V of truncated episodes' true final states, π_k's distribution parameters, and the
-    rewards after scaling. Allocated once and refilled in place."""
+    """What a rollout leaves for its update besides the `Rollout` itself: a flat policy's
+    features (None for an image policy, which re-encodes the rollout's observations), V(s_t), V of
+    truncated episodes' true final states, π_k's distribution parameters, and the rewards after
+    scaling. Allocated once and refilled in place."""
 
-    features: torch.Tensor
+    features: torch.Tensor | None
     values: torch.Tensor
     truncated_values: torch.Tensor
     parameters: torch.Tensor
     rewards: torch.Tensor
+
+
+def observation_storage(space: gym.Space, shape: tuple[int, ...], device: torch.device) -> TensorTree:
+    """Zeroed storage for `shape` observations of `space` (a dict of it for a Dict space):
+    uint8 leaves, frames above all, stay uint8; Discrete ones are int64, the others float32."""
+    if isinstance(space, gym.spaces.Dict):
+        return {key: observation_storage(sub, shape, device) for key, sub in space.spaces.items()}
+    assert space.shape is not None  # None only for non-array spaces (Graph, Text)
+    if isinstance(space, gym.spaces.Discrete):
+        dtype = torch.int64
+    else:
+        dtype = torch.uint8 if space.dtype == np.uint8 else torch.float32
+    return torch.zeros((*shape, *space.shape), dtype=dtype, device=device)
+
+
+def store_observations(storage: TensorTree, index: Any, observations: Any) -> None:
+    """storage[index] = observations (a tensor, or a dict of them), leaf by leaf, in the storage's dtype."""
+    if isinstance(storage, dict):
+        for key, leaf in storage.items():
+            store_observations(leaf, index, observations[key])
+    else:
+        storage[index] = observations.to(storage.dtype)
+
+
+def stack_observations(observations: list[Any]) -> Any:
+    """Single observations (arrays, or dicts of them) as one batch."""
+    if isinstance(observations[0], dict):
+        return {key: np.stack([observation[key] for observation in observations]) for key in observations[0]}
+    return np.stack(observations)
 
 
 class PPO:
@@ -376,8 +479,11 @@ class PPO:
         self.config = config
         self.reward = reward
         self.device = device = resolve_device(config.device)
-        self.envs = make_vector_env(config.env_id, config.n_envs, asynchronous=config.async_envs)
-        policy = make_policy(
+        pixels = config.recipe
+        self.envs = make_vector_env(
+            config.env_id, config.n_envs, asynchronous=config.async_envs, pixels=pixels, frame_stack=config.frame_stack
+        )
+        self.policy = make_policy(
             self.envs.single_observation_space,
             self.envs.single_action_space,
             hidden_sizes=list(config.hidden_sizes),
@@ -385,8 +491,12 @@ class PPO:
             shared_trunk=config.shared_trunk,
             normalize_observations=config.normalize_observations,
             log_std_init=config.log_std_init,
-        )
-        self.policy = require_flat_observations(policy, "PPO").to(device)
+            # A pixel policy reads its frames alone: the state rendered beside them is not its to see.
+            observation_keys=config.observation_keys or ([PIXELS_KEY] if pixels is not None else None),
+            frame_stack=config.frame_stack,
+            cnn=config.cnn,
+            pixels=config.pixels,
+        ).to(device)
         self.optimizer = torch.optim.Adam(self.policy.parameters(), lr=config.learning_rate, eps=1e-5)
         self.reward_scaler = RewardScaler(config.n_envs, config.gamma) if config.normalize_rewards else None
         self.rollout_size = config.n_steps * config.n_envs
@@ -406,28 +516,30 @@ class PPO:
     def _allocate(self) -> tuple[Rollout, _Buffers]:
         shape, device = (self.config.n_steps, self.config.n_envs), self.device
         observation_space, action_shape = self.envs.single_observation_space, self.envs.single_action_space.shape
-        assert observation_space.shape is not None and action_shape is not None  # None only for non-array spaces (Graph, Text)
-        observation_dtype = torch.int64 if isinstance(observation_space, gym.spaces.Discrete) else torch.float32
-        sample = torch.as_tensor(observation_space.sample()[None], device=device)
-        feature_size = self.policy.encode(sample).shape[-1]
-        rollout = Rollout(
-            observations=torch.zeros((*shape, *observation_space.shape), dtype=observation_dtype, device=device),
+        assert action_shape is not None  # None only for non-array spaces (Graph, Text)
+        features = None
+        if self.policy.layout is None:
+            sample = tensor_tree(batch_of_one(observation_space.sample()), device)
+            features = torch.zeros((*shape, self.policy.encode(sample).shape[-1]), device=device)
+        # Built from a dict: Rollout's observations are trees here (a tensor, or a dict of them).
+        fields: dict[str, Any] = dict(
+            observations=observation_storage(observation_space, shape, device),
             actions=torch.zeros((*shape, *action_shape), device=device),
             env_actions=torch.zeros((*shape, *action_shape), device=device),
-            next_observations=torch.zeros((*shape, *observation_space.shape), dtype=observation_dtype, device=device),
+            next_observations=observation_storage(observation_space, shape, device),
             log_probs=torch.zeros(shape, device=device),
             env_rewards=torch.zeros(shape, device=device),
             terminated=torch.zeros(shape, dtype=torch.bool, device=device),
             truncated=torch.zeros(shape, dtype=torch.bool, device=device),
         )
         buffers = _Buffers(
-            features=torch.zeros((*shape, feature_size), device=device),
+            features=features,
             values=torch.zeros(shape, device=device),
             truncated_values=torch.zeros(shape, device=device),
             parameters=torch.zeros((*shape, self.policy.action_head.out_features), device=device),
             rewards=torch.zeros(shape, device=device),
         )
-        return rollout, buffers
+        return Rollout(**fields), buffers
 
     @property
     def completed(self) -> int:
@@ -456,18 +568,24 @@ class PPO:
         rollout, buffers = self._rollout, self._buffers
         if self._observations is None:
             self._observations, _ = self.envs.reset(seed=config.seed + self.updates * config.n_envs)
-            check_finite_step(config.env_id, -1, observation=self._observations)
+            check_finite_step(config.env_id, -1, **observation_leaves("observation", self._observations))
+            if policy.layout is not None and self.updates == 0:
+                # An image policy's statistics start from the first frames (then grow once per rollout).
+                policy.update_normalizer(tensor_tree(self._observations, device))
         self.clock.start()  # wall-clock time from here on, reward learning between updates included
         for t in range(config.n_steps):
             tick = time.perf_counter()
-            observation = torch.as_tensor(self._observations, device=device)
-            rollout.observations[t] = observation
-            policy.update_normalizer(observation)
+            observation = tensor_tree(self._observations, device)
+            store_observations(rollout.observations, t, observation)
+            if policy.layout is None:
+                policy.update_normalizer(observation)
             with torch.no_grad():
-                buffers.features[t] = policy.encode(observation)
+                features = policy.encode(observation)
+                if buffers.features is not None:
+                    buffers.features[t] = features
                 # The parameters are kept so the KL objective can compare π_θ with π_k exactly.
-                action, rollout.log_probs[t], buffers.parameters[t] = policy.sample(buffers.features[t])
-                buffers.values[t] = policy.value(buffers.features[t])
+                action, rollout.log_probs[t], buffers.parameters[t] = policy.sample(features)
+                buffers.values[t] = policy.value(features)
             rollout.actions[t] = action.reshape(rollout.actions[t].shape)
             env_action = policy.to_env_action(action)
             rollout.env_actions[t] = torch.as_tensor(env_action, device=device).reshape(rollout.env_actions[t].shape)
@@ -477,24 +595,26 @@ class PPO:
             tick = time.perf_counter()
             timers["env"] += tick - tock
             env_step = self.global_step + t * config.n_envs
-            check_finite_step(config.env_id, env_step, observation=self._observations, reward=np.asarray(reward))
+            check_finite_step(
+                config.env_id, env_step, **observation_leaves("observation", self._observations), reward=np.asarray(reward)
+            )
             self.recent_returns.extend(finished_episode_returns(info))
             rollout.env_rewards[t] = torch.as_tensor(reward, dtype=torch.float32, device=device)
             rollout.terminated[t] = torch.as_tensor(terminated, device=device)
             rollout.truncated[t] = torch.as_tensor(truncated, device=device)
-            rollout.next_observations[t] = torch.as_tensor(self._observations, device=device)
+            store_observations(rollout.next_observations, t, tensor_tree(self._observations, device))
             ended = np.flatnonzero(terminated | truncated)
             if ended.size:
                 # The episode's true final state (the env has already reset to a new one).
-                final = np.stack([info["final_obs"][i] for i in ended])
-                check_finite_step(config.env_id, env_step, ended, final_observation=final)
-                rollout.next_observations[t, torch.as_tensor(ended, device=device)] = torch.as_tensor(final, device=device).to(
-                    rollout.observations.dtype
-                )
+                final = stack_observations([info["final_obs"][i] for i in ended])
+                check_finite_step(config.env_id, env_step, ended, **observation_leaves("final_observation", final))
+                rows = torch.as_tensor(ended, device=device)
+                store_observations(rollout.next_observations, (t, rows), tensor_tree(final, device))
             if truncated.any():
                 # Bootstrap truncated episodes from their true final state, not the reset state.
                 with torch.no_grad():
-                    buffers.truncated_values[t] = policy.value(policy.encode(rollout.next_observations[t]))
+                    next_observation = tree_index(rollout.next_observations, t)
+                    buffers.truncated_values[t] = policy.value(policy.encode(next_observation))
             timers["inference"] += time.perf_counter() - tick
         self.global_step += self.rollout_size
         return rollout
@@ -508,7 +628,7 @@ class PPO:
             self.optimizer.param_groups[0]["lr"] = (1.0 - self.updates / self.total) * config.learning_rate
         self._store_rewards(rewards, rollout)
         with torch.no_grad():
-            last_values = policy.value(policy.encode(torch.as_tensor(self._observations, device=self.device)))
+            last_values = policy.value(policy.encode(tensor_tree(self._observations, self.device)))
         terminated, truncated = rollout.terminated, rollout.truncated
         next_values = torch.where(truncated, buffers.truncated_values, torch.cat([buffers.values[1:], last_values[None]]))
         advantages, returns = compute_gae(
@@ -522,7 +642,7 @@ class PPO:
         )
         size = self.rollout_size
         batch = UpdateBatch(
-            features=buffers.features.reshape(size, -1),
+            inputs=flat_batch(rollout.observations, 2) if buffers.features is None else buffers.features.reshape(size, -1),
             actions=rollout.actions.reshape(size, *rollout.actions.shape[2:]),
             log_probs=rollout.log_probs.reshape(-1),
             advantages=advantages.reshape(-1),
@@ -534,10 +654,15 @@ class PPO:
         measured = ppo_update(policy, self.optimizer, batch, config, self.beta, update=self.updates + 1, n_updates=self.total)
         mean_kl = measured.approx_kl
         if config.objective == "kl":
-            with torch.no_grad():
-                old = policy.distribution_from(batch.parameters, batch.old_log_std)
-                mean_kl = policy_kl(old, policy.distribution(batch.features)).mean().item()
+
+            def kl(features: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+                old = policy.distribution_from(batch.parameters[index], batch.old_log_std)
+                return policy_kl(old, policy.distribution(features))
+
+            mean_kl = over_batch(policy, batch, config.batch_size, kl).mean().item()
             self.beta = update_kl_penalty(self.beta, mean_kl, config.kl_target)
+        if policy.layout is not None:
+            policy.update_normalizer(batch.inputs)  # after the update: see the module docstring
         self.updates += 1
         self.timers["update"] += time.perf_counter() - started
         return self._row(measured, mean_kl, batch)

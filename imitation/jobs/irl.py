@@ -3,6 +3,7 @@ sample-based (guided cost learning with PPO alongside)."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from contextlib import closing
 from typing import Any
@@ -12,17 +13,20 @@ import numpy as np
 
 from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning
 from imitation.algorithms.maxent_irl import MaxEntIRL, MaxEntIRLConfig, all_state_rewards, demo_visitation
-from imitation.algorithms.ppo import PPO, PPOConfig
+from imitation.algorithms.ppo import PPO, PPOConfig, make_observed_env
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import check_episodes_finite, load_transitions, transitions_to_torch
+from imitation.data.types import Transitions
 from imitation.envs.make import make_env
+from imitation.envs.pixels import PIXELS_KEY, PixelRecipe, image_keys, stack_frames, stacked_space
 from imitation.envs.tabular import tabular_mdp_of
 from imitation.envs.tabular_planning import soft_optimal_returns
+from imitation.errors import ImitationError
 from imitation.evaluation.plots import plot_curve, plot_grid_maps
 from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
-from imitation.policies import policy_tensors
+from imitation.policies import acting_env, make_acting_env, policy_tensors
 from imitation.rewards import make_reward_model, reward_tensors
 from imitation.seeding import seed_everything
 
@@ -121,21 +125,33 @@ def gcl_job(
 ) -> dict[str, Any]:
     """Guided cost learning on `demos` into run directory `out`: the reward model (for `train ppo
     --reward`) and the PPO policy trained alongside it. `resume` continues the interrupted run in
-    `out`.partial from its checkpoint (PPO's, holding the reward learner's state too)."""
+    `out`.partial from its checkpoint (PPO's, holding the reward learner's state too).
+
+    Demos recorded with `record --pixels` are learnt from their frames alone: the reward reads
+    the "pixels" leaf through a CNN, stacked as recorded (`--frame-stack`), and PPO acts in the env
+    rendered the same way."""
     ppo_config.validate()
     config.validate()
     seed_everything(config.seed)
-    with closing(make_env(env_id)) as env:
-        dataset = DemoDataset(demos)
+    dataset = DemoDataset(demos)
+    pixels, frames = recorded_pixels(dataset)
+    if pixels is not None:
+        ppo_config = dataclasses.replace(ppo_config, pixels=pixels.to_json(), frame_stack=frames)
+    with closing(make_observed_env(env_id, pixels)) as env:
         check_demos_fit_env(dataset, env)
-        observation_space, action_space = env.observation_space, env.action_space
-    transitions = transitions_to_torch(load_transitions(dataset, next_observations=True))
+        observation_space, action_space = stacked_space(env.observation_space, frames), env.action_space
+    loaded = load_transitions(dataset, next_observations=True)
+    transitions = transitions_to_torch(with_frame_stacks(loaded, frames, image_keys(env.observation_space)))
+    pixel_options: dict[str, Any] = (
+        {"observation_keys": [PIXELS_KEY], "frame_stack": frames, "pixels": pixels.to_json()} if pixels is not None else {}
+    )
     reward = make_reward_model(
         observation_space,
         action_space,
         hidden_sizes=list(config.hidden_sizes),
         inputs=config.inputs,
-        normalize_observations=isinstance(observation_space, gym.spaces.Box),
+        normalize_observations=isinstance(observation_space, gym.spaces.Box) and not image_keys(observation_space),
+        **pixel_options,
     )
     run_config = RunConfig(
         kind="reward",
@@ -170,8 +186,9 @@ def gcl_job(
             ys=["reward_loss", "demo_accuracy", "sample_accuracy"],
             title=f"GCL on {env_id}: reward learning",
         )
-        with closing(make_env(env_id)) as env:
-            evaluation = final_evaluation(ppo.policy.cpu(), env)
+        policy = ppo.policy.cpu()
+        with closing(make_acting_env(policy.config, env_id)) as env:  # rendering frames for a pixel policy
+            evaluation = final_evaluation(policy, acting_env(policy, env))
         last = run.history[-1]
         metrics = {
             "env_id": env_id,
@@ -188,3 +205,41 @@ def gcl_job(
         }
         run.finish(metrics)
     return {"run": str(run.path), **metrics}
+
+
+def recorded_pixels(dataset: DemoDataset) -> tuple[PixelRecipe | None, int]:
+    """How the demos' frames were rendered (`record --pixels`; None for other demos) and the
+    frames per stack recorded with them (1 when none)."""
+    recorded = dataset.files[0].user_metadata.get("pixels")
+    if recorded is None:
+        return None, 1
+    stack = recorded.get("frame_stack", 1) if isinstance(recorded, dict) else None
+    try:
+        if isinstance(stack, bool) or not isinstance(stack, int) or not 1 <= stack <= 64:
+            raise ValueError(f"frame_stack must be in [1, 64], got {str(stack)[:40]}")
+        return PixelRecipe.from_json(recorded), stack
+    except ValueError as error:
+        raise ImitationError(f"{dataset.files[0].path}: user metadata 'pixels': {error}") from None
+
+
+def with_frame_stacks(transitions: Transitions, frames: int, keys: list[str]) -> Transitions:
+    """Stored transitions (single frames, rows in episode and time order) with each image leaf
+    `keys` of s_t as the stack `StackFrames` shows, [x_{t-k+1}, …, x_t], and of s_{t+1} as the
+    stack after it, [x_{t-k+2}, …, x_{t+1}]: s_t's stack shifted by one frame."""
+    if frames == 1:
+        return transitions
+    observations = stack_frames(transitions.observations, transitions.episode_index, frames, keys)
+    following = transitions.next_observations
+    assert following is not None  # loaded with next_observations=True
+
+    def shifted(stack: Any, frame: Any) -> np.ndarray:
+        return np.concatenate([stack[:, 1:], frame[:, None]], axis=1)
+
+    next_observations: Any
+    if isinstance(observations, dict):
+        next_observations = {
+            key: shifted(value, following[key]) if key in keys else following[key] for key, value in observations.items()
+        }
+    else:
+        next_observations = shifted(observations, following)
+    return dataclasses.replace(transitions, observations=observations, next_observations=next_observations)

@@ -6,12 +6,12 @@ import os
 from contextlib import closing
 from typing import Any
 
-from imitation.algorithms.ppo import PPO, PPOConfig
+from imitation.algorithms.ppo import PPO, PPOConfig, make_observed_env
 from imitation.data.spaces import check_spaces_fit
-from imitation.envs.make import make_env
 from imitation.evaluation.plots import plot_curve
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import final_evaluation, save_policy, train_to_end, training_run
+from imitation.policies import acting_env, make_acting_env
 from imitation.rewards import RewardNet, load_reward
 from imitation.runs import read_run
 from imitation.seeding import seed_everything
@@ -39,7 +39,9 @@ def ppo_job(
         demos = RunConfig.from_json(read_run(reward_run)[0]).existing_demos()  # the expert reference of `eval policy`
         reward_source = f"--reward {reward_run}"
     if reward is not None:
-        with closing(make_env(config.env_id)) as env:  # fail before training, with one line
+        with closing(
+            make_observed_env(config.env_id, config.recipe, config.frame_stack)
+        ) as env:  # fail before training, with one line
             check_spaces_fit(
                 "reward model's", reward.observation_space, reward.action_space, env, where=reward_source or "the reward"
             )
@@ -54,8 +56,9 @@ def ppo_job(
         plot_curve(
             run.file("learning_curve.png"), run.history, x="step", ys=ys, title=f"PPO ({config.objective}) on {config.env_id}"
         )
-        with closing(make_env(config.env_id)) as env:
-            evaluation = final_evaluation(learner.policy.cpu(), env)
+        policy = learner.policy.cpu()
+        with closing(make_acting_env(policy.config, config.env_id)) as env:  # rendering frames for a pixel policy
+            evaluation = final_evaluation(policy, acting_env(policy, env))
         metrics = {
             "env_id": config.env_id,
             "objective": config.objective,

@@ -111,7 +111,7 @@ def reference_batch(policy: ActorCritic, rollout: Rollout, rewards: torch.Tensor
         gae_lambda=config.gae_lambda,
     )
     return UpdateBatch(
-        features=features,
+        inputs=features,
         actions=flat(rollout.actions),
         log_probs=flat(rollout.log_probs),
         advantages=flat(advantages),
@@ -216,7 +216,7 @@ def test_each_update_is_gae_then_the_minibatch_epochs_and_its_row_is_computed_by
             if config.objective == "kl":
                 # The exact mean KL from π_k to the updated policy (old first); β halves below δ/1.5.
                 with torch.no_grad():
-                    new_out = reference.action_head(reference.actor_trunk(batch.features))
+                    new_out = reference.action_head(reference.actor_trunk(batch.inputs))
                     old = Normal(batch.parameters, batch.old_log_std.exp())
                     kl = kl_divergence(old, Normal(new_out, reference.log_std.exp())).sum(-1).mean().item()
                 assert 0 < kl < config.kl_target / 1.5

@@ -39,7 +39,7 @@ def _setting(continuous: bool) -> tuple[ActorCritic, UpdateBatch]:
         log_probs = old.log_prob(actions).sum(-1) if continuous else old.log_prob(actions)
         values = policy.value(features) + 0.5 * torch.randn(SIZE)
     batch = UpdateBatch(
-        features=features, actions=actions, log_probs=log_probs, advantages=2.0 * torch.randn(SIZE) + 0.7, returns=values + torch.randn(SIZE),
+        inputs=features, actions=actions, log_probs=log_probs, advantages=2.0 * torch.randn(SIZE) + 0.7, returns=values + torch.randn(SIZE),
         values=values, parameters=parameters if continuous else torch.log_softmax(parameters, -1), old_log_std=old_log_std,
     )
     return policy, batch
@@ -53,7 +53,7 @@ def _oracle(policy: ActorCritic, batch: UpdateBatch, config: PPOConfig, beta: fl
         order = torch.randperm(SIZE)
         for start in range(0, SIZE, config.batch_size):
             i = order[start : start + config.batch_size]
-            out = policy.action_head(policy.actor_trunk(batch.features[i]))
+            out = policy.action_head(policy.actor_trunk(batch.inputs[i]))
             if policy.is_continuous:
                 new, old = Normal(out, policy.log_std.exp()), Normal(batch.parameters[i], batch.old_log_std.exp())
                 log_prob, entropy, kl = new.log_prob(batch.actions[i]).sum(-1), new.entropy().sum(-1), kl_divergence(old, new).sum(-1)
@@ -69,7 +69,7 @@ def _oracle(policy: ActorCritic, batch: UpdateBatch, config: PPOConfig, beta: fl
                 surrogate = torch.min(ratio * a, torch.clamp(ratio, 1 - eps, 1 + eps) * a)
             else:
                 surrogate = ratio * a - beta * kl
-            v = policy.value_head(policy.critic_trunk(batch.features[i])).squeeze(-1)
+            v = policy.value_head(policy.critic_trunk(batch.inputs[i])).squeeze(-1)
             value_loss = 0.5 * (v - batch.returns[i]) ** 2
             if config.clip_value_loss:
                 v_clipped = batch.values[i] + torch.clamp(v - batch.values[i], -eps, eps)
@@ -118,7 +118,7 @@ def test_the_update_is_the_notes_loss_minimised_by_minibatch_steps(setting: str,
     assert [measured.policy_loss, measured.value_loss, measured.approx_kl, measured.clip_fraction] == pytest.approx(means.tolist(), abs=1e-6)
     assert 0 < measured.clip_fraction < 1 and not measured.stopped_early
     with torch.no_grad():
-        entropy = policy.entropy(policy.distribution(batch.features)).mean().item()
+        entropy = policy.entropy(policy.distribution(batch.inputs)).mean().item()
     assert measured.entropy == pytest.approx(entropy)
 
 
