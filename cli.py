@@ -529,8 +529,10 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "random_shift": "--random-shift",
             "observation_keys": "--observation-keys",
             "stream_memory": "--stream-memory",
+            "mixed_precision": "--mixed-precision",
             "seed": "--seed",
             "device": "--device",
+            "threads": "--threads",
         },
         None: {"device": "--device"},
     },
@@ -548,6 +550,7 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "hidden_sizes": "--hidden",
             "frame_stack": "--frame-stack",
             "random_shift": "--random-shift",
+            "mixed_precision": "--mixed-precision",
             "seed": "--seed",
             "device": "--device",
         },
@@ -608,7 +611,14 @@ def _add_pixel_arguments(parser: argparse.ArgumentParser, what: str) -> None:
     )
 
 
-def _add_random_shift(parser: argparse.ArgumentParser) -> None:
+def _add_image_training_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--mixed-precision",
+        action="store_true",
+        default=None,
+        help="autocast the network to float16 on CUDA (with a gradient scaler) or bfloat16 on the CPU; weights stay "
+        "float32 (default: off)",
+    )
     parser.add_argument(
         "--random-shift",
         type=int,
@@ -1044,7 +1054,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="K",
         help="image observations: frames stacked per image (default: as the demos were recorded, else 1)",
     )
-    _add_random_shift(bc)
+    _add_image_training_options(bc)
     bc.add_argument(
         "--observation-keys",
         type=_names,
@@ -1061,6 +1071,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bc.add_argument("--seed", type=int, metavar="S", help="seed (default: 0)")
     bc.add_argument("--device", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
+    bc.add_argument(
+        "--threads", type=int, metavar="N", help="torch CPU threads (default: every core for a CNN, 1 for an MLP alone)"
+    )
     _add_run_output(bc)
     _add_resume(bc)
     bc.set_defaults(handler=cmd_train_bc)
@@ -1097,7 +1110,7 @@ def build_parser() -> argparse.ArgumentParser:
     dagger.add_argument(
         "--frame-stack", type=int, metavar="K", help="with --pixels: frames the learner stacks per observation (default: 1)"
     )
-    _add_random_shift(dagger)
+    _add_image_training_options(dagger)
     dagger.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     dagger.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
     _add_run_output(dagger)

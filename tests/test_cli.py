@@ -148,6 +148,9 @@ def test_train_bc_help_names_the_configs_own_defaults() -> None:
         if value is None:  # decided when the run starts (e.g. from the demos): the help says how, in words
             assert not shown[1].startswith("None"), flag
             continue
-        expected = ",".join(map(str, value)) if isinstance(value, list) else str(value)
+        if isinstance(value, bool):
+            expected = "on" if value else "off"
+        else:
+            expected = ",".join(map(str, value)) if isinstance(value, list) else str(value)
         assert shown[1] == expected, (flag, shown[1], expected)
         assert bc.get_default(flag.lstrip("-").replace("-", "_")) is None, flag

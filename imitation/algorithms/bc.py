@@ -19,6 +19,7 @@ fitted once on the training demos and saved with the policy.
 from __future__ import annotations
 
 import copy
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -87,7 +88,13 @@ class BCConfig:
     stream_memory: int | None = None
     seed: int = 0
     device: str = "auto"
-    threads: int = 1
+    # Autocast the forward pass to float16 (CUDA, with a gradient scaler) or bfloat16 (CPU); the
+    # weights and the optimiser stay float32.
+    mixed_precision: bool = False
+    # torch CPU threads; None: every core this process may use when the policy has a CNN (its
+    # convolutions parallelise well), one for an MLP alone (small matrices: threads cost more
+    # than they gain).
+    threads: int | None = None
 
     def validate(self, continuous: bool) -> None:
         if self.loss not in LOSSES:
@@ -104,6 +111,8 @@ class BCConfig:
             raise ConfigError("frame_stack", f"must be in [1, 64], got {self.frame_stack}", owner="BCConfig")
         if self.random_shift < 0:
             raise ConfigError("random_shift", f"must be at least 0 pixels, got {self.random_shift}", owner="BCConfig")
+        if self.threads is not None and not 1 <= self.threads <= 1024:
+            raise ConfigError("threads", f"must be in [1, 1024], got {self.threads}", owner="BCConfig")
         if self.stream_memory is not None and self.stream_memory < 1:
             raise ConfigError("stream_memory", f"must be at least 1 byte, got {self.stream_memory}", owner="BCConfig")
         for name in ("epochs", "batch_size", "patience"):
@@ -113,6 +122,11 @@ class BCConfig:
             raise ConfigError(
                 "learning_rate", f"must be a positive number below 1e30, got {self.learning_rate}", owner="BCConfig"
             )
+
+
+def default_threads(policy: ActorCritic) -> int:
+    """Every core this process may use for a policy with a CNN, else one."""
+    return len(os.sched_getaffinity(0)) if len(policy.image_encoders) else 1
 
 
 def bc_loss(policy: ActorCritic, batch: TransitionTensors, config: BCConfig) -> tuple[torch.Tensor, dict[str, float]]:
@@ -191,7 +205,7 @@ class BehaviouralCloning:
         evaluate_every: int = 5,
     ) -> None:
         config.validate(policy.is_continuous)
-        torch.set_num_threads(config.threads)
+        torch.set_num_threads(config.threads or default_threads(policy))
         torch.manual_seed(config.seed)
         device = resolve_device(config.device)
         self.policy = policy.to(device).train()
@@ -220,6 +234,8 @@ class BehaviouralCloning:
         self.total = config.epochs
         self.evaluate, self.evaluate_every = evaluate, evaluate_every
         self.optimizer = torch.optim.Adam(policy.parameters(), lr=config.learning_rate)
+        self.half = torch.float16 if device.type == "cuda" else torch.bfloat16
+        self.scaler = torch.amp.GradScaler(device.type, enabled=config.mixed_precision and device.type == "cuda")
         self.epochs = 0
         self.best_loss, self.best_epoch, self.best_state = float("inf"), 0, copy.deepcopy(policy.state_dict())
         self.samples = 0
@@ -251,12 +267,14 @@ class BehaviouralCloning:
         for batch in self.loader:
             if streamed:  # streamed batches arrive on the CPU
                 batch = batch.to(self.device)
-            loss, parts = bc_loss(self.policy, batch, self.config)
+            with torch.autocast(self.device.type, dtype=self.half, enabled=self.config.mixed_precision):
+                loss, parts = bc_loss(self.policy, batch, self.config)
             if not torch.isfinite(loss):
                 raise ImitationError(f"BC epoch {epoch}: the loss is {loss.item()} (diverged; try a lower learning rate)")
             self.optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            self.optimizer.step()
+            self.scaler.scale(loss).backward()
+            self.scaler.step(self.optimizer)
+            self.scaler.update()
             fits.append(parts["fit"])
             self.samples += len(batch)
         validation = self.validation
@@ -305,6 +323,7 @@ class BehaviouralCloning:
             "seconds": self.clock.seconds,
             "optimizer": optimizer_state,
             "rng": rng_state,
+            "scaler": self.scaler.state_dict(),
         }
         return tensors, state
 
@@ -316,6 +335,8 @@ class BehaviouralCloning:
             self.best_state = {name: t.to(device) for name, t in unprefixed("best", tensors).items()}
             restore_optimizer(self.optimizer, tensors, state["optimizer"], "optimizer")
             restore_rng(tensors, state["rng"])
+            if state.get("scaler"):
+                self.scaler.load_state_dict(state["scaler"])
             self.loader.set_generator_state(tensors["loader.generator"])
             self.best_loss = float("inf") if state["best_loss"] is None else float(state["best_loss"])
             self.best_epoch, self.samples, self.clock.before = (

@@ -4,6 +4,7 @@ shift, and `record --pixels` → `train bc` / `train dagger` → `eval policy` t
 from __future__ import annotations
 
 import json
+import os
 
 import gymnasium as gym
 import numpy as np
@@ -11,6 +12,8 @@ import pytest
 import torch
 from support import run_cli
 
+from imitation.algorithms.bc import BCConfig, BehaviouralCloning, default_threads
+from imitation.data.loader import TransitionTensors
 from imitation.data.dataset import DemoDataset
 from imitation.encoders import CNNConfig, random_shift
 from imitation.envs.action_noise import ActionNoise
@@ -106,6 +109,42 @@ def test_cnn_policy_reads_only_its_keys() -> None:
     assert both.encode(batch).shape == (1, 32 + 4)  # the state's 4 numbers beside the CNN's features
     with pytest.raises(ImitationError, match="too small for the CNN"):
         make_policy(env.observation_space, env.action_space, frame_stack=2, cnn=CNNConfig().to_json())
+
+
+def test_bc_trains_a_cnn_on_every_core_and_an_mlp_on_one() -> None:
+    env = StackFrames(make_pixel_env("CartPole-v1", PixelRecipe(24, 24, True)), 2)
+    cnn = make_policy(env.observation_space, env.action_space, frame_stack=2, observation_keys=["pixels"], cnn=SMALL_CNN)
+    mlp = make_policy(env.observation_space, env.action_space, frame_stack=2, observation_keys=["state"])
+    assert default_threads(cnn) == len(os.sched_getaffinity(0))
+    assert default_threads(mlp) == 1
+
+
+def test_mixed_precision_bc_runs_the_cnn_in_bfloat16_on_the_cpu_and_keeps_float32_weights() -> None:
+    space = gym.spaces.Dict({"pixels": gym.spaces.Box(0, 255, (2, 24, 24, 1), np.uint8)})
+    generator = torch.Generator().manual_seed(0)
+    frames = torch.randint(0, 256, (64, 2, 24, 24, 1), dtype=torch.uint8, generator=generator)
+    labels = (frames[:, -1, :12].float().mean((1, 2, 3)) > frames[:, -1, 12:].float().mean((1, 2, 3))).long()
+    n = len(labels)
+    data = TransitionTensors(
+        observations={"pixels": frames}, actions=labels, rewards=torch.zeros(n), next_observations=None,
+        terminated=torch.zeros(n, dtype=torch.bool), truncated=torch.zeros(n, dtype=torch.bool),
+        episode_index=torch.zeros(n, dtype=torch.long),
+    )  # fmt: skip
+    trained = {}
+    for mixed in (False, True):
+        torch.manual_seed(0)
+        policy = make_policy(space, gym.spaces.Discrete(2), frame_stack=2, normalize_observations=True, cnn=SMALL_CNN)
+        config = BCConfig(epochs=1, batch_size=16, epoch_samples=64, random_shift=0, mixed_precision=mixed, threads=1)
+        learner = BehaviouralCloning(policy, data, None, config)
+        dtypes = []
+        hook = policy.image_encoders[0].convolutions[0].register_forward_hook(lambda m, i, o: dtypes.append(o.dtype))
+        learner.step()
+        hook.remove()
+        assert dtypes and set(dtypes) == {torch.bfloat16 if mixed else torch.float32}
+        assert all(p.dtype == torch.float32 for p in policy.parameters())
+        trained[mixed] = torch.cat([p.detach().reshape(-1) for p in policy.parameters()])
+    assert not torch.equal(trained[False], trained[True])  # the half-precision forward pass changed the steps
+    torch.testing.assert_close(trained[True], trained[False], rtol=0, atol=0.05)  # ... but only by rounding
 
 
 def test_pixels_are_standardised_per_channel_by_the_newest_frames() -> None:
