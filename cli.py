@@ -755,7 +755,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="NAME=N",
         help="raise a resource bound for this run, e.g. --limit sample_elements=33554432 (bounds: sample_elements, "
-        "dict_leaves, expansion_ratio, chunk_bytes, yaml_nodes, policy_parameters; see imitation/limits.py)",
+        "dict_leaves, expansion_ratio, chunk_bytes, yaml_nodes, policy_parameters, grid_steps_per_message; see "
+        "imitation/limits.py)",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 

@@ -32,6 +32,13 @@ class Limits:
     yaml_nodes: int = 100_000
     # Weights of a policy network (2^27 float32 weights are 512 MiB).
     policy_parameters: int = 2**27
+    # Steps of a bag's resampled episode per message of its mapped topics inside it (ros.py). The
+    # grid steps at the map's rate_hz, so a real bag stays far below: its topics publish at rates
+    # like the grid's (a ratio near 1), and even a 100 Hz grid over topics that together publish
+    # once per 10 s is only 1000, however long the bag. A grid thousands of times denser than the
+    # data is a damaged stamp stretching a few messages over days (a 7.8 KB bag would be 44 million
+    # steps, 3.9 GB); a real silence that long belongs between episodes (`episodes: {split: gap}`).
+    grid_steps_per_message: int = 1000
 
 
 LIMITS = Limits()

@@ -687,6 +687,7 @@ CASE_LIST = [
                                 "--epochs", "1", "--quiet", "--out", i.root / "t40"]),
     case("train-43", lambda i: ["train", "bc", "--demos", DATASETS / "Pendulum-v1.mcap", "--env", "Pendulum-v1", "--previous-action", "on", "--stream-memory", "64",
                                 "--epochs", "1", "--quiet", "--out", i.root / "t43"], expect="--stream-memory streams"),
+    case("train-45", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--threads", "0", "--out", i.root / "t45"), expect="--threads must"),
     case("train-44", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--stream-memory", "0.001", "--batch-size", "256", "--out", i.root / "t44")),
     case("irl-1", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--discount", "0", "--out", i.root / "i1"],
          expect="--discount must"),

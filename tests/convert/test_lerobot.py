@@ -322,3 +322,22 @@ def test_info_totals_that_disagree_with_the_data_warn_and_convert_what_is_presen
     # The untouched datasets agree with their info.json: no such warning.
     for name in ("g1_v21", "so101_v30"):
         assert not [w for w in lerobot_to_episodes(testdata / "lerobot" / name, progress=False).warnings if "total_" in w]
+
+
+@pytest.mark.parametrize(
+    ("key", "dtype", "got"),
+    [("timestamp", [-1], "a list"), ("observation.state", {"float32": 1}, "an object"),
+     ("observation.images.cam_high", ["video"], "a list"), ("action", 32, "the int 32")],
+)
+def test_a_dtype_that_is_not_a_name_is_refused_naming_the_feature(testdata: Path, tmp_path: Path, key: str, dtype, got: str) -> None:
+    """G1's info.json with one feature's dtype made a list, an object or a number (tools/fuzz.py:
+    a TypeError `unhashable type`, or a damaged index feature converting as if sound)."""
+    root = tmp_path / "g1"
+    shutil.copytree(testdata / "lerobot" / "g1_v21", root, ignore=shutil.ignore_patterns("episode_00000[1-9].parquet", "episode_0000[1-9]?.parquet"))
+    (root / "meta" / "episodes.jsonl").write_text((testdata / "lerobot" / "g1_v21" / "meta" / "episodes.jsonl").read_text().splitlines()[0] + "\n")
+    info = json.loads((root / "meta" / "info.json").read_text())
+    info["features"][key]["dtype"] = dtype
+    (root / "meta" / "info.json").write_text(json.dumps(info))
+    with pytest.raises(ImitationError) as refused:
+        lerobot_to_episodes(root, progress=False)
+    assert str(refused.value) == f"{root / 'meta' / 'info.json'}: feature {key!r}: 'dtype' must be a name such as 'float32' or 'video', got {got}"

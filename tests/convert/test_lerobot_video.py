@@ -93,6 +93,22 @@ def test_a_missing_frame_or_a_broken_video_is_one_line_naming_file_feature_and_f
         lerobot_to_episodes(root, episodes=[4], progress=False)
 
 
+def test_a_video_stream_of_a_codec_ffmpeg_does_not_know_is_one_line(testdata: Path, tmp_path: Path) -> None:
+    """SO-101's wrist video with its sample entry's codec (stsd `av01`) renamed: PyAV opens the
+    stream but gives it no codec context (tools/fuzz.py: an AttributeError on its `height`)."""
+    root = tmp_path / "so101"
+    shutil.copytree(testdata / "lerobot" / "so101_v30", root)
+    data = (root / WRIST).read_bytes()
+    entry = data.index(b"av01", data.index(b"stsd"))
+    (root / WRIST).write_bytes(data[:entry] + b"zzzz" + data[entry + 4 :])
+    with pytest.raises(ImitationError) as refused:
+        lerobot_to_episodes(root, episodes=[4], progress=False)
+    assert str(refused.value) == (
+        f"{root / WRIST}: video feature 'observation.images.wrist', episode 4: cannot decode the video "
+        "(ValueError: the video stream names no codec PyAV can decode)"
+    )
+
+
 def test_a_frame_larger_than_the_limits_is_refused_before_decoding(testdata: Path, tmp_path: Path) -> None:
     root = tmp_path / "so101"
     shutil.copytree(testdata / "lerobot" / "so101_v30", root, ignore=shutil.ignore_patterns("videos"))

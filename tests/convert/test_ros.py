@@ -198,3 +198,44 @@ def test_a_message_stamped_beyond_what_a_timestamp_holds_is_one_line(testdata: P
     with pytest.raises(ImitationError, match=r"a message on /one_shot/imu is stamped 9223372036854775813 ns, outside what a timestamp can hold"):
         convert(bag, tmp_path / "out.mcap", map_path=write_map(tmp_path, arrays), progress=False)
     assert not (tmp_path / "out.mcap").exists()
+
+
+def test_a_damaged_header_stamp_that_stretches_a_bag_over_a_day_is_refused_before_the_grid(testdata: Path, tmp_path: Path) -> None:
+    """cmd_vel_only_2 (99 messages in 1 s) with the last /vehicle/cmd_vel header stamp a day late,
+    as tools/fuzz.py made it (there 20 days: 44 million steps, 23 s and 3.9 GB for a 7.8 KB bag):
+    the 25 Hz grid would hold 2.2 million steps, over 1000 per message, and is refused naming the
+    file, the topic and the silence. Split at gaps, the late message is a span of its own."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    bag = tmp_path / "cmd_vel.mcap"
+    with open(testdata / "ros2/replay_testing/cmd_vel_only_2.mcap", "rb") as stream, open(bag, "wb") as out:
+        records = list(make_reader(stream).iter_messages(log_time_order=True))
+        late = max(k for k, (_, channel, _) in enumerate(records) if channel.topic == "/vehicle/cmd_vel")
+        writer, schemas, channels = Writer(out), {}, {}
+        writer.start(profile="ros2", library="test")
+        for k, (schema, channel, message) in enumerate(records):
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding, schemas[schema.id], channel.metadata)
+            data = message.data
+            if k == late:  # CDR little-endian: header.stamp.sec follows the 4-byte encapsulation header
+                data = data[:4] + (int.from_bytes(data[4:8], "little") + 86_400).to_bytes(4, "little") + data[8:]
+            writer.add_message(channels[channel.id], message.log_time, data, message.publish_time)
+        writer.finish()
+    twist = {"rate_hz": 25, "time": "header", "observation": [{"topic": "/vehicle/cmd_vel", "fields": ["twist.linear.x", "twist.angular.z"]}],
+             "action": [{"topic": "/scaled/cmd_vel", "fields": ["twist.linear.x", "twist.angular.z"]}]}
+    with pytest.raises(ImitationError) as refused:
+        convert(bag, tmp_path / "out.mcap", map_path=write_map(tmp_path, twist), progress=False)
+    assert str(refused.value) == (
+        f"{bag}: episode span 0: the 25 Hz grid from 1730467949.015 s to 1730554349.995 s would hold 2160025 steps for "
+        "99 messages on /vehicle/cmd_vel, /scaled/cmd_vel; the longest silence is 86400.0 s, from a message on /scaled/cmd_vel "
+        "stamped 1730467949.975 s to one on /vehicle/cmd_vel stamped 1730554349.995 s (a damaged timestamp? a real silence "
+        "belongs between episodes: `episodes: {split: gap, seconds: S}`); steps per message: 21819 is more than the limit "
+        "grid_steps_per_message=1000 (raise it with `imitation --limit grid_steps_per_message=N` if the data is real)"
+    )
+    assert not (tmp_path / "out.mcap").exists()
+    split = {**twist, "episodes": {"split": "gap", "seconds": 1.0}}
+    result = convert(bag, tmp_path / "out.mcap", map_path=write_map(tmp_path, split), progress=False)
+    assert result["episodes"] == 2 and result["transitions"] == 25 + 1

@@ -89,6 +89,18 @@ def lerobot_to_episodes(root: str | Path, *, episodes: Collection[int] | None = 
         raise ImitationError(f"{info_path}: not a LeRobot info.json ({type(error).__name__}: {str(error)[:200]})") from None
     if not isinstance(features, dict) or not all(isinstance(key, str) and isinstance(f, dict) for key, f in features.items()):
         raise ImitationError(f"{info_path}: 'features' must map each feature name to its description")
+    for key, feature in features.items():  # lerobot writes every dtype as a name: anything else is damage
+        dtype = feature.get("dtype")
+        if not isinstance(dtype, str):
+            if dtype is None:
+                got = "none"
+            elif isinstance(dtype, (list, dict)):
+                got = "a list" if isinstance(dtype, list) else "an object"
+            else:
+                got = f"the {type(dtype).__name__} {dtype}"
+            raise ImitationError(
+                f"{info_path}: feature {key[:100]!r}: 'dtype' must be a name such as 'float32' or 'video', got {got[:60]}"
+            )
     if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 0 < fps < 1e6:
         raise ImitationError(f"{info_path}: 'fps' must be a positive number of frames per second, got {str(fps)[:40]}")
     observation_keys, cameras, action_key, warnings = _choose_features(root, info_path, features)

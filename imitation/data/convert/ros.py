@@ -7,7 +7,9 @@ followed by an observation (the streams' held values). Its T+1 grid times give t
 observations, the first T of them the actions, and the reward entry (if any) is read at grid
 times 1…T (the reward that follows each action). So a span of S seconds gives floor(S·rate) + 1
 steps, and a bag with one message per topic still gives one. Episodes are `truncated`: a
-recording stops, it does not reach a terminal state.
+recording stops, it does not reach a terminal state. A span whose grid would hold more than
+`grid_steps_per_message` (imitation/limits.py) steps per message of the mapped topics in it is
+refused before the grid is allocated: a damaged stamp stretching a few messages over days.
 
 Camera topics (`image` entries, ros_images.py) become uint8 or uint16 (H, W, C) leaves of a Dict
 observation beside `state`, the numeric entries: each grid time holds the latest frame at or
@@ -187,6 +189,7 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
                 f"{bag.path}: episode span {index} lasts {(end - begin) / NS:.0f} s, more than {MAX_EPISODE_STEPS} steps at "
                 f"{recording_map.rate_hz:g} Hz; are the bag's timestamps damaged, or should the map split episodes?"
             )
+        _check_density(bag, recording_map.rate_hz, index, begin, end, {t: arrays[id(cs[0])][0] for t, cs in by_topic.items()})
         grid = regular_grid(begin, end, recording_map.rate_hz)
         if len(grid) == 0:
             warnings.append(
@@ -248,6 +251,39 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
             **({"reward_name": reward.names[0]} if reward else {}),
         },
         warnings=warnings,
+    )
+
+
+def _check_density(bag: Bag, rate_hz: float, index: int, begin: int, end: int, times: dict[str, np.ndarray]) -> None:
+    """Refuse, before the grid is allocated, an episode span whose grid would hold more than
+    `LIMITS.grid_steps_per_message` steps per message of the mapped topics (`times`: each topic's
+    sorted sample times) inside it: a damaged stamp that stretches a handful of messages over days
+    must not cost gigabytes. The error names the longest silence, where the odd stamp lies."""
+    if end < begin:
+        return
+    steps = math.floor((end - begin) / (NS / rate_hz) + 1e-9) + 1  # as regular_grid counts them
+    inside = {topic: t[np.searchsorted(t, begin, "left") : np.searchsorted(t, end, "right")] for topic, t in times.items()}
+    messages = sum(len(t) for t in inside.values())
+    if steps <= LIMITS.grid_steps_per_message * max(messages, 1):
+        return
+    names = list(inside)
+    every = np.concatenate(list(inside.values()))
+    owner = np.concatenate([np.full(len(t), k) for k, t in enumerate(inside.values())])
+    order = np.argsort(every, kind="stable")
+    every, owner = every[order], owner[order]
+    silence = ""
+    if len(every) > 1:
+        k = int(np.argmax(np.diff(every)))
+        silence = (
+            f"; the longest silence is {(every[k + 1] - every[k]) / NS:.1f} s, from a message on {names[owner[k]]} stamped "
+            f"{every[k] / NS:.3f} s to one on {names[owner[k + 1]]} stamped {every[k + 1] / NS:.3f} s"
+        )
+    raise over_limit(
+        f"{bag.path}: episode span {index}: the {rate_hz:g} Hz grid from {begin / NS:.3f} s to {end / NS:.3f} s would hold "
+        f"{steps} steps for {messages} messages on {', '.join(names)}{silence} (a damaged timestamp? a real "
+        "silence belongs between episodes: `episodes: {split: gap, seconds: S}`); steps per message",
+        math.ceil(steps / max(messages, 1)),
+        "grid_steps_per_message",
     )
 
 

@@ -40,7 +40,7 @@ def frames_at(path: Path, timestamps: np.ndarray, *, tolerance_s: float, shape: 
             if base is None:
                 raise ValueError("the video stream has no time base to place its frames by")
             if stream.codec_context is None:
-                raise ValueError("the video stream has no decoder")
+                raise ValueError("the video stream names no codec PyAV can decode")
             stream.thread_type = "AUTO"  # frame threads: same pixels, faster where the codec has no threads of its own
             size = (stream.codec_context.height, stream.codec_context.width)
             if size != shape[:2]:
