@@ -4,8 +4,9 @@ Frames: the wrist camera of the SO-101 LeRobot v3.0 test recording (../shared/te
 AV1 640x360, 1,782 frames in 6 episodes), decoded once with PyAV; --frames N keeps the first N
 (episodes cut to fit). The same uint8 frames are written, once, and cached under --data-dir:
 
-- ours: three MCAP demo files through DemoWriter, image_codec "jpeg" (quality 95, lossy),
-  "png" (lossless) and "raw" (lossless, zstd chunks), the source's episodes, a 1-dim zero action;
+- ours: four MCAP demo files through DemoWriter, image_codec "jpeg" (quality 95, lossy),
+  "png" (lossless), "raw" with zstd chunks and "raw" with lz4 chunks (both lossless; compression
+  "lz4"), the source's episodes, a 1-dim zero action;
 - LeRobot: a LeRobotDataset v3.0 through its own writer (create(use_videos=True), add_frame,
   save_episode, finalize) with its default video encoder (libsvtav1, lossy; LeRobot has no
   lossless video default), the same episodes and action.
@@ -26,7 +27,7 @@ excluded; runs are interleaved across methods and the median of --repeats is rep
 
 Neither side converts layout or dtype further. frames/s = frames delivered / seconds.
 Targets (issue): ours / LeRobot ≥ 3 for the lossy format (our JPEG) and ≥ 5 for the lossless
-one (our PNG, and raw), against LeRobot's faster DataLoader setting.
+one (our PNG, and raw with either chunk compression), against LeRobot's faster DataLoader setting.
 Hugging Face libraries run with HF_HUB_OFFLINE=1 and HF_HOME under --data-dir.
 """
 
@@ -58,6 +59,13 @@ LOSSLESS_TARGET = 5.0
 REPO_ID = "bench/so101-wrist"
 TASK = "pick"
 MIB = 1024 * 1024
+# Our files: method key → (image codec, chunk compression).
+OURS = {
+    "ours-jpeg": ("jpeg", "zstd"),
+    "ours-png": ("png", "zstd"),
+    "ours-raw": ("raw", "zstd"),
+    "ours-raw-lz4": ("raw", "lz4"),
+}
 
 
 @dataclass(frozen=True)
@@ -75,6 +83,7 @@ METHODS = [
     Method("ours-jpeg", f"ours, jpeg q{JPEG_QUALITY} (lossy)", "ours-jpeg.mcap", lossless=False),
     Method("ours-png", "ours, png (lossless)", "ours-png.mcap", lossless=True),
     Method("ours-raw", "ours, raw + zstd chunks (lossless)", "ours-raw.mcap", lossless=True),
+    Method("ours-raw-lz4", "ours, raw + lz4 chunks (lossless)", "ours-raw-lz4.mcap", lossless=True),
     Method("lerobot-w2", "LeRobot video (lossy), DataLoader num_workers=2", "lerobot/videos", lossless=False, workers=2),
     Method("lerobot-w0", "LeRobot video (lossy), DataLoader num_workers=0", "lerobot/videos", lossless=False, workers=0),
 ]
@@ -193,7 +202,7 @@ def source_frames(limit: int) -> tuple[np.ndarray, list[int]]:
     return np.stack(frames), lengths
 
 
-def write_ours(frames: np.ndarray, lengths: list[int], path: Path, codec: str) -> float:
+def write_ours(frames: np.ndarray, lengths: list[int], path: Path, codec: str, compression: str) -> float:
     """Our file through DemoWriter, one episode per source episode; returns seconds."""
     import gymnasium as gym
 
@@ -211,6 +220,7 @@ def write_ours(frames: np.ndarray, lengths: list[int], path: Path, codec: str) -
         dt=1 / FPS,
         image_codec=codec,
         jpeg_quality=JPEG_QUALITY,
+        compression=compression,
     ) as writer:
         offset = 0
         for length in lengths:
@@ -258,19 +268,25 @@ def psnr(reference: np.ndarray, decoded: np.ndarray) -> float:
     return float(10 * np.log10(255.0**2 * reference.size / error)) if error else float("inf")
 
 
+def check_ours(frames: np.ndarray, data: Path, keys: list[str]) -> dict[str, float]:
+    """Our lossless files must give back the frames; PSNR of each against them, by method key."""
+    from imitation.data.dataset import DemoDataset
+
+    ours = {}
+    for key in keys:
+        episodes = DemoDataset(data / f"{key}.mcap").read_episodes()
+        decoded = np.concatenate([episode.observations for episode in episodes])
+        ours[key] = psnr(frames, decoded)
+        if next(m for m in METHODS if m.key == key).lossless and not np.array_equal(frames, decoded):
+            raise SystemExit(f"{key}.mcap does not decode to the source frames")
+    return ours
+
+
 def check_quality(frames: np.ndarray, lengths: list[int], data: Path) -> dict:
     """Our lossless files must give back the frames; PSNR of the lossy formats against them."""
     import av
 
-    from imitation.data.dataset import DemoDataset
-
-    ours = {}
-    for codec in ("jpeg", "png", "raw"):
-        episodes = DemoDataset(data / f"ours-{codec}.mcap").read_episodes()
-        decoded = np.concatenate([episode.observations for episode in episodes])
-        ours[codec] = psnr(frames, decoded)
-        if codec != "jpeg" and not np.array_equal(frames, decoded):
-            raise SystemExit(f"ours-{codec}.mcap does not decode to the source frames")
+    ours = check_ours(frames, data, list(OURS))
     videos = sorted((data / "lerobot" / "videos").rglob("*.mp4"))
     lerobot_frames = []
     for video in videos:
@@ -298,16 +314,16 @@ def ensure_data(data: Path, limit: int, regenerate: bool) -> dict:
     if regenerate and data.exists():
         shutil.rmtree(data)
     if manifest_path.exists():
-        return json.loads(manifest_path.read_text())
+        return add_missing(json.loads(manifest_path.read_text()), data, limit, manifest_path)
     if data.exists():  # a run killed half-way; LeRobot refuses an existing root
         shutil.rmtree(data)
     data.mkdir(parents=True)
     print(f"decoding {VIDEO} ...", flush=True)
     frames, lengths = source_frames(limit)
     seconds = {}
-    for codec in ("jpeg", "png", "raw"):
-        print(f"writing ours-{codec}.mcap ...", flush=True)
-        seconds[f"ours-{codec}"] = write_ours(frames, lengths, data / f"ours-{codec}.mcap", codec)
+    for key, (codec, compression) in OURS.items():
+        print(f"writing {key}.mcap ...", flush=True)
+        seconds[key] = write_ours(frames, lengths, data / f"{key}.mcap", codec, compression)
     print("writing the LeRobotDataset (add_frame path, video encoding) ...", flush=True)
     seconds["lerobot"] = write_lerobot(frames, lengths, data / "lerobot")
     print("checking what each format decodes to ...", flush=True)
@@ -321,6 +337,23 @@ def ensure_data(data: Path, limit: int, regenerate: bool) -> dict:
         "lerobot_video_info": info["features"][CAMERA].get("info", {}),
         **check_quality(frames, lengths, data),
     }
+    manifest_path.write_text(json.dumps(manifest, indent=2))
+    return manifest
+
+
+def add_missing(manifest: dict, data: Path, limit: int, manifest_path: Path) -> dict:
+    """A cached data set from before a format was added to OURS: write and check just that file."""
+    missing = [key for key in OURS if key not in manifest["write_seconds"]]
+    if not missing:
+        return manifest
+    print(f"decoding {VIDEO} for {', '.join(missing)} ...", flush=True)
+    frames, lengths = source_frames(limit)
+    for key in missing:
+        codec, compression = OURS[key]
+        print(f"writing {key}.mcap ...", flush=True)
+        manifest["write_seconds"][key] = write_ours(frames, lengths, data / f"{key}.mcap", codec, compression)
+        manifest["bytes"][f"{key}.mcap"] = tree_size(data / f"{key}.mcap")
+    manifest["psnr"] |= check_ours(frames, data, missing)
     manifest_path.write_text(json.dumps(manifest, indent=2))
     return manifest
 
@@ -348,7 +381,11 @@ def report(all_runs: list[Runs], manifest: dict, load: tuple[float, float]) -> s
     by_key = {runs.method.key: runs for runs in all_runs}
     lerobot = max((runs for runs in all_runs if runs.method.key.startswith("lerobot")), key=lambda runs: runs.fps)
     frames, sizes = manifest["frames"], manifest["bytes"]
-    psnr_of = {"ours-jpeg": "jpeg", "ours-png": "png", "ours-raw": "raw", "lerobot-w2": "lerobot", "lerobot-w0": "lerobot"}
+    found = manifest["psnr"]  # by method key; manifests written before ours-raw-lz4 keyed ours by codec
+
+    def quality_of(key: str) -> float:
+        return found["lerobot"] if key.startswith("lerobot") else found.get(key, found.get(OURS[key][0]))
+
     height, width, channels = manifest["shape"]
     lines = [
         f"{frames:,} wrist-camera frames ({width}x{height}x{channels} uint8, {manifest['episodes']} episodes) "
@@ -362,7 +399,7 @@ def report(all_runs: list[Runs], manifest: dict, load: tuple[float, float]) -> s
     for runs in all_runs:
         method = runs.method
         label = method.label + (" ← LeRobot baseline (faster)" if runs is lerobot else "")
-        quality = manifest["psnr"][psnr_of[method.key]]
+        quality = quality_of(method.key)
         lines.append(
             f"| {label} | {runs.results[0]['frames']:,} | {runs.median:.2f} | {runs.fps:,.0f} | "
             f"{runs.fps / lerobot.fps:.2f} | "
@@ -376,6 +413,7 @@ def report(all_runs: list[Runs], manifest: dict, load: tuple[float, float]) -> s
         ("ours-jpeg", LOSSY_TARGET, "lossy"),
         ("ours-png", LOSSLESS_TARGET, "lossless"),
         ("ours-raw", LOSSLESS_TARGET, "lossless"),
+        ("ours-raw-lz4", LOSSLESS_TARGET, "lossless"),
     ):
         mine = by_key[key]
         ratio = mine.fps / lerobot.fps
@@ -402,12 +440,7 @@ def report(all_runs: list[Runs], manifest: dict, load: tuple[float, float]) -> s
         "| format | write s | frames/s | MiB | KiB/frame |",
         "|---|---:|---:|---:|---:|",
     ]
-    for key, stored in (
-        ("ours-jpeg", "ours-jpeg.mcap"),
-        ("ours-png", "ours-png.mcap"),
-        ("ours-raw", "ours-raw.mcap"),
-        ("lerobot", "lerobot"),
-    ):
+    for key, stored in [*((key, f"{key}.mcap") for key in OURS), ("lerobot", "lerobot")]:
         lines.append(
             f"| {key}{' (whole dataset; its videos alone in the table above)' if key == 'lerobot' else ''} | "
             f"{writes[key]:.1f} | "

@@ -19,6 +19,9 @@ reports damage with its own messages.
 from __future__ import annotations
 
 import bisect
+import contextlib
+import math
+import mmap
 import os
 import struct
 import threading
@@ -38,6 +41,30 @@ from imitation.data.types import Transitions, tree_from_leaves
 
 if TYPE_CHECKING:
     from imitation.data.dataset import DemoDataset
+
+
+# Below this an array comes from numpy's allocator as usual.
+_LARGE_BYTES = 32 * 1024 * 1024
+
+
+def large_empty(shape: tuple[int, ...], dtype: np.dtype | type) -> np.ndarray:
+    """np.empty for the big arrays of a load (image columns, batches of frames): at 32 MiB or
+    more, memory of its own mapping marked for transparent huge pages, so filling it costs one
+    page fault per 2 MiB instead of per 4 KiB. Measured here (a VM, THP "madvise"): writing a
+    fresh 1.2 GB np.empty array takes 1.7 s of CPU, one of these 0.15 s; numpy's own huge-page
+    hint does not take effect on this kernel. The array behaves as any other (writable,
+    C-contiguous; the mapping is freed with its last reference); elsewhere it is np.empty."""
+    dtype = np.dtype(dtype)
+    size = math.prod(shape) * dtype.itemsize
+    if size < _LARGE_BYTES or not hasattr(mmap, "MADV_HUGEPAGE") or dtype.hasobject:
+        return np.empty(shape, dtype)
+    try:
+        memory = mmap.mmap(-1, size, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
+    except (OSError, OverflowError, ValueError):
+        return np.empty(shape, dtype)  # numpy then reports a failed allocation its own way
+    with contextlib.suppress(OSError):  # huge pages off or unsupported: an ordinary mapping
+        memory.madvise(mmap.MADV_HUGEPAGE)
+    return np.frombuffer(memory, dtype=dtype).reshape(shape)
 
 
 class _NotTiled(Exception):
@@ -109,10 +136,10 @@ def read_transitions(dataset: DemoDataset, indices: Sequence[int], *, next_obser
         return None  # more steps than the chunks hold 8-byte rewards for: a damaged index, for the general path to report
     starts = np.cumsum(lengths) - lengths
     columns = {
-        f.topic: _Column(f, np.empty((total, *f.shape), f.native_dtype), np.empty((len(facts), *f.shape), f.native_dtype))
+        f.topic: _Column(f, large_empty((total, *f.shape), f.native_dtype), np.empty((len(facts), *f.shape), f.native_dtype))
         for f in observation_fields
     }
-    columns |= {f.topic: _Column(f, np.empty((total, *f.shape), f.native_dtype), None) for f in action_fields}
+    columns |= {f.topic: _Column(f, large_empty((total, *f.shape), f.native_dtype), None) for f in action_fields}
     columns[REWARD_FIELD.topic] = _Column(REWARD_FIELD, np.empty(total, REWARD_FIELD.native_dtype), None)
     pieces: dict[tuple[str, int], list[tuple[int, int]]] = defaultdict(list)
     try:
@@ -228,7 +255,7 @@ def _next_observations(fields: list[Field], columns: dict[str, _Column], ends: n
     for f in fields:
         column = columns[f.topic]
         assert column.final is not None
-        following = np.empty_like(column.out)
+        following = large_empty(column.out.shape, column.out.dtype)
         following[:-1] = column.out[1:]
         following[ends[nonempty] - 1] = column.final[nonempty]
         leaves[f.path] = following

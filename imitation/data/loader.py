@@ -77,8 +77,45 @@ class TransitionTensors:
         return TransitionTensors(**{f.name: _tree_apply(lambda t: t.to(device), getattr(self, f.name)) for f in fields(self)})
 
     def select(self, index: torch.Tensor) -> TransitionTensors:
-        """The transitions at `index` (a long tensor on this device)."""
+        """The transitions at `index` (a long tensor on this device), as new tensors."""
+        if index.device.type == "cpu" and index.dtype in (torch.int64, torch.int32) and index.dim() == 1:
+            rows = index.numpy()
+            return TransitionTensors(
+                **{f.name: _tree_apply(lambda t: _take_rows(t, rows, index), getattr(self, f.name)) for f in fields(self)}
+            )
         return TransitionTensors(**{f.name: _tree_apply(lambda t: t[index], getattr(self, f.name)) for f in fields(self)})
+
+
+def _take_rows(tensor: torch.Tensor, rows: np.ndarray, index: torch.Tensor) -> torch.Tensor:
+    """`tensor[index]` for a CPU tensor, the same values in a new tensor: numpy's take copies
+    each row whole, where torch's advanced indexing of a uint8 image batch goes element by
+    element (measured here on 7 batches of 256 frames of 640x360x3: 2.1-2.3 s of CPU with
+    torch, 0.25-0.7 s with numpy). The RNG stream and the rows chosen are the caller's, as before."""
+    if (
+        tensor.device.type != "cpu"
+        or tensor.requires_grad
+        or tensor.dim() == 0
+        or tensor.dtype not in _NUMPY_DTYPES
+        or tensor.is_conj()
+        or tensor.is_neg()
+    ):
+        return tensor[index]
+    return torch.from_numpy(np.take(tensor.numpy(), rows, axis=0))
+
+
+_NUMPY_DTYPES = {
+    torch.bool,
+    torch.uint8,
+    torch.int8,
+    torch.int16,
+    torch.int32,
+    torch.int64,
+    torch.float16,
+    torch.float32,
+    torch.float64,
+    torch.complex64,
+    torch.complex128,
+}
 
 
 def transitions_to_torch(transitions: Transitions, device: str | torch.device = "cpu") -> TransitionTensors:

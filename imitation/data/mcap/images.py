@@ -143,25 +143,96 @@ def decode_frames(
 
 
 def decode_frame(codec: str, shape: tuple[int, ...], message: bytes | memoryview) -> np.ndarray:
-    """One frame message as a uint8 array of `shape`; FrameError if it is anything else."""
+    """One frame message as a uint8 array of `shape`; FrameError if it is anything else.
+
+    A raw frame's array is a view of `message`'s pixels: copy it to keep it past that buffer."""
     from google.protobuf.message import DecodeError
 
     if codec not in CODECS:
         raise FrameError(f"unknown image codec {codec[:40]!r} (this reader knows {', '.join(CODECS)})")
     parsed = _message_class(codec)()
+    # The pixels are parsed out of the message by hand, as a view (no copy of a raw frame's
+    # megabyte, twice); the rest of the message goes through protobuf, so every other field
+    # is read, and refused, exactly as before. A message this cannot split takes protobuf whole.
+    split = _split_data(message, _DATA_FIELD[codec])
     try:
-        parsed.ParseFromString(bytes(message))
+        if split is None:
+            parsed.ParseFromString(bytes(message))
+            data: bytes | memoryview = parsed.data
+        else:
+            rest, data = split
+            parsed.ParseFromString(rest)
     except DecodeError as error:
         raise FrameError(f"not a {schema_name(codec)} message ({_one_line(error)})") from None
     height, width, channels = shape[0], shape[1], channels_of(shape)
     if codec == "raw":
-        return _raw_pixels(parsed, height, width, channels).reshape(shape)
+        return _raw_pixels(parsed, data, height, width, channels).reshape(shape)
     if parsed.format != codec:
         raise FrameError(f"format {parsed.format[:40]!r}, but the channel's codec is {codec!r}")
-    return _compressed_pixels(codec, parsed.data, height, width, channels).reshape(shape)
+    return _compressed_pixels(codec, data, height, width, channels).reshape(shape)
 
 
-def _raw_pixels(parsed: Any, height: int, width: int, channels: int) -> np.ndarray:
+# The `bytes data` field of each codec's message (RawImage: 6, CompressedImage: 2).
+_DATA_FIELD = {"raw": 6, "png": 2, "jpeg": 2}
+
+
+def _split_data(message: bytes | memoryview, number: int) -> tuple[bytes, memoryview] | None:
+    """(the message without field `number`, that field's bytes as a view of `message`) when the
+    field occurs exactly once, length-delimited, in a message of well-formed top-level fields
+    (wire types 0, 1, 2 and 5); None for anything else (groups, a truncated or repeated field,
+    an over-long varint), which the caller hands to protobuf whole. Removing one
+    length-delimited field leaves every other field's bytes, and so protobuf's reading of them,
+    as they were."""
+    view = memoryview(message).cast("B")
+    end = len(view)
+    position = 0
+    found: tuple[int, int, int] | None = None  # (field start, data start, data end)
+    while position < end:
+        start = position
+        key, position = _varint(view, position)
+        if key < 0:
+            return None
+        wire = key & 7
+        if wire == 0:
+            _, position = _varint(view, position)
+            if position < 0:
+                return None
+        elif wire == 1:
+            position += 8
+        elif wire == 5:
+            position += 4
+        elif wire == 2:
+            length, position = _varint(view, position)
+            if length < 0:
+                return None
+            if key >> 3 == number:
+                if found is not None:
+                    return None
+                found = (start, position, position + length)
+            position += length
+        else:
+            return None
+        if position > end or (key >> 3 == number and wire != 2):
+            return None
+    if found is None:
+        return None
+    start, data_start, data_end = found
+    return bytes(view[:start]) + bytes(view[data_end:]), view[data_start:data_end]
+
+
+def _varint(view: memoryview, position: int) -> tuple[int, int]:
+    """The varint at `position` and the position after it; (-1, -1) when it runs past the end or 10 bytes."""
+    value = shift = 0
+    for i in range(position, min(position + 10, len(view))):
+        byte = view[i]
+        value |= (byte & 0x7F) << shift
+        if byte < 0x80:
+            return value, i + 1
+        shift += 7
+    return -1, -1
+
+
+def _raw_pixels(parsed: Any, data: bytes | memoryview, height: int, width: int, channels: int) -> np.ndarray:
     expected = (width, height, _RAW_ENCODINGS[channels], width * channels)
     found = (parsed.width, parsed.height, parsed.encoding[:40], parsed.step)
     if found != expected:
@@ -169,14 +240,14 @@ def _raw_pixels(parsed: Any, height: int, width: int, channels: int) -> np.ndarr
             f"a {found[0]}x{found[1]} {found[2]} image (step {found[3]}), but the channel declares {width}x{height} "
             f"{expected[2]}"
         )
-    if len(parsed.data) != height * width * channels:
+    if len(data) != height * width * channels:
         raise FrameError(
-            f"{len(parsed.data)} bytes of pixels, but a {width}x{height} {expected[2]} image has {height * width * channels}"
+            f"{len(data)} bytes of pixels, but a {width}x{height} {expected[2]} image has {height * width * channels}"
         )
-    return np.frombuffer(parsed.data, dtype=np.uint8)
+    return np.frombuffer(data, dtype=np.uint8)
 
 
-def _compressed_pixels(codec: str, data: bytes, height: int, width: int, channels: int) -> np.ndarray:
+def _compressed_pixels(codec: str, data: bytes | memoryview, height: int, width: int, channels: int) -> np.ndarray:
     from PIL import Image
 
     try:
