@@ -167,13 +167,17 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def cmd_train_ppo(args: argparse.Namespace) -> int:
     from imitation.envs.pixels import PixelRecipe
-    from imitation.jobs.ppo import ppo_job
+    from imitation.jobs.ppo import observation_fields, ppo_job
     from imitation.jobs.presets import ppo_config
 
     pixels = (
         {"pixels": PixelRecipe.parse(args.pixels, grayscale=args.grayscale, crop=args.crop).to_json()} if args.pixels else {}
     )
-    config = ppo_config(args.env, learned_reward=args.reward is not None, **_fields(args, "PPOConfig") | pixels)
+    # A pixel reward, and the run --resume continues, say how the env is observed: no flags needed.
+    fields = observation_fields(
+        _fields(args, "PPOConfig") | pixels, reward_run=args.reward, resume=args.out if args.resume else None
+    )
+    config = ppo_config(args.env, learned_reward=args.reward is not None, **fields)
     result = ppo_job(config, args.out, reward_run=args.reward, progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
@@ -344,10 +348,10 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
 
 def _train_gcl(args: argparse.Namespace) -> int:
     from imitation.algorithms.gcl import GCLConfig
-    from imitation.jobs.irl import gcl_job
+    from imitation.jobs.irl import gcl_job, recorded_observation
     from imitation.jobs.presets import ppo_config, preset
 
-    fields = {"total_steps": preset(args.env).gcl_steps} | _fields(args, "PPOConfig")
+    fields = {"total_steps": preset(args.env).gcl_steps} | _fields(args, "PPOConfig") | recorded_observation(args.demos)
     config = ppo_config(args.env, learned_reward=True, **fields)
     result = gcl_job(
         args.demos,
@@ -913,7 +917,8 @@ def build_parser() -> argparse.ArgumentParser:
         "ppo",
         help="the bundled PPO trainer (clip or adaptive-KL objective, GAE)",
         description="Train PPO on a gymnasium env, on its own reward or on a learned one (--reward). "
-        "Per-environment defaults (rl-baselines3-zoo's settings where known) make flags optional.",
+        "Per-environment defaults (rl-baselines3-zoo's settings where known; its Atari settings for image observations) "
+        "make flags optional. A reward learnt on pixels brings its --pixels, --grayscale, --crop and --frame-stack.",
     )
     ppo.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
     ppo.add_argument("--steps", type=int, default=100_000, metavar="N", help="environment steps in total (default: 100000)")
@@ -921,7 +926,8 @@ def build_parser() -> argparse.ArgumentParser:
     ppo.add_argument(
         "--reward",
         metavar="RUN_DIR",
-        help="optimise this reward model instead of the env's reward (true returns are still logged)",
+        help="optimise this reward model instead of the env's reward (true returns are still logged); a pixel reward's "
+        "frames are rendered as it was learnt on them",
     )
     ppo.add_argument("--n-envs", dest="n_envs", type=int, metavar="K", help="parallel environments (default: per env)")
     ppo.add_argument("--async", action="store_true", help="step the environments in subprocesses")
@@ -930,7 +936,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--frame-stack",
         type=int,
         metavar="K",
-        help="image observations (--pixels, or an env whose observations are images): frames stacked per image (default: 1)",
+        help="image observations (--pixels, or an env whose observations are images): frames stacked per image (default: "
+        "the --reward's or the resumed run's, else 1)",
     )
     ppo.add_argument("--seed", type=int, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
     ppo.add_argument("--device", metavar="auto|cpu|cuda", help="where the networks run (default: auto)")

@@ -674,11 +674,11 @@ def batch_of_one(observation: Any) -> Any:
 
 def require_flat_observations(policy: ActorCritic, learner: str) -> ActorCritic:
     """`policy`, refused in one line when it reads image or Dict observations, which `learner`
-    does not train yet (its rollout buffers hold flat features)."""
+    (policy gradient, the policy searches) does not train yet: its rollout buffers hold flat features."""
     if policy.layout is not None:
         raise ImitationError(
             f"{learner} takes Box or Discrete observations, not {describe_space(policy.observation_space)}; "
-            "image and Dict observations are learnt by train bc and train dagger"
+            "image and Dict observations are learnt by train bc, train dagger, train ppo and train irl --method gcl"
         )
     return policy
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from support import DATASETS, run_cli
+from support import DATASETS, run_cli, run_cli_many
 from test_cli import assert_one_line_error, last_json
 
 GRID = "imitation/GridWorld8x8Slippery-v0"
@@ -87,8 +87,24 @@ def test_gcl_on_pixel_demos_learns_a_cnn_reward_that_ppo_on_the_same_frames_opti
     frames = {"pixels": torch.randint(0, 256, (5, 2, 36, 36, 1), dtype=torch.uint8), "state": torch.zeros(5, 4)}
     rewards = reward(frames, torch.zeros(5), frames)
     assert rewards.shape == (5,) and rewards.std() > 0, "the reward reads the frames"
-    pixels = ("--pixels", "36x36", "--grayscale", "--frame-stack", "2")
-    last_json(run_cli("eval", "policy", str(tmp_path / "gcl"), "--env", env_id, "--episodes", "1", "--json"))
-    on_reward = last_json(run_cli("train", "ppo", "--env", env_id, "--reward", str(tmp_path / "gcl"), *pixels, "--n-envs", "2", "--steps", "64", "--out", str(tmp_path / "ppo"), "--json", timeout=300))
-    assert on_reward["steps"] == 64
-    assert_one_line_error(run_cli("train", "ppo", "--env", env_id, "--reward", str(tmp_path / "gcl"), "--steps", "512", "--out", str(tmp_path / "p2")), "reward model's observation space")
+    # train ppo --reward takes the frames, stack and keys the reward reads from its run: flags that agree pass (up to
+    # PPOConfig's own check of --steps, here too few), flags that disagree are refused naming both values.
+    gcl = str(tmp_path / "gcl")
+    on_reward = ["train", "ppo", "--env", env_id, "--reward", gcl, "--n-envs", "1"]
+    evaluated, gcl_preset, adopted, agreeing, other_stack, other_frames = run_cli_many([
+        ["eval", "policy", gcl, "--env", env_id, "--episodes", "1", "--json"],
+        ["train", "irl", "--method", "gcl", "--env", env_id, "--demos", str(demos), "--steps", "10", "--out", str(tmp_path / "g2")],
+        [*on_reward, "--steps", "128", "--out", str(tmp_path / "ppo"), "--json"],
+        [*on_reward, "--pixels", "36x36", "--grayscale", "--frame-stack", "2", "--steps", "10", "--out", str(tmp_path / "p2")],
+        [*on_reward, "--frame-stack", "3", "--out", str(tmp_path / "p3")],
+        [*on_reward, "--pixels", "48x48", "--out", str(tmp_path / "p4")],
+    ])
+    last_json(evaluated)
+    assert_one_line_error(gcl_preset, "less than one rollout (8 envs × 128 steps)")  # the pixel preset, chosen by the demos' frames
+    assert last_json(adopted)["steps"] == 128
+    config = json.loads((tmp_path / "ppo" / "config.json").read_text())
+    assert config["ppo"]["pixels"] == reward.config.pixels and config["ppo"]["frame_stack"] == 2 and config["ppo"]["observation_keys"] == ["pixels"]
+    assert config["ppo"]["n_epochs"] == 4 and config["ppo"]["clip_range"] == 0.1, "the pixel preset"
+    assert_one_line_error(agreeing, "less than one rollout")
+    assert_one_line_error(other_stack, f"--frame-stack 3 disagrees with the reward model of {gcl}, learnt on --frame-stack 2: leave the flag out")
+    assert_one_line_error(other_frames, f"--pixels 48x48 disagrees with the reward model of {gcl}, learnt on --pixels 36x36 --grayscale")

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from support import run_cli
+from support import run_cli, run_cli_many
 from test_cli import assert_one_line_error, last_json
 
 from imitation.rewards import make_reward_model, reward_tensors
@@ -98,7 +98,7 @@ def test_unknown_env_and_bad_steps(tmp_path) -> None:
 
 # -- pixels: a CNN policy on CartPole's rendered frames ------------------------------------------
 
-PIXEL_FLAGS = ("--pixels", "36x36", "--grayscale", "--frame-stack", "2", "--n-envs", "2")
+PIXEL_FLAGS = ("--pixels", "36x36", "--grayscale", "--frame-stack", "2", "--n-envs", "1")  # one rollout: the preset's 128 steps
 
 
 @pytest.fixture(scope="module")
@@ -162,3 +162,52 @@ def test_a_pixel_checkpoint_resumes_the_same_policy() -> None:
 
 def test_frame_stack_needs_image_observations(tmp_path) -> None:
     assert_one_line_error(run_cli("train", "ppo", "--env", "CartPole-v1", "--frame-stack", "4", "--out", str(tmp_path / "r")), "frame stacking needs image observations")
+
+
+class _Frames(gym.Env):
+    """An env that observes images itself (no --pixels), for the preset's choice; never stepped."""
+
+    observation_space = gym.spaces.Box(0, 255, (8, 8, 1), dtype=np.uint8)
+    action_space = gym.spaces.Discrete(2)
+
+
+def test_image_observations_get_the_zoo_atari_preset_that_flags_override() -> None:
+    from imitation.jobs.presets import ppo_config
+
+    pixels = {"size": [36, 36], "grayscale": True}
+    gym.register("test/Frames-v0", entry_point=_Frames)
+    vector, rendered, native = ppo_config("CartPole-v1"), ppo_config("CartPole-v1", pixels=pixels), ppo_config("test/Frames-v0")
+    assert (vector.n_epochs, vector.clip_range, vector.gamma) == (20, 0.2, 0.98), "CartPole's vector-state preset"
+    for images in (rendered, native):
+        settings = (images.n_envs, images.n_steps, images.n_epochs, images.batch_size, images.learning_rate, images.anneal_lr)
+        assert settings == (8, 128, 4, 256, 2.5e-4, True)
+        assert (images.clip_range, images.entropy_coef, images.value_coef, images.gamma, images.gae_lambda) == (0.1, 0.01, 0.5, 0.99, 0.95)
+    overridden = ppo_config("CartPole-v1", pixels=pixels, n_envs=2, total_steps=512)
+    assert (overridden.n_envs, overridden.n_epochs, overridden.total_steps) == (2, 4, 512)
+
+
+def test_resume_takes_the_interrupted_runs_frames_and_refuses_flags_that_disagree(tmp_path) -> None:
+    from imitation.algorithms.ppo import PPO
+    from imitation.jobs.presets import ppo_config
+    from imitation.jobs.run_config import RunConfig, config_json
+
+    # Stopped after the first of its two updates, as Ctrl-C leaves `train ppo --env CartPole-v1 --pixels 36x36
+    # --grayscale --frame-stack 2 --n-envs 1 --steps 256`.
+    out = tmp_path / "ppo"
+    config = ppo_config("CartPole-v1", pixels={"size": [36, 36], "grayscale": True}, frame_stack=2, n_envs=1, total_steps=256)
+    learner = PPO(config)
+    try:
+        learner.step()
+        tensors, state = learner.state_dict()
+    finally:
+        learner.close()
+    run_config = RunConfig(kind="ppo", env_id="CartPole-v1", ppo=config_json(config)).to_json()
+    with pytest.raises(KeyboardInterrupt), RunWriter(out, config=run_config, tensorboard=False) as run:
+        run.save_checkpoint(tensors, state)
+        raise KeyboardInterrupt
+    args = ["train", "ppo", "--env", "CartPole-v1", "--n-envs", "1", "--steps", "256", "--quiet", "--out", str(out), "--resume"]
+    other, resumed = run_cli_many([[*args, "--frame-stack", "3"], [*args, "--json"]])
+    assert_one_line_error(other, f"--frame-stack 3 disagrees with the interrupted run in {out}.partial, started with --frame-stack 2")
+    assert last_json(resumed)["steps"] == 256
+    policy = json.loads((out / "config.json").read_text())["policy"]
+    assert policy["pixels"] == config.pixels and policy["frame_stack"] == 2

@@ -20,7 +20,7 @@ from __future__ import annotations
 import os
 import re
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, SupportsFloat
 
@@ -139,6 +139,28 @@ def _integers(values: Any, count: int, low: int) -> bool:
         and len(values) == count
         and all(isinstance(n, int) and not isinstance(n, bool) and low <= n <= 4096 for n in values)
     )
+
+
+def recorded_pixels(
+    metadata: Mapping[str, Any], source: str, *, frame_stack: int | None = None
+) -> tuple[PixelRecipe | None, int]:
+    """How a demo file's frames were rendered, from its user `metadata` (`record --pixels` writes
+    the recipe and its `frame_stack` under "pixels"; None for other demos), and the frames per
+    stack: `frame_stack` when the caller sets it (the recorded number is then not read, so a
+    damaged one can be overridden), else as recorded (1 when none). One-line errors name `source`."""
+    recorded = metadata.get(PIXELS_KEY)
+    if recorded is None:
+        return None, frame_stack or 1
+    try:
+        recipe = PixelRecipe.from_json(recorded)
+    except ValueError as error:
+        raise ImitationError(f"{source}: user metadata 'pixels': {error}") from None
+    if frame_stack is not None:
+        return recipe, frame_stack
+    stack = recorded.get("frame_stack", 1)
+    if isinstance(stack, bool) or not isinstance(stack, int) or not 1 <= stack <= 64:
+        raise ImitationError(f"{source}: user metadata 'pixels': frame_stack must be in [1, 64], got {stack!r:.40}")
+    return recipe, stack
 
 
 def make_pixel_env(env_id: str, recipe: PixelRecipe, **kwargs: Any) -> gym.Env:

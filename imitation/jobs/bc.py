@@ -24,7 +24,7 @@ from imitation.data.loader import (
 from imitation.data.stream import StreamingLoader
 from imitation.data.types import Transitions
 from imitation.envs.make import make_env
-from imitation.envs.pixels import PIXELS_KEY, PixelRecipe, image_keys, make_pixel_env, stack_frames, stacked_space
+from imitation.envs.pixels import PIXELS_KEY, image_keys, make_pixel_env, recorded_pixels, stack_frames, stacked_space
 from imitation.envs.previous_action import previous_action_space, with_previous_actions
 from imitation.errors import ConfigError, ImitationError
 from imitation.evaluation.baselines import baseline_scores, policy_scores
@@ -53,8 +53,8 @@ def bc_job(
     `resume` continues the interrupted run in `out`.partial from its checkpoint."""
     seed_everything(config.seed)
     dataset = DemoDataset(demos)
-    pixels = _recorded_pixels(dataset)
-    frames = _frame_stack(dataset, config)
+    first = dataset.files[0]
+    pixels, frames = recorded_pixels(first.user_metadata, str(first.path), frame_stack=config.frame_stack)
     if env_id and pixels is not None:
         env: gym.Env | None = make_pixel_env(env_id, pixels)
     else:
@@ -221,28 +221,6 @@ def _conditions_on_previous_action(
         )
     set_points = boxes and observation_space.shape == action_space.shape
     return config.previous_action == "on" or (config.previous_action == "auto" and offline and set_points)
-
-
-def _recorded_pixels(dataset: DemoDataset) -> PixelRecipe | None:
-    """How the demos' frames were rendered (`record --pixels`), None for other demos."""
-    recorded = dataset.files[0].user_metadata.get("pixels")
-    if recorded is None:
-        return None
-    try:
-        return PixelRecipe.from_json(recorded)
-    except ValueError as error:
-        raise ImitationError(f"{dataset.files[0].path}: user metadata 'pixels': {error}") from None
-
-
-def _frame_stack(dataset: DemoDataset, config: BCConfig) -> int:
-    """Frames per image leaf: the configured number, else as recorded, else 1."""
-    if config.frame_stack is not None:
-        return config.frame_stack
-    recorded = dataset.files[0].user_metadata.get("pixels")
-    stack = recorded.get("frame_stack", 1) if isinstance(recorded, dict) else 1
-    if isinstance(stack, bool) or not isinstance(stack, int) or not 1 <= stack <= 64:
-        raise ImitationError(f"{dataset.files[0].path}: user metadata 'pixels': frame_stack must be in [1, 64], got {stack!r}")
-    return stack
 
 
 def _with_previous_actions(transitions: Transitions) -> Transitions:

@@ -22,7 +22,7 @@ import torch
 from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import load_transitions
-from imitation.data.spaces import check_spaces_fit
+from imitation.data.spaces import check_spaces_fit, describe_space
 from imitation.envs.make import make_env
 from imitation.envs.rollout import collect_transitions
 from imitation.envs.tabular import TabularEnv
@@ -78,6 +78,7 @@ def evaluate_reward(
     (metrics.json), plots and report.md to directory `out` (replaced only when complete)."""
     config.validate()
     model = load_reward(run)
+    _check_flat_observations(model, run)
     run_config = RunConfig.from_json(read_run(run)[0])
     with closing(make_env(env_id)) as env:
         check_spaces_fit("reward model's", model.observation_space, model.action_space, env, where=f"{run}")
@@ -94,6 +95,18 @@ def evaluate_reward(
             write_report(writer.partial / "report.md", reward_report(results), title=f"Reward evaluation: {run} on {env_id}")
             writer.finish(results)
     return {"out": str(writer.path), **results}
+
+
+def _check_flat_observations(model: RewardNet, run: str | os.PathLike) -> None:
+    """Refuse, in one line, a reward of image or Dict observations (GCL on `record --pixels`
+    demos): EPIC's coverage batch draws states uniformly and from arrays, which such a reward
+    cannot read (a sampled state is no rendered frame)."""
+    if model.layout is not None:
+        raise ImitationError(
+            f"{run}: eval reward does not support rewards of image or Dict observations yet (this one reads "
+            f"{describe_space(model.observation_space)}): EPIC samples states, not frames; judge it by the policy that "
+            f"train ppo --reward {run} learns (eval policy)"
+        )
 
 
 def _evaluate_continuous(

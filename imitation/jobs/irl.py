@@ -18,10 +18,9 @@ from imitation.data.dataset import DemoDataset
 from imitation.data.loader import check_episodes_finite, load_transitions, transitions_to_torch
 from imitation.data.types import Transitions
 from imitation.envs.make import make_env
-from imitation.envs.pixels import PIXELS_KEY, PixelRecipe, image_keys, stack_frames, stacked_space
+from imitation.envs.pixels import PIXELS_KEY, image_keys, recorded_pixels, stack_frames, stacked_space
 from imitation.envs.tabular import tabular_mdp_of
 from imitation.envs.tabular_planning import soft_optimal_returns
-from imitation.errors import ImitationError
 from imitation.evaluation.plots import plot_curve, plot_grid_maps
 from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
@@ -134,7 +133,8 @@ def gcl_job(
     config.validate()
     seed_everything(config.seed)
     dataset = DemoDataset(demos)
-    pixels, frames = recorded_pixels(dataset)
+    first = dataset.files[0]
+    pixels, frames = recorded_pixels(first.user_metadata, str(first.path))
     if pixels is not None:
         ppo_config = dataclasses.replace(ppo_config, pixels=pixels.to_json(), frame_stack=frames)
     with closing(make_observed_env(env_id, pixels)) as env:
@@ -207,19 +207,13 @@ def gcl_job(
     return {"run": str(run.path), **metrics}
 
 
-def recorded_pixels(dataset: DemoDataset) -> tuple[PixelRecipe | None, int]:
-    """How the demos' frames were rendered (`record --pixels`; None for other demos) and the
-    frames per stack recorded with them (1 when none)."""
-    recorded = dataset.files[0].user_metadata.get("pixels")
-    if recorded is None:
-        return None, 1
-    stack = recorded.get("frame_stack", 1) if isinstance(recorded, dict) else None
-    try:
-        if isinstance(stack, bool) or not isinstance(stack, int) or not 1 <= stack <= 64:
-            raise ValueError(f"frame_stack must be in [1, 64], got {str(stack)[:40]}")
-        return PixelRecipe.from_json(recorded), stack
-    except ValueError as error:
-        raise ImitationError(f"{dataset.files[0].path}: user metadata 'pixels': {error}") from None
+def recorded_observation(demos: list[str]) -> dict[str, Any]:
+    """How GCL's PPO observes the env of `demos`, as PPOConfig fields: the frames and stack they
+    were recorded with (`record --pixels`), none for other demos. Known before the PPOConfig is
+    made, they choose its preset (`presets.ppo_config`)."""
+    first = DemoDataset(demos).files[0]
+    pixels, frames = recorded_pixels(first.user_metadata, str(first.path))
+    return {"pixels": pixels.to_json(), "frame_stack": frames} if pixels is not None else {}
 
 
 def with_frame_stacks(transitions: Transitions, frames: int, keys: list[str]) -> Transitions:

@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import json
 import os
 from contextlib import closing
+from pathlib import Path
 from typing import Any
 
 from imitation.algorithms.ppo import PPO, PPOConfig, make_observed_env
 from imitation.data.spaces import check_spaces_fit
+from imitation.envs.pixels import PixelRecipe
+from imitation.errors import ImitationError
 from imitation.evaluation.plots import plot_curve
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import final_evaluation, save_policy, train_to_end, training_run
@@ -70,3 +74,72 @@ def ppo_job(
         }
         run.finish(metrics)
     return {"run": str(run.path), **metrics}
+
+
+# The PPOConfig fields that say how the env is observed. A pixel reward fixes them (it reads the
+# frames it was learnt on), and so does the interrupted run that --resume continues.
+OBSERVATION_FIELDS = ("pixels", "frame_stack", "observation_keys")
+
+
+def observation_fields(
+    given: dict[str, Any], *, reward_run: str | None = None, resume: str | os.PathLike | None = None
+) -> dict[str, Any]:
+    """PPOConfig fields `given` (by flags), completed with how the env must be observed: as the
+    reward model of `reward_run` was learnt (its pixel recipe, frame stack and observation keys)
+    and as the interrupted run `resume` (its --out) was started. A value that disagrees with one
+    of them is refused in one line naming both."""
+    fields = dict(given)
+    origins = {name: "" for name in given}  # "": a flag
+    for source, verb, required in (_reward_observation(reward_run), _resumed_observation(resume)):
+        for name, value in required.items():
+            if name in fields and fields[name] != value:
+                raise ImitationError(_disagreement(name, fields[name], origins[name], f"{source}, {verb}", value))
+            fields[name] = value
+            origins.setdefault(name, source)
+    return fields
+
+
+def _reward_observation(reward_run: str | None) -> tuple[str, str, dict[str, Any]]:
+    """(source, verb, the observation fields) of the reward model of `reward_run`."""
+    if reward_run is None:
+        return "", "", {}
+    config = load_reward(reward_run).config
+    required = {"pixels": config.pixels, "frame_stack": config.frame_stack, "observation_keys": config.observation_keys}
+    return f"the reward model of {reward_run}", "learnt on", required
+
+
+def _resumed_observation(out: str | os.PathLike | None) -> tuple[str, str, dict[str, Any]]:
+    """(source, verb, the observation fields) of the interrupted run in `out`.partial (named as
+    RunWriter names it); none when there is no readable one, which RunWriter then reports."""
+    if out is None:
+        return "", "", {}
+    partial = Path(out).with_name(Path(out).name + ".partial")
+    try:
+        ppo = json.loads((partial / "config.json").read_text()).get("ppo")
+    except (OSError, ValueError, AttributeError):
+        return "", "", {}
+    required = {name: ppo[name] for name in OBSERVATION_FIELDS if name in ppo} if isinstance(ppo, dict) else {}
+    return f"the interrupted run in {partial}", "started with", required
+
+
+def _disagreement(name: str, value: Any, origin: str, source: str, required: Any) -> str:
+    """The one line refusing `value` of field `name` (from a flag, or from `origin`)."""
+    mine = f"{_shown(name, value)} (from {origin})" if origin else _shown(name, value)
+    remedy = "start again without --resume" if origin else "leave the flag out, or give the same"
+    return f"{mine} disagrees with {source} {_shown(name, required)}: {remedy}"
+
+
+def _shown(name: str, value: Any) -> str:
+    """An observation field's value in the words of train ppo's flags."""
+    if name == "frame_stack":
+        return f"--frame-stack {value}"
+    if name != "pixels":
+        return f"observation keys {value}"
+    if value is None:
+        return "no --pixels"
+    try:
+        recipe = PixelRecipe.from_json(value)
+    except ValueError:
+        return f"pixels {str(value)[:80]}"
+    crop = f" --crop {','.join(map(str, recipe.crop))}" if recipe.crop is not None else ""
+    return f"--pixels {recipe.height}x{recipe.width}{' --grayscale' if recipe.grayscale else ''}{crop}"

@@ -15,6 +15,7 @@ import gymnasium as gym
 
 from imitation.algorithms.ppo import PPOConfig
 from imitation.envs.make import make_env
+from imitation.envs.pixels import image_keys
 
 
 @dataclass(frozen=True)
@@ -27,6 +28,24 @@ class EnvPreset:
 _CARTPOLE = dict(n_envs=8, n_steps=32, batch_size=256, gamma=0.98, gae_lambda=0.8, n_epochs=20, learning_rate=1e-3)
 _CONTINUOUS = dict(
     n_envs=1, n_steps=2048, batch_size=64, n_epochs=10, learning_rate=3e-4, normalize_observations=True, normalize_rewards=True
+)
+# Image observations (--pixels, or an env that observes images), whatever the env: the settings
+# tuned for an MLP on the state (CartPole's 20 epochs over 256-step rollouts) do not carry over to
+# a CNN, so rl-baselines3-zoo's PPO for Atari (DLR-RM/rl-baselines3-zoo hyperparams/ppo.yml,
+# "atari": n_envs 8, n_steps 128, n_epochs 4, batch_size 256, learning_rate lin_2.5e-4,
+# clip_range lin_0.1, vf_coef 0.5, ent_coef 0.01; gamma and gae_lambda SB3's 0.99 and 0.95,
+# PPOConfig's defaults too). Unlike the zoo, the clip range stays at 0.1 (only the learning rate
+# is annealed), and its frame_stack 4 is left to --frame-stack: a pixel reward fixes the stack.
+_PIXELS = dict(
+    n_envs=8,
+    n_steps=128,
+    n_epochs=4,
+    batch_size=256,
+    learning_rate=2.5e-4,
+    anneal_lr=True,
+    clip_range=0.1,
+    entropy_coef=0.01,
+    value_coef=0.5,
 )
 
 PRESETS: dict[str, EnvPreset] = {
@@ -64,11 +83,16 @@ def preset(env_id: str) -> EnvPreset:
     return PRESETS.get(env_id, EnvPreset())
 
 
-def ppo_settings(env_id: str, action_space: gym.Space | None = None, *, learned_reward: bool = False) -> dict[str, Any]:
-    """PPOConfig fields for `env_id`: its preset, else the continuous-control defaults for Box
-    actions. On a learned reward, rewards are scaled by their running return std, since a
-    learned reward's scale is arbitrary (and drifts while it is being learned)."""
-    if env_id in PRESETS:
+def ppo_settings(
+    env_id: str, action_space: gym.Space | None = None, *, learned_reward: bool = False, images: bool = False
+) -> dict[str, Any]:
+    """PPOConfig fields for `env_id`: the pixel preset when the policy sees `images`, else the
+    env's preset, else the continuous-control defaults for Box actions. On a learned reward,
+    rewards are scaled by their running return std, since a learned reward's scale is arbitrary
+    (and drifts while it is being learned)."""
+    if images:
+        settings = dict(_PIXELS)
+    elif env_id in PRESETS:
         settings = dict(PRESETS[env_id].ppo)
     else:
         settings = dict(_CONTINUOUS) if isinstance(action_space, gym.spaces.Box) else {}
@@ -76,8 +100,10 @@ def ppo_settings(env_id: str, action_space: gym.Space | None = None, *, learned_
 
 
 def ppo_config(env_id: str, *, learned_reward: bool = False, **fields: Any) -> PPOConfig:
-    """A PPOConfig for `env_id`: its preset (`ppo_settings`, which may need the env's action
-    space: the env is made to read it), then `fields` over it."""
+    """A PPOConfig for `env_id`: its preset (`ppo_settings`, which may need the env's spaces:
+    the env is made to read them; rendered frames, `fields["pixels"]`, are images), then
+    `fields` over it."""
     with closing(make_env(env_id)) as env:
-        settings = ppo_settings(env_id, env.action_space, learned_reward=learned_reward)
+        images = fields.get("pixels") is not None or bool(image_keys(env.observation_space))
+        settings = ppo_settings(env_id, env.action_space, learned_reward=learned_reward, images=images)
     return PPOConfig(env_id=env_id, **settings | fields)

@@ -44,6 +44,21 @@ def test_recipe_parses_and_round_trips() -> None:
             PixelRecipe.from_json(bad)
 
 
+def test_recorded_pixels_reads_the_recipe_and_stack_record_wrote() -> None:
+    from imitation.envs.pixels import recorded_pixels
+
+    recorded = {"pixels": {"size": [36, 36], "grayscale": True, "frame_stack": 2}}
+    assert recorded_pixels({}, "d.mcap") == (None, 1) and recorded_pixels({}, "d.mcap", frame_stack=3) == (None, 3)
+    assert recorded_pixels(recorded, "d.mcap") == (PixelRecipe(36, 36, grayscale=True), 2)
+    assert recorded_pixels(recorded, "d.mcap", frame_stack=4) == (PixelRecipe(36, 36, grayscale=True), 4)
+    damaged = {"pixels": {"size": [36, 36], "frame_stack": 99}}
+    assert recorded_pixels(damaged, "d.mcap", frame_stack=1) == (PixelRecipe(36, 36), 1), "a given stack overrides a damaged one"
+    with pytest.raises(ImitationError, match=r"^d.mcap: user metadata 'pixels': frame_stack must be in \[1, 64\], got 99$"):
+        recorded_pixels(damaged, "d.mcap")
+    with pytest.raises(ImitationError, match=r"^d.mcap: user metadata 'pixels': a pixel recipe is"):
+        recorded_pixels({"pixels": {"size": "big"}}, "d.mcap", frame_stack=1)
+
+
 def test_frames_crop_resize_and_grayscale() -> None:
     image = np.zeros((40, 60, 3), dtype=np.uint8)
     image[10:20, 30:40] = (255, 0, 0)  # a red square, inside the crop

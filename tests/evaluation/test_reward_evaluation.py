@@ -151,3 +151,18 @@ def test_the_time_estimate_leaves_torchs_generator_as_it_found_it() -> None:
     seconds = _estimate_seconds(ppo_config(CARTPOLE, learned_reward=True, total_steps=4096, seed=7), reward, runs=3, workers=1)
     assert seconds > 0
     assert torch.equal(torch.get_rng_state(), before)
+
+
+def test_a_pixel_reward_is_refused_in_one_line_naming_what_is_unsupported(tmp_path) -> None:
+    import gymnasium as gym
+
+    # The reward GCL learns on `record --pixels 36x36 --grayscale --frame-stack 2` demos of CartPole.
+    frames = gym.spaces.Box(0, 255, (2, 36, 36, 1), dtype=np.uint8)
+    space = gym.spaces.Dict({"pixels": frames, "state": make_env("CartPole-v1").observation_space})
+    model = make_reward_model(space, gym.spaces.Discrete(2), hidden_sizes=[8], observation_keys=["pixels"], frame_stack=2,
+                              pixels={"size": [36, 36], "grayscale": True}, cnn={"channels": [4], "kernels": [8], "strides": [4], "features": 16})
+    run = save_reward_run(model, tmp_path / "pixel-reward", env_id="CartPole-v1", source="test: a pixel reward")
+    result = run_cli("eval", "reward", str(run), "--env", "CartPole-v1")
+    assert result.returncode == 1 and result.stderr.count("\n") == 1 and "Traceback" not in result.stderr, result.stderr
+    assert f"{run}: eval reward does not support rewards of image or Dict observations yet (this one reads Dict(pixels: Box(uint8, (2, 36, 36, 1))" in result.stderr
+    assert not (run / "eval-reward").exists() and not (run / "eval-reward.partial").exists()
