@@ -7,8 +7,9 @@ variants measured in bench/RESULTS.md:
 
 - `--scale raw|standardised`: pixels divided by 255, or standardised by the training frames' mean
   and std (what the policies do with normalised observations);
-- `--head plain|library`: a Nature CNN with a 512 → 256 → 2 head in PyTorch's default
-  initialisation, or the toolkit's policy (Nature CNN, MLP 256-256, orthogonal initialisation);
+- `--head plain|library|keypoints`: a Nature CNN with a 512 → 256 → 2 head in PyTorch's default
+  initialisation, the toolkit's policy (Nature CNN, MLP 256-256, orthogonal initialisation), or
+  spatial-softmax keypoints of each frame (`KeypointNet`);
 - `--state-aux C`: add C × the squared error of predicting the standardised state (x, ẋ, θ, θ̇)
   from the CNN's features, the state recorded beside the frames;
 - `--differences`: feed the frame differences as extra planes;
@@ -53,11 +54,41 @@ class PlainNet(nn.Module):
         return self.head(features), features
 
 
+class KeypointNet(nn.Module):
+    """Each frame through one small CNN ending in K feature maps, each map's spatial softmax
+    reduced to its expected (x, y) (Levine et al. 2016; robomimic's encoder); the newest frame's
+    keypoints and their differences from each older frame's (×20) go to a 256-256 head."""
+
+    def __init__(self, frames: int, keypoints: int = 16) -> None:
+        super().__init__()
+        self.convolutions = nn.Sequential(
+            nn.Conv2d(1, 16, 4, 2), nn.ReLU(), nn.Conv2d(16, 32, 3, 2), nn.ReLU(), nn.Conv2d(32, keypoints, 3, 1),
+        )  # fmt: skip
+        self.temperature = nn.Parameter(torch.ones(1))
+        size = frames * 2 * keypoints
+        self.head = nn.Sequential(nn.Linear(size, 256), nn.ReLU(), nn.Linear(256, 256), nn.ReLU(), nn.Linear(256, 2))
+
+    def keypoints(self, planes: torch.Tensor) -> torch.Tensor:
+        b, k, h, w = planes.shape
+        maps = self.convolutions(planes.reshape(b * k, 1, h, w))
+        _, c, mh, mw = maps.shape
+        probabilities = torch.softmax(maps.reshape(b * k, c, mh * mw) / self.temperature, -1)
+        ys, xs = torch.meshgrid(torch.linspace(-1, 1, mh), torch.linspace(-1, 1, mw), indexing="ij")
+        points = torch.cat([probabilities @ xs.reshape(-1, 1), probabilities @ ys.reshape(-1, 1)], -1)
+        return points.reshape(b, k, c * 2)
+
+    def forward(self, planes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        points = self.keypoints(planes)
+        newest = points[:, -1]
+        features = torch.cat([newest, *(20 * (newest - points[:, i]) for i in range(points.shape[1] - 1))], -1)
+        return self.head(features), features
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("demos")
     parser.add_argument("--scale", choices=["raw", "standardised"], default="standardised")
-    parser.add_argument("--head", choices=["plain", "library"], default="plain")
+    parser.add_argument("--head", choices=["plain", "library", "keypoints"], default="plain")
     parser.add_argument("--state-aux", type=float, default=0.0)
     parser.add_argument("--differences", action="store_true")
     parser.add_argument("--stride", type=int, default=1)
@@ -100,8 +131,8 @@ def main() -> None:
 
         parameters = [*policy.parameters(), *auxiliary.parameters()]
     else:
-        net = PlainNet(planes(frames[:1]).shape[1])
-        auxiliary = nn.Linear(512, 4)
+        net = PlainNet(planes(frames[:1]).shape[1]) if args.head == "plain" else KeypointNet(args.frames)
+        auxiliary = nn.Linear(512 if args.head == "plain" else 2 * 16 * args.frames, 4)
 
         def forward(batch: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
             return net(planes(batch))
