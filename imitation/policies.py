@@ -148,20 +148,7 @@ class PolicyConfig:
             raise TypeError(
                 "activation must be a name, shared_trunk, normalize_observations/actions and previous_action true or false"
             )
-        if config.observation_keys is not None and not (
-            isinstance(config.observation_keys, list) and all(isinstance(key, str) for key in config.observation_keys)
-        ):
-            raise TypeError("observation_keys must be a list of names")
-        if (
-            isinstance(config.frame_stack, bool)
-            or not isinstance(config.frame_stack, int)
-            or not 1 <= config.frame_stack <= 64
-        ):
-            raise ValueError(f"frame_stack must be an integer in [1, 64], got {config.frame_stack!r}")
-        if config.cnn is not None:
-            CNNConfig.from_json(config.cnn)
-        if config.pixels is not None:
-            PixelRecipe.from_json(config.pixels)
+        check_image_fields(config.observation_keys, config.frame_stack, config.cnn, config.pixels)
         if (
             isinstance(config.log_std_init, bool)
             or not isinstance(config.log_std_init, (int, float))
@@ -169,6 +156,22 @@ class PolicyConfig:
         ):
             raise ValueError(f"log_std_init must be a finite number, got {config.log_std_init!r}")
         return config
+
+
+def check_image_fields(observation_keys: Any, frame_stack: Any, cnn: Any, pixels: Any) -> None:
+    """The image fields a policy or reward config read from a file holds: the leaves read, the
+    frames per image leaf, the CNN and how the env renders. TypeError or ValueError naming the
+    malformed one."""
+    if observation_keys is not None and not (
+        isinstance(observation_keys, list) and all(isinstance(key, str) for key in observation_keys)
+    ):
+        raise TypeError("observation_keys must be a list of names")
+    if isinstance(frame_stack, bool) or not isinstance(frame_stack, int) or not 1 <= frame_stack <= 64:
+        raise ValueError(f"frame_stack must be an integer in [1, 64], got {str(frame_stack)[:40]}")
+    if cnn is not None:
+        CNNConfig.from_json(cnn)
+    if pixels is not None:
+        PixelRecipe.from_json(pixels)
 
 
 def check_layer_widths(hidden_sizes: Any) -> None:
@@ -287,6 +290,24 @@ def _leaf(tree: Any, path: tuple[str, ...]) -> Any:
     for key in path:
         tree = tree[key]
     return tree
+
+
+def leaf_frames(observations: Any, leaf: ImageLeaf) -> torch.Tensor:
+    """An image leaf of a batch as (batch, k, H, W, C)."""
+    frames = _leaf(observations, leaf.path)
+    return frames.reshape(frames.shape[0], leaf.frames, leaf.height, leaf.width, leaf.channels)
+
+
+def one_hot_or_flat(values: torch.Tensor, space: gym.Space) -> torch.Tensor:
+    """A batch of one leaf as float rows: Discrete values one-hot, others flattened."""
+    if isinstance(space, gym.spaces.Discrete):
+        return nn.functional.one_hot(values.long().reshape(-1) - int(space.start), int(space.n)).float()
+    return values.reshape(values.shape[0], -1).float()
+
+
+def vector_leaves(observations: Any, layout: ObservationLayout) -> torch.Tensor:
+    """The non-image leaves of a batch, flattened (Discrete ones one-hot) side by side."""
+    return torch.cat([one_hot_or_flat(_leaf(observations, path), space) for path, space in layout.vectors], dim=1)
 
 
 class MultiCategorical(Distribution):
@@ -446,21 +467,11 @@ class ActorCritic(nn.Module):
     # -- observations ---------------------------------------------------------------------------
 
     def _frames(self, observations: Any, leaf: ImageLeaf) -> torch.Tensor:
-        """An image leaf of a batch as (batch, k, H, W, C)."""
-        frames = _leaf(observations, leaf.path)
-        return frames.reshape(frames.shape[0], leaf.frames, leaf.height, leaf.width, leaf.channels)
+        return leaf_frames(observations, leaf)
 
     def _vector(self, observations: Any) -> torch.Tensor:
-        """The non-image leaves of a batch, flattened (Discrete ones one-hot) side by side."""
         assert self.layout is not None
-        parts = []
-        for path, space in self.layout.vectors:
-            values = _leaf(observations, path)
-            if isinstance(space, gym.spaces.Discrete):
-                parts.append(nn.functional.one_hot(values.long().reshape(-1) - int(space.start), int(space.n)).float())
-            else:
-                parts.append(values.reshape(values.shape[0], -1).float())
-        return torch.cat(parts, dim=1)
+        return vector_leaves(observations, self.layout)
 
     def shifted(self, observations: Any, pad: int) -> Any:
         """The batch with each image leaf randomly shifted by up to `pad` pixels (`random_shift`)."""

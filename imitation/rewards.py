@@ -20,7 +20,6 @@ one way a learned reward enters training.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -29,20 +28,23 @@ import numpy as np
 import torch
 from torch import nn
 
+from imitation.data.loader import tree_map
 from imitation.data.spaces import space_from_json, space_to_json
 from imitation.encoders import CNNConfig, ImageEncoder, cnn_weight_count, conv_output_sides
-from imitation.envs.pixels import PixelRecipe
 from imitation.envs.rollout import Rollout
 from imitation.errors import ImitationError, SpaceError
 from imitation.policies import (
     ACTIVATIONS,
-    ImageLeaf,
     ObservationLayout,
+    check_image_fields,
     check_layer_widths,
     check_weights_cover,
+    leaf_frames,
     mlp_weight_count,
     observation_layout,
     observation_size,
+    one_hot_or_flat,
+    vector_leaves,
 )
 from imitation.runs import read_run
 
@@ -92,20 +94,7 @@ class RewardConfig:
             isinstance(features, bool) or not isinstance(features, int) or not 1 <= features <= 2**20
         ):
             raise ValueError(f"state_features must be a width in [1, 2^20] or null, got {str(features)[:40]}")
-        if config.observation_keys is not None and not (
-            isinstance(config.observation_keys, list) and all(isinstance(key, str) for key in config.observation_keys)
-        ):
-            raise TypeError("observation_keys must be a list of names")
-        if (
-            isinstance(config.frame_stack, bool)
-            or not isinstance(config.frame_stack, int)
-            or not 1 <= config.frame_stack <= 64
-        ):
-            raise ValueError(f"frame_stack must be an integer in [1, 64], got {str(config.frame_stack)[:40]}")
-        if config.cnn is not None:
-            CNNConfig.from_json(config.cnn)
-        if config.pixels is not None:
-            PixelRecipe.from_json(config.pixels)
+        check_image_fields(config.observation_keys, config.frame_stack, config.cnn, config.pixels)
         return config
 
 
@@ -140,31 +129,6 @@ def _planned_weights(config: RewardConfig) -> int:
 
 # Samples per forward pass of `RewardNet.rewards_of`: bounds the activations' memory.
 _CHUNK = 4096
-
-
-def _frames(observations: Any, leaf: ImageLeaf) -> torch.Tensor:
-    """An image leaf of a batch as (batch, k, H, W, C)."""
-    frames = observations
-    for key in leaf.path:
-        frames = frames[key]
-    return frames.reshape(frames.shape[0], leaf.frames, leaf.height, leaf.width, leaf.channels)
-
-
-def _vector(observations: Any, layout: ObservationLayout) -> torch.Tensor:
-    """The non-image leaves of a batch, flattened (Discrete ones one-hot) side by side."""
-    parts = []
-    for path, space in layout.vectors:
-        values = observations
-        for key in path:
-            values = values[key]
-        parts.append(_one_hot_or_flat(values, space))
-    return torch.cat(parts, dim=1)
-
-
-def _one_hot_or_flat(values: torch.Tensor, space: gym.Space) -> torch.Tensor:
-    if isinstance(space, gym.spaces.Discrete):
-        return nn.functional.one_hot(values.long().reshape(-1) - int(space.start), int(space.n)).float()
-    return values.reshape(values.shape[0], -1).float()
 
 
 class RewardNet(nn.Module):
@@ -239,7 +203,7 @@ class RewardNet(nn.Module):
         return [ImageEncoder(leaf.frames, leaf.height, leaf.width, leaf.channels, cnn) for leaf in self.layout.images]
 
     def _encode_observations(self, observations: torch.Tensor) -> torch.Tensor:
-        encoded = _one_hot_or_flat(observations, self.observation_space)
+        encoded = one_hot_or_flat(observations, self.observation_space)
         if self.config.normalize_observations:
             encoded = (encoded - self.observation_mean) / self.observation_std
         return encoded
@@ -251,10 +215,10 @@ class RewardNet(nn.Module):
         if self.layout is None:
             return [self._flat_inputs(observations, actions, next_observations)]
         states = [observations, next_observations] if self.config.inputs == "sas" else [observations]
-        frames = [_frames(state, leaf).float() / 255.0 for state in states for leaf in self.layout.images]
-        rest = [_vector(state, self.layout) for state in states if self.layout.vectors]
+        frames = [leaf_frames(state, leaf).float() / 255.0 for state in states for leaf in self.layout.images]
+        rest = [vector_leaves(state, self.layout) for state in states if self.layout.vectors]
         if "a" in self.config.inputs:
-            rest.append(_one_hot_or_flat(actions, self.action_space))
+            rest.append(one_hot_or_flat(actions, self.action_space))
         return [*frames, torch.cat(rest, dim=-1)] if rest else frames
 
     def features(self, prepared: list[torch.Tensor]) -> torch.Tensor:
@@ -279,7 +243,7 @@ class RewardNet(nn.Module):
             return self.state_features[observations.long().reshape(-1) - int(self.observation_space.start)]
         parts = [self._encode_observations(observations)]
         if "a" in self.config.inputs:
-            parts.append(_one_hot_or_flat(actions, self.action_space))
+            parts.append(one_hot_or_flat(actions, self.action_space))
         if self.config.inputs == "sas":
             parts.append(self._encode_observations(next_observations))
         return torch.cat(parts, dim=-1)
@@ -303,13 +267,6 @@ class RewardNet(nn.Module):
         steps, n_envs = rollout.env_rewards.shape
         inputs = (flat_batch(getattr(rollout, name), 2) for name in ("observations", "env_actions", "next_observations"))
         return self.rewards_of(*inputs).reshape(steps, n_envs).to(rollout.env_rewards.device)
-
-
-def tree_map(fn: Callable[[torch.Tensor], torch.Tensor], tree: Any) -> Any:
-    """`fn` applied to every tensor of a tree (a tensor, or a dict of trees), the tree kept."""
-    if isinstance(tree, dict):
-        return {key: tree_map(fn, sub) for key, sub in tree.items()}
-    return fn(tree)
 
 
 def tree_index(tree: Any, index: Any, device: torch.device | str | None = None) -> Any:

@@ -392,8 +392,16 @@ def test_a_stochastic_single_observation_expert_samples_its_policy() -> None:
         ({"log_std_init": "0.5"}, ValueError, "log_std_init must be a finite number, got '0.5'"),
         ({"log_std_init": math.nan}, ValueError, "log_std_init must be a finite number, got nan"),
         ({"log_std_init": -math.inf}, ValueError, "log_std_init must be a finite number, got -inf"),
+        ({"observation_keys": "pixels"}, TypeError, "observation_keys must be a list of names"),
+        ({"frame_stack": True}, ValueError, "frame_stack must be an integer in [1, 64], got True"),
+        ({"frame_stack": 65}, ValueError, "frame_stack must be an integer in [1, 64], got 65"),
+        ({"cnn": []}, TypeError, "the CNN config is a list, not an object"),
+        ({"pixels": 5}, ValueError, "a pixel recipe is {'size': [H, W]"),
     ],
-    ids=["list", "activation", "shared_trunk", "normalize_observations", "normalize_actions", "previous_action", "bool", "str", "nan", "-inf"],
+    ids=[
+        "list", "activation", "shared_trunk", "normalize_observations", "normalize_actions", "previous_action", "bool",
+        "str", "nan", "-inf", "observation_keys", "frame_stack bool", "frame_stack 65", "cnn", "pixels",
+    ],  # fmt: skip
 )
 def test_a_policy_config_read_from_a_file_refuses_each_malformed_field_naming_it(data, error, message) -> None:
     valid = make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[4]).config.to_json() | {"log_std_init": -1}

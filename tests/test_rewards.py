@@ -165,6 +165,12 @@ MALFORMED = {
         lambda c: c | {"state_features": 2**20 + 1},
         "state_features must be a width in [1, 2^20] or null, got 1048577",
     ),
+    "observation keys a name": (lambda c: c | {"observation_keys": "pixels"}, "observation_keys must be a list of names"),
+    "frame stack zero": (lambda c: c | {"frame_stack": 0}, "frame_stack must be an integer in [1, 64], got 0"),
+    "frame stack a long string": (
+        lambda c: c | {"frame_stack": "7" * 50},
+        "frame_stack must be an integer in [1, 64], got " + "7" * 40,
+    ),
     # The message quotes at most 40 characters of the value.
     "feature width a long string": (
         lambda c: c | {"state_features": "x" * 50},

@@ -70,11 +70,11 @@ from torch import nn
 
 from imitation.algorithms.ppo import PPO
 from imitation.checkpoints import CheckpointData, optimizer_checkpoint, prefixed, restore_optimizer, restoring, unprefixed
-from imitation.data.loader import TensorTree, TransitionTensors
+from imitation.data.loader import TensorTree, TransitionTensors, tree_map
 from imitation.envs.rollout import Rollout
 from imitation.errors import ConfigError, ImitationError
 from imitation.policies import ActorCritic, PolicyConfig
-from imitation.rewards import RewardNet, flat_batch, tree_index, tree_map
+from imitation.rewards import RewardNet, flat_batch, tree_index
 
 OBJECTIVES = ("discriminator", "importance")
 

@@ -327,9 +327,11 @@ def batch_features(policy: ActorCritic, inputs: TensorTree, index: torch.Tensor 
 def over_batch(
     policy: ActorCritic, batch: UpdateBatch, size: int, measure: Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 ) -> torch.Tensor:
-    """`measure(features, index)` of the whole batch without gradients, `size` samples at a time
-    (an image policy's activations for a whole rollout can take gigabytes)."""
+    """`measure(features, index)` of the whole batch without gradients: an image policy's `size`
+    samples at a time (its activations for a whole rollout can take gigabytes), a flat policy's
+    (features already computed) in one pass."""
     rows = len(batch.log_probs)
+    size = size if policy.layout is not None else rows
     with torch.no_grad():
         parts = []
         for start in range(0, rows, size):

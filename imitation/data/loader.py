@@ -45,11 +45,12 @@ def resolve_device(device: str | torch.device = "auto") -> torch.device:
     return resolved
 
 
-def _tree_apply(fn: Callable[[Any], Any], tree: Any) -> Any:
+def tree_map(fn: Callable[[Any], Any], tree: Any) -> Any:
+    """`fn` applied to every leaf of a tree (a tensor or array, or a dict of trees; None stays None), the tree kept."""
     if tree is None:
         return None
     if isinstance(tree, dict):
-        return {key: _tree_apply(fn, sub) for key, sub in tree.items()}
+        return {key: tree_map(fn, sub) for key, sub in tree.items()}
     return fn(tree)
 
 
@@ -74,16 +75,16 @@ class TransitionTensors:
 
     def to(self, device: str | torch.device) -> TransitionTensors:
         device = resolve_device(device)
-        return TransitionTensors(**{f.name: _tree_apply(lambda t: t.to(device), getattr(self, f.name)) for f in fields(self)})
+        return TransitionTensors(**{f.name: tree_map(lambda t: t.to(device), getattr(self, f.name)) for f in fields(self)})
 
     def select(self, index: torch.Tensor) -> TransitionTensors:
         """The transitions at `index` (a long tensor on this device), as new tensors."""
         if index.device.type == "cpu" and index.dtype in (torch.int64, torch.int32) and index.dim() == 1:
             rows = index.numpy()
             return TransitionTensors(
-                **{f.name: _tree_apply(lambda t: _take_rows(t, rows, index), getattr(self, f.name)) for f in fields(self)}
+                **{f.name: tree_map(lambda t: _take_rows(t, rows, index), getattr(self, f.name)) for f in fields(self)}
             )
-        return TransitionTensors(**{f.name: _tree_apply(lambda t: t[index], getattr(self, f.name)) for f in fields(self)})
+        return TransitionTensors(**{f.name: tree_map(lambda t: t[index], getattr(self, f.name)) for f in fields(self)})
 
 
 def _take_rows(tensor: torch.Tensor, rows: np.ndarray, index: torch.Tensor) -> torch.Tensor:
@@ -125,7 +126,7 @@ def transitions_to_torch(transitions: Transitions, device: str | torch.device = 
     def convert(array: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.ascontiguousarray(array)).to(target)
 
-    return TransitionTensors(**{f.name: _tree_apply(convert, getattr(transitions, f.name)) for f in fields(transitions)})
+    return TransitionTensors(**{f.name: tree_map(convert, getattr(transitions, f.name)) for f in fields(transitions)})
 
 
 def load_episodes(
