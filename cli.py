@@ -327,6 +327,8 @@ def cmd_train_dagger(args: argparse.Namespace) -> int:
 def cmd_train_irl(args: argparse.Namespace) -> int:
     if args.method == "gcl":
         return _train_gcl(args)
+    if args.method in ("gail", "airl"):
+        return _train_adversarial(args)
     if args.method == "apprenticeship":
         return _train_apprenticeship(args)
     from imitation.algorithms.maxent_irl import MaxEntIRLConfig
@@ -351,7 +353,7 @@ def _train_gcl(args: argparse.Namespace) -> int:
     from imitation.jobs.irl import gcl_job, recorded_observation
     from imitation.jobs.presets import ppo_config, preset
 
-    fields = {"total_steps": preset(args.env).gcl_steps} | _fields(args, "PPOConfig") | recorded_observation(args.demos)
+    fields = {"total_steps": preset(args.env).irl_steps} | _fields(args, "PPOConfig") | recorded_observation(args.demos)
     config = ppo_config(args.env, learned_reward=True, **fields)
     result = gcl_job(
         args.demos,
@@ -370,6 +372,35 @@ def _train_gcl(args: argparse.Namespace) -> int:
             f"GCL on {args.env}: {result['steps']} PPO steps in {result['seconds']:.0f} s; the maximum-entropy sampler "
             f"trained alongside (not for use) earns {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f} (demos "
             f"{result['demo_return']:.1f}); reward model for `train ppo --reward`: {result['run']}"
+        )
+    return 0
+
+
+def _train_adversarial(args: argparse.Namespace) -> int:
+    from imitation.algorithms.adversarial import AdversarialConfig
+    from imitation.jobs.irl import adversarial_job, recorded_observation
+    from imitation.jobs.presets import ppo_config, preset
+
+    fields = {"total_steps": preset(args.env).irl_steps} | _fields(args, "PPOConfig") | recorded_observation(args.demos)
+    result = adversarial_job(
+        args.demos,
+        args.env,
+        AdversarialConfig(**_fields(args, "AdversarialConfig")),
+        ppo_config(args.env, learned_reward=True, **fields),
+        args.out,
+        progress=not args.quiet,
+        resume=args.resume,
+    )
+    if args.json:
+        _print_json(result)
+    else:
+        evaluation = result["eval"]
+        reward = "g" if args.method == "airl" else "−log(1 − D), not a recovered reward"
+        print(
+            f"{args.method.upper()} on {args.env}: {result['steps']} PPO steps in {result['seconds']:.0f} s; the policy "
+            f"earns {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f} (demos {result['demo_return']:.1f}), "
+            f"discriminator accuracy {result['demo_accuracy']:.2f} on demos, {result['sample_accuracy']:.2f} on samples; "
+            f"policy for `eval policy` and reward ({reward}) for `train ppo --reward`: {result['run']}"
         )
     return 0
 
@@ -570,7 +601,17 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "hidden_sizes": "--hidden",
             "seed": "--seed",
         },
-        "GCLConfig": {"learning_rate": "--lr", "hidden_sizes": "--hidden", "seed": "--seed"},
+        "GCLConfig": {"learning_rate": "--lr", "hidden_sizes": "--hidden", "inputs": "--reward-inputs", "seed": "--seed"},
+        "AdversarialConfig": {
+            "method": "--method",
+            "learning_rate": "--lr",
+            "hidden_sizes": "--hidden",
+            "inputs": "--reward-inputs",
+            "discriminator_steps": "--discriminator-steps",
+            "policy_updates": "--policy-updates",
+            "gradient_penalty": "--gradient-penalty",
+            "seed": "--seed",
+        },
         "PPOConfig": {"total_steps": "--steps", "seed": "--seed"},
         "ApprenticeshipConfig": {
             "iterations": "--iterations",
@@ -1127,16 +1168,22 @@ def build_parser() -> argparse.ArgumentParser:
 
     irl = algorithms.add_parser(
         "irl",
-        help="IRL: recover a reward from demos (tabular maxent/mce, continuous gcl, apprenticeship)",
+        help="IRL: recover a reward from demos (tabular maxent/mce, continuous gcl, airl, gail, apprenticeship)",
         description="Maximum-entropy inverse RL. maxent (Ziebart 2008, deterministic dynamics) and mce (maximum causal "
         "entropy, any dynamics) need a tabular env with known dynamics (imitation/GridWorld8x8-v0, ...); gcl (guided cost "
-        "learning) works on continuous envs and trains PPO on the reward as it learns it. apprenticeship (Abbeel & Ng "
+        "learning) works on continuous envs and trains PPO on the reward as it learns it; so do the adversarial methods, airl "
+        "(Fu et al. 2018: a discriminator structured by the policy's density and a shaping potential, whose state-only "
+        "reward g is recovered) and gail (Ho & Ermon 2016: a free discriminator, PPO on −log(1 − D); its policy is the "
+        "product, its discriminator a reward only with that caveat). apprenticeship (Abbeel & Ng "
         "2004, projection method) matches the demos' feature expectations with a mixture of policies: exactly on a "
         "tabular env, with PPO as the solver on Box observations. The run directory holds the reward model, for `train "
         "ppo --reward RUN_DIR`.",
     )
     irl.add_argument(
-        "--method", choices=["maxent", "mce", "gcl", "apprenticeship"], default="mce", help="the IRL algorithm (default: mce)"
+        "--method",
+        choices=["maxent", "mce", "gcl", "airl", "gail", "apprenticeship"],
+        default="mce",
+        help="the IRL algorithm (default: mce)",
     )
     irl.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
     irl.add_argument("--demos", required=True, nargs="+", metavar="F.mcap", help="expert demo files of that env")
@@ -1161,19 +1208,46 @@ def build_parser() -> argparse.ArgumentParser:
         help="maxent/mce/apprenticeship: discount γ of the visitation counts and feature expectations (default: 1)",
     )
     irl.add_argument(
-        "--lr", type=_finite, metavar="LR", help="Adam learning rate of the reward (default: 0.05 tabular, 3e-4 gcl)"
+        "--lr",
+        type=_finite,
+        metavar="LR",
+        help="Adam learning rate of the reward or discriminator (default: 0.05 tabular, 3e-4 gcl/airl/gail)",
     )
     irl.add_argument(
         "--hidden",
         type=_hidden_sizes,
         metavar="32,32",
-        help="reward MLP widths, or 'linear' (default: linear tabular, 64,64 gcl)",
+        help="reward MLP widths, or 'linear' (default: linear tabular, 64,64 gcl/airl/gail)",
+    )
+    irl.add_argument(
+        "--reward-inputs",
+        choices=["s", "sa", "sas"],
+        help="gcl/airl/gail: what the reward reads, the state s, its action a and next state s' (default: s; sa for "
+        "gail's discriminator)",
+    )
+    irl.add_argument(
+        "--discriminator-steps",
+        type=int,
+        metavar="N",
+        help="airl/gail: discriminator minibatch steps per round (default: 8)",
+    )
+    irl.add_argument(
+        "--policy-updates",
+        type=int,
+        metavar="N",
+        help="airl/gail: PPO updates per round, between the discriminator's steps (default: 1)",
+    )
+    irl.add_argument(
+        "--gradient-penalty",
+        type=_finite,
+        metavar="L",
+        help="airl/gail: weight of E‖∇_x logit D‖² over the discriminator's inputs (default: 0)",
     )
     irl.add_argument(
         "--steps",
         type=int,
         metavar="N",
-        help="gcl: PPO environment steps in total (default: 500000 for Pendulum-v1, else 200000); apprenticeship on "
+        help="gcl/airl/gail: PPO environment steps in total (default: the env's preset, 200000 where none); apprenticeship on "
         "Box observations: PPO steps per iteration (default: 100000)",
     )
     irl.add_argument(

@@ -60,7 +60,7 @@ CASES = (
 LEARNING_RATE = 0.1
 # env id → (demo file, GCL steps, retraining steps): the defaults of `train irl --method gcl` and `eval reward`.
 CONTINUOUS = {
-    env_id: (demos, preset(env_id).gcl_steps, preset(env_id).retrain_steps)
+    env_id: (demos, preset(env_id).irl_steps, preset(env_id).retrain_steps)
     for env_id, demos in (("imitation/CartPoleFixedHorizon-v0", "CartPoleFixedHorizon-v0.mcap"), ("Pendulum-v1", "Pendulum-v1.mcap"))
 }
 OUR_CONVERGENCE_CAP = 20_000

@@ -122,3 +122,26 @@ class TrainingClock:
     @property
     def seconds(self) -> float:
         return self.before + (time.perf_counter() - self._started if self._started is not None else 0.0)
+
+
+def flat_names(trees: dict[str, Any]) -> Tensors:
+    """Trees of tensors as one flat name → tensor map for a checkpoint: a dict leaf `key` of `name` is `name.key`."""
+    flat: Tensors = {}
+    for name, tree in trees.items():
+        if isinstance(tree, dict):
+            flat |= prefixed(name, flat_names(tree))
+        else:
+            flat[name] = tree
+    return flat
+
+
+def tree_of_names(flat: Tensors) -> dict[str, Any]:
+    """`flat_names` undone."""
+    trees: dict[str, Any] = {}
+    for name, tensor in flat.items():
+        *path, leaf = name.split(".")
+        node = trees
+        for key in path:
+            node = node.setdefault(key, {})
+        node[leaf] = tensor
+    return trees

@@ -49,6 +49,9 @@ from imitation.policies import (
 from imitation.runs import read_run
 
 REWARD_INPUTS = ("s", "sa", "sas")
+# The network's last linear output as the reward, or its softplus log(1 + e^x) = −log(1 − σ(x)):
+# GAIL's reward of its discriminator's logit.
+REWARD_OUTPUTS = ("linear", "softplus")
 REWARD_PREFIX = "reward."
 
 
@@ -59,6 +62,7 @@ class RewardConfig:
     inputs: str = "s"
     hidden_sizes: list[int] = field(default_factory=lambda: [64, 64])
     activation: str = "relu"
+    output: str = "linear"
     # Tabular MDPs: r is computed on a per-state feature vector x(s) of this width, looked up
     # in a (states, width) table that is saved with the weights (None: on the state itself).
     state_features: int | None = None
@@ -86,9 +90,13 @@ class RewardConfig:
         if (
             not isinstance(config.inputs, str)
             or not isinstance(config.activation, str)
+            or config.output not in REWARD_OUTPUTS
             or not isinstance(config.normalize_observations, bool)
         ):
-            raise TypeError("inputs and activation must be names, normalize_observations true or false")
+            raise TypeError(
+                f"inputs and activation must be names, output one of {', '.join(REWARD_OUTPUTS)}, normalize_observations "
+                "true or false"
+            )
         features = config.state_features
         if features is not None and (
             isinstance(features, bool) or not isinstance(features, int) or not 1 <= features <= 2**20
@@ -144,6 +152,8 @@ class RewardNet(nn.Module):
         super().__init__()
         if config.inputs not in REWARD_INPUTS:
             raise ImitationError(f"reward inputs must be one of {', '.join(REWARD_INPUTS)}, got {config.inputs!r}")
+        if config.output not in REWARD_OUTPUTS:
+            raise ImitationError(f"reward output must be one of {', '.join(REWARD_OUTPUTS)}, got {config.output!r}")
         self.config = config
         self.observation_space = space_from_json(config.observation_space)
         self.action_space = space_from_json(config.action_space)
@@ -229,9 +239,14 @@ class RewardNet(nn.Module):
         encoded = [self.encoders[i % images](part) for i, part in enumerate(prepared) if part.dim() == 5]
         return torch.cat([*encoded, *(part for part in prepared if part.dim() != 5)], dim=-1)
 
-    def score(self, prepared: list[torch.Tensor]) -> torch.Tensor:
-        """r_φ of `prepare`'s tensors, one per sample."""
+    def net_output(self, prepared: list[torch.Tensor]) -> torch.Tensor:
+        """The network's last linear output for `prepare`'s tensors, one per sample."""
         return self.net(self.features(prepared)).squeeze(-1)
+
+    def score(self, prepared: list[torch.Tensor]) -> torch.Tensor:
+        """r_φ of `prepare`'s tensors, one per sample: the output, through softplus if so configured."""
+        output = self.net_output(prepared)
+        return nn.functional.softplus(output) if self.config.output == "softplus" else output
 
     def inputs(self, observations: Any, actions: torch.Tensor, next_observations: Any) -> torch.Tensor:
         """The MLP's input vector: encoded (normalised, one-hot, CNN-read) s, and a and s' if used."""
@@ -347,11 +362,12 @@ def random_reward_like(model: RewardNet, *, seed: int) -> RewardNet:
 
 
 def constant_reward_like(model: RewardNet, value: float = 1.0) -> RewardNet:
-    """A control: `model`'s architecture paying `value` everywhere (last layer zero, bias `value`)."""
+    """A control: `model`'s architecture paying `value` (> 0 for a softplus output) everywhere:
+    last layer zero, bias `value` or, through softplus, its inverse log(e^value − 1)."""
     constant = _fresh_like(model)
     last = constant.net[-1]
     assert isinstance(last, nn.Linear)
     with torch.no_grad():
         last.weight.zero_()
-        last.bias.fill_(value)
+        last.bias.fill_(value if model.config.output == "linear" else float(np.log(np.expm1(value))))
     return constant

@@ -85,3 +85,13 @@ def write_map(folder: Path, data: dict, name: str = "map.yaml") -> Path:
     path = folder / name
     path.write_text(yaml.safe_dump(data))
     return path
+
+
+def random_policy_return(env_id: str) -> float:
+    """A uniform random policy's mean return over 10 episodes (seeds 0-9): the 0 of normalised returns."""
+    from imitation.envs.make import make_env
+    from imitation.evaluation.policy import evaluate_policy
+
+    env = make_env(env_id)
+    env.action_space.seed(0)
+    return evaluate_policy(lambda observation: env.action_space.sample(), env, episodes=10, seed=0)["mean_return"]

@@ -1,4 +1,4 @@
-"""`train irl` (tabular maxent/mce and continuous gcl) from the command line, feeding `train ppo --reward`."""
+"""`train irl` (tabular maxent/mce, continuous gcl, airl and gail) from the command line, feeding `train ppo --reward`."""
 
 from __future__ import annotations
 
@@ -52,6 +52,27 @@ def test_gcl_writes_a_reward_model_that_ppo_consumes(tmp_path) -> None:
     assert {"learning_curve.png", "reward_curve.png"} <= {p.name for p in gcl.iterdir()}
     last_json(run_cli("train", "ppo", "--env", env_id, "--reward", str(gcl), "--steps", "2048", "--out", str(tmp_path / "ppo"), "--json", timeout=300))
     last_json(run_cli("eval", "policy", str(gcl), "--env", env_id, "--episodes", "1", "--json"))
+
+
+@pytest.mark.parametrize("method", ["airl", "gail"])
+def test_adversarial_runs_write_a_policy_and_a_reward_that_ppo_and_eval_consume(method: str, tmp_path) -> None:
+    env_id, demos = "imitation/CartPoleFixedHorizon-v0", str(DATASETS / "CartPoleFixedHorizon-v0.mcap")
+    run = tmp_path / method
+    flags = ["--discriminator-steps", "2", "--policy-updates", "2", "--gradient-penalty", "0.5", "--hidden", "16"]
+    result = last_json(run_cli("train", "irl", "--method", method, "--env", env_id, "--demos", demos, "--steps", "2048", *flags, "--out", str(run), "--json", timeout=300))
+    assert result["method"] == method and result["steps"] == 2048 and result["demo_return"] == 500.0
+    assert 0.0 <= result["demo_accuracy"] <= 1.0 and 0.0 <= result["sample_accuracy"] <= 1.0
+    config = json.loads((run / "config.json").read_text())
+    assert config["irl"] | {"method": method, "discriminator_steps": 2, "policy_updates": 2, "gradient_penalty": 0.5, "hidden_sizes": [16]} == config["irl"]
+    # AIRL exports g, a reward of the state alone; GAIL its discriminator's −log(1 − D), of (s, a).
+    assert config["reward"]["inputs"] == {"airl": "s", "gail": "sa"}[method]
+    assert config["reward"]["output"] == {"airl": "linear", "gail": "softplus"}[method]
+    rows = (run / "progress.csv").read_text().splitlines()
+    assert "discriminator_loss" in rows[0] and len(rows) == 1 + 2048 // 256
+    assert {"learning_curve.png", "reward_curve.png"} <= {p.name for p in run.iterdir()}
+    last_json(run_cli("train", "ppo", "--env", env_id, "--reward", str(run), "--steps", "2048", "--out", str(tmp_path / "ppo"), "--json", timeout=300))
+    evaluation = last_json(run_cli("eval", "policy", str(run), "--env", env_id, "--episodes", "2", "--json"))
+    assert evaluation["mean_return"] == result["eval"]["mean_return"] or evaluation["episodes"] == 2
 
 
 def test_bad_irl_input(grid_demos, tmp_path) -> None:

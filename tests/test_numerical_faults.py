@@ -121,6 +121,33 @@ def test_gcl_names_the_update_and_step_of_a_nan_reward_loss() -> None:
         ppo.close()
 
 
+@pytest.mark.parametrize("method", ["gail", "airl"])
+def test_an_adversarial_discriminator_names_the_round_and_step_of_a_nan_loss(method: str) -> None:
+    from imitation.algorithms.adversarial import AdversarialConfig, AdversarialImitation
+    from imitation.algorithms.airl import AIRLDiscriminator
+    from imitation.algorithms.gail import GAILDiscriminator
+    from imitation.algorithms.ppo import PPO, PPOConfig
+    from imitation.data.loader import load_transitions, transitions_to_torch
+    from imitation.envs.make import make_env
+    from imitation.jobs.loop import run
+    from imitation.rewards import make_reward_model
+
+    env = make_env("CartPole-v1")
+
+    def net(inputs: str, output: str = "linear"):
+        return make_reward_model(env.observation_space, env.action_space, hidden_sizes=[16], inputs=inputs, output=output)
+
+    discriminator = GAILDiscriminator(net("sa", "softplus")) if method == "gail" else AIRLDiscriminator(net("s"), net("s"), gamma=0.99)
+    demos = transitions_to_torch(load_transitions(DATASETS / "CartPole-v1.mcap", next_observations=True))
+    ppo = PPO(PPOConfig(env_id="CartPole-v1", total_steps=512, n_envs=2, n_steps=64))  # 4 updates
+    learner = AdversarialImitation(ppo, discriminator, demos, AdversarialConfig(method=method, learning_rate=1e20, discriminator_steps=20))
+    try:
+        with pytest.raises(ImitationError, match=rf"^{method.upper()} discriminator round \d, step \d+/20: the loss is (nan|inf|-inf) \(diverged; try a lower learning rate\)"):
+            run(learner)
+    finally:
+        ppo.close()
+
+
 def test_maxent_irl_names_the_iteration_of_a_non_finite_reward() -> None:
     from imitation.algorithms.maxent_irl import MaxEntIRL, MaxEntIRLConfig, demo_visitation
     from imitation.envs.make import make_env

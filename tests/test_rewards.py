@@ -138,15 +138,19 @@ MALFORMED = {
     ),
     "inputs not a name": (
         lambda c: c | {"inputs": 3},
-        "inputs and activation must be names, normalize_observations true or false",
+        "inputs and activation must be names, output one of linear, softplus, normalize_observations true or false",
+    ),
+    "unknown output": (
+        lambda c: c | {"output": "sigmoid"},
+        "inputs and activation must be names, output one of linear, softplus, normalize_observations true or false",
     ),
     "activation not a name": (
         lambda c: c | {"activation": 1},
-        "inputs and activation must be names, normalize_observations true or false",
+        "inputs and activation must be names, output one of linear, softplus, normalize_observations true or false",
     ),
     "normalisation not a flag": (
         lambda c: c | {"normalize_observations": "yes"},
-        "inputs and activation must be names, normalize_observations true or false",
+        "inputs and activation must be names, output one of linear, softplus, normalize_observations true or false",
     ),
     "feature width a boolean": (
         lambda c: c | {"state_features": True},

@@ -62,15 +62,24 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import cast
 
 import numpy as np
 import torch
 from torch import nn
 
 from imitation.algorithms.ppo import PPO
-from imitation.checkpoints import CheckpointData, optimizer_checkpoint, prefixed, restore_optimizer, restoring, unprefixed
-from imitation.data.loader import TensorTree, TransitionTensors, tree_map
+from imitation.checkpoints import (
+    CheckpointData,
+    flat_names,
+    optimizer_checkpoint,
+    prefixed,
+    restore_optimizer,
+    restoring,
+    tree_of_names,
+    unprefixed,
+)
+from imitation.data.loader import TensorTree, TransitionTensors, tree_cat
 from imitation.envs.rollout import Rollout
 from imitation.errors import ConfigError, ImitationError
 from imitation.policies import ActorCritic, PolicyConfig
@@ -144,14 +153,7 @@ class RewardLearner:
     def add_rollout(self, rollout: Rollout, policy: ActorCritic) -> torch.Tensor:
         """Pool the rollout's steps and add its sampler π_k to the mixture; log π_k(a|s) of its
         steps, shaped as the rollout, on the CPU."""
-        # A CPU copy: PPO refills its rollout buffers in place (on its own device), and the pool
-        # outlives this rollout.
-        rollout = Rollout(
-            **{
-                name: tree_map(lambda t: t.to("cpu", copy=True), getattr(rollout, name))
-                for name in Rollout.__dataclass_fields__
-            }
-        )
+        rollout = rollout.cpu_copy()
         if self.reward.config.normalize_observations and self.pool is None:
             # Where the space is unbounded, the first policy's states widen the demos' spread.
             demo_observations = self._demo_steps()[0]
@@ -159,8 +161,8 @@ class RewardLearner:
             self.reward.set_observation_statistics(demo_observations, flat_batch(rollout.observations, 2))
         observations, env_actions = flat_batch(rollout.observations, 2), flat_batch(rollout.env_actions, 2)
         sampler = copy.deepcopy(policy).to("cpu").eval()
-        own_log_probs = _env_action_log_probs(sampler, observations, env_actions)
-        earlier = [_env_action_log_probs(old, observations, env_actions) for old in self.samplers]
+        own_log_probs = env_action_log_probs(sampler, observations, env_actions)
+        earlier = [env_action_log_probs(old, observations, env_actions) for old in self.samplers]
         new = _Samples(
             observations=observations,
             env_actions=env_actions,
@@ -169,16 +171,16 @@ class RewardLearner:
         )
         demo_observations, demo_actions, _ = self._demo_steps()
         self.demo_log_mass = torch.logaddexp(
-            self.demo_log_mass, _env_action_log_probs(sampler, demo_observations, demo_actions)
+            self.demo_log_mass, env_action_log_probs(sampler, demo_observations, demo_actions)
         )
         if self.pool is None:
             self.pool = new
         else:
             self.pool.log_mass = torch.logaddexp(
-                self.pool.log_mass, _env_action_log_probs(sampler, self.pool.observations, self.pool.env_actions)
+                self.pool.log_mass, env_action_log_probs(sampler, self.pool.observations, self.pool.env_actions)
             )
             self.pool = _Samples(
-                **{name: _cat(getattr(self.pool, name), getattr(new, name)) for name in _Samples.__dataclass_fields__}
+                **{name: tree_cat(getattr(self.pool, name), getattr(new, name)) for name in _Samples.__dataclass_fields__}
             )
         self.samplers.append(sampler)
         return own_log_probs.reshape(rollout.env_rewards.shape)
@@ -210,7 +212,7 @@ class RewardLearner:
             }
         )
         if self.pool is not None:
-            tensors |= prefixed("pool", _flat_names(vars(self.pool)))
+            tensors |= prefixed("pool", flat_names(vars(self.pool)))
         for k, sampler in enumerate(self.samplers):
             tensors |= prefixed(f"sampler.{k}", sampler.state_dict())
         samplers = self.samplers[0].config.to_json() if self.samplers else None
@@ -231,7 +233,7 @@ class RewardLearner:
         self.generator.set_state(tensors["generator"])
         self.demo_log_mass = tensors["demo_log_mass"].clone()
         pool = unprefixed("pool", tensors)
-        self.pool = _Samples(**_tree_of_names(pool)) if pool else None
+        self.pool = _Samples(**tree_of_names(pool)) if pool else None
         self.samplers = []
         for k in range(int(state["samplers"])):
             sampler = ActorCritic(PolicyConfig.from_json(state["sampler_policy"]))
@@ -247,9 +249,9 @@ class RewardLearner:
         inputs = [
             part.requires_grad_(self.config.gradient_penalty > 0)
             for part in self.reward.prepare(
-                _cat(tree_index(demo_observations, demo_index), samples.observations),
+                tree_cat(tree_index(demo_observations, demo_index), samples.observations),
                 torch.cat([demo_actions[demo_index], samples.env_actions]),
-                _cat(tree_index(demo_next_observations, demo_index), samples.next_observations),
+                tree_cat(tree_index(demo_next_observations, demo_index), samples.next_observations),
             )
         ]
         rewards = self.reward.score(inputs)
@@ -318,7 +320,7 @@ class RewardLearner:
 _CHUNK = 65_536
 
 
-def _env_action_log_probs(policy: ActorCritic, observations: TensorTree, env_actions: torch.Tensor) -> torch.Tensor:
+def env_action_log_probs(policy: ActorCritic, observations: TensorTree, env_actions: torch.Tensor) -> torch.Tensor:
     """log π(a|s) of env actions (clipped ones as the mass at the bound, on the same footing for
     demos and samples: `ActorCritic.env_action_log_prob`), computed where the policy is, returned on the CPU."""
     with torch.no_grad():
@@ -329,36 +331,6 @@ def _env_action_log_probs(policy: ActorCritic, observations: TensorTree, env_act
             distribution = policy.distribution(policy.encode(tree_index(observations, chunk, device)))
             parts.append(policy.env_action_log_prob(distribution, env_actions[chunk].to(device)).cpu())
         return torch.cat(parts)
-
-
-def _cat(first: Any, second: Any) -> Any:
-    """Two batches (tensors, or dicts of them alike) one after the other."""
-    if isinstance(first, dict):
-        return {key: _cat(first[key], second[key]) for key in first}
-    return torch.cat([first, second])
-
-
-def _flat_names(trees: dict[str, TensorTree]) -> dict[str, torch.Tensor]:
-    """Trees as one flat name → tensor map for a checkpoint: a dict leaf `key` of `name` is `name.key`."""
-    flat: dict[str, torch.Tensor] = {}
-    for name, tree in trees.items():
-        if isinstance(tree, dict):
-            flat |= prefixed(name, _flat_names(tree))
-        else:
-            flat[name] = tree
-    return flat
-
-
-def _tree_of_names(flat: dict[str, torch.Tensor]) -> dict[str, Any]:
-    """`_flat_names` undone."""
-    trees: dict[str, Any] = {}
-    for name, tensor in flat.items():
-        *path, leaf = name.split(".")
-        node = trees
-        for key in path:
-            node = node.setdefault(key, {})
-        node[leaf] = tensor
-    return trees
 
 
 class GuidedCostLearning:

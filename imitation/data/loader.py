@@ -54,6 +54,13 @@ def tree_map(fn: Callable[[Any], Any], tree: Any) -> Any:
     return fn(tree)
 
 
+def tree_cat(first: Any, second: Any) -> Any:
+    """Two batches (tensors, or dicts of them alike) one after the other."""
+    if isinstance(first, dict):
+        return {key: tree_cat(first[key], second[key]) for key in first}
+    return torch.cat([first, second])
+
+
 @dataclass(frozen=True, kw_only=True)
 class TransitionTensors:
     """Transitions as torch tensors on one device; Dict observations/actions are dicts of tensors."""

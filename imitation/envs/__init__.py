@@ -5,7 +5,7 @@ from typing import Any
 
 from gymnasium.envs.registration import register, registry
 
-from imitation.envs.fixed_horizon import CARTPOLE_HORIZON
+from imitation.envs.fixed_horizon import CARTPOLE_HORIZON, MUJOCO_FIXED_HORIZON
 
 _TABULAR = "imitation.envs.tabular:make_tabular_env"
 _ENVS: dict[str, dict[str, Any]] = {
@@ -16,6 +16,7 @@ _ENVS: dict[str, dict[str, Any]] = {
     "imitation/CartPoleFixedHorizon-v0": dict(
         entry_point="imitation.envs.fixed_horizon:CartPoleFixedHorizon", max_episode_steps=CARTPOLE_HORIZON
     ),
+    **MUJOCO_FIXED_HORIZON,
 }
 
 for env_id, spec in _ENVS.items():

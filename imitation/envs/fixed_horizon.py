@@ -24,6 +24,26 @@ import numpy as np
 from gymnasium.envs.classic_control.cartpole import CartPoleEnv
 
 CARTPOLE_HORIZON = 500
+MUJOCO_HORIZON = 1000
+
+# gymnasium v5 locomotion tasks as seals has them: nothing terminates (a fallen Hopper, Walker or
+# Ant lies where it fell, and the healthy bonus stops), every episode lasts 1000 steps.
+# Observations are v5's own, the layout rl-baselines3-zoo's v3 experts were trained on (seals adds
+# the x position, which no zoo expert reads); v5's dynamics differ from v3's only by small fixes.
+MUJOCO_FIXED_HORIZON: dict[str, dict[str, Any]] = {
+    f"imitation/{name}FixedHorizon-v0": dict(
+        entry_point=f"gymnasium.envs.mujoco.{module}_v5:{name}Env",
+        max_episode_steps=MUJOCO_HORIZON,
+        kwargs={"terminate_when_unhealthy": False} if unhealthy else {},
+    )
+    for name, module, unhealthy in [
+        ("HalfCheetah", "half_cheetah", False),
+        ("Hopper", "hopper", True),
+        ("Walker2d", "walker2d", True),
+        ("Swimmer", "swimmer", False),
+        ("Ant", "ant", True),
+    ]
+}
 
 
 class CartPoleFixedHorizon(CartPoleEnv):

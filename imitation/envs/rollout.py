@@ -11,6 +11,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from imitation.data.loader import tree_map
+
 Policy = Callable[[Any], Any]
 
 
@@ -30,6 +32,13 @@ class Rollout:
     env_rewards: torch.Tensor
     terminated: torch.Tensor
     truncated: torch.Tensor
+
+    def cpu_copy(self) -> Rollout:
+        """A copy on the CPU, for what outlives the rollout: PPO refills its buffers in place
+        (on its own device) with the next one."""
+        return Rollout(
+            **{name: tree_map(lambda t: t.to("cpu", copy=True), getattr(self, name)) for name in Rollout.__dataclass_fields__}
+        )
 
 
 def play_episode(env: gym.Env, policy: Policy, *, seed: int | None) -> tuple[float, int]:

@@ -66,7 +66,7 @@ def run_demo(
     results: dict[str, Any] = {"datasets": _dataset_summaries(datasets)}
     _say(f"guided cost learning on {CARTPOLE_FH} runs in the background meanwhile", progress)
     with ProcessPoolExecutor(max_workers=1, mp_context=get_context("spawn")) as pool:
-        gcl = pool.submit(_timed, _gcl_stage, datasets, out, steps=QUICK_STEPS if quick else preset(CARTPOLE_FH).gcl_steps)
+        gcl = pool.submit(_timed, _gcl_stage, datasets, out, steps=QUICK_STEPS if quick else preset(CARTPOLE_FH).irl_steps)
         results["bc"] = _timed(_bc_stage, datasets, out, epochs=2 if quick else 40, progress=progress)
         results["dagger"] = _timed(_dagger_stage, datasets, out, epochs=2 if quick else 30, progress=progress)
         results["tabular_irl"] = _timed(_tabular_irl_stage, datasets, out, iterations=20 if quick else 500, progress=progress)

@@ -1,32 +1,38 @@
 """`train irl`: maximum-entropy IRL into a reward run directory, tabular (maxent, mce) or
-sample-based (guided cost learning with PPO alongside)."""
+sample-based with PPO alongside (guided cost learning, and the adversarial GAIL and AIRL)."""
 
 from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Callable
 from contextlib import closing
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
+from imitation.algorithms.adversarial import AdversarialConfig, AdversarialImitation, Discriminator
+from imitation.algorithms.airl import AIRLDiscriminator
+from imitation.algorithms.gail import GAILDiscriminator
 from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning
 from imitation.algorithms.maxent_irl import MaxEntIRL, MaxEntIRLConfig, all_state_rewards, demo_visitation
 from imitation.algorithms.ppo import PPO, PPOConfig, make_observed_env
 from imitation.data.dataset import DemoDataset
-from imitation.data.loader import check_episodes_finite, load_transitions, transitions_to_torch
+from imitation.data.loader import TransitionTensors, check_episodes_finite, load_transitions, transitions_to_torch
 from imitation.data.types import Transitions
 from imitation.envs.make import make_env
 from imitation.envs.pixels import PIXELS_KEY, image_keys, recorded_pixels, stack_frames, stacked_space
 from imitation.envs.tabular import tabular_mdp_of
 from imitation.envs.tabular_planning import soft_optimal_returns
 from imitation.evaluation.plots import plot_curve, plot_grid_maps
+from imitation.jobs.loop import Learner
 from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
 from imitation.policies import acting_env, make_acting_env, policy_tensors
-from imitation.rewards import make_reward_model, reward_tensors
+from imitation.rewards import RewardNet, make_reward_model, reward_tensors
 from imitation.seeding import seed_everything
 
 
@@ -123,15 +129,101 @@ def gcl_job(
     resume: bool = False,
 ) -> dict[str, Any]:
     """Guided cost learning on `demos` into run directory `out`: the reward model (for `train ppo
-    --reward`) and the PPO policy trained alongside it. `resume` continues the interrupted run in
-    `out`.partial from its checkpoint (PPO's, holding the reward learner's state too).
+    --reward`) and the PPO policy trained alongside it (the maximum-entropy sampler, not meant
+    for use). `resume` continues the interrupted run in `out`.partial from its checkpoint (PPO's,
+    holding the reward learner's state too).
 
     Demos recorded with `record --pixels` are learnt from their frames alone: the reward reads
     the "pixels" leaf through a CNN, stacked as recorded (`--frame-stack`), and PPO acts in the env
     rendered the same way."""
-    ppo_config.validate()
     config.validate()
-    seed_everything(config.seed)
+
+    def make(observation_space: gym.Space, action_space: gym.Space, options: dict[str, Any]) -> _Method:
+        reward = make_reward_model(
+            observation_space, action_space, hidden_sizes=list(config.hidden_sizes), inputs=config.inputs, **options
+        )
+        return _Method(
+            name="gcl",
+            config=config_json(config),
+            reward=reward,
+            learner=lambda ppo, transitions: GuidedCostLearning(ppo, reward, transitions, config),
+            loss="reward_loss",
+        )
+
+    return _irl_with_ppo(demos, env_id, config.seed, ppo_config, out, make, progress=progress, resume=resume)
+
+
+def adversarial_job(
+    demos: list[str],
+    env_id: str,
+    config: AdversarialConfig,
+    ppo_config: PPOConfig,
+    out: str | os.PathLike,
+    *,
+    progress: bool = True,
+    resume: bool = False,
+) -> dict[str, Any]:
+    """GAIL or AIRL (`config.method`) on `demos` into run directory `out`: the imitating PPO policy
+    (for `eval policy`) and the reward (AIRL's g, or GAIL's −log(1 − D)) for `train ppo --reward`
+    and `eval reward`. `resume` continues the interrupted run in `out`.partial. Pixel demos are
+    learnt from their frames, as in `gcl_job`."""
+    config.validate()
+
+    def make(observation_space: gym.Space, action_space: gym.Space, options: dict[str, Any]) -> _Method:
+        def net(inputs: str, hidden_sizes: list[int], output: str = "linear") -> RewardNet:
+            return make_reward_model(
+                observation_space, action_space, hidden_sizes=list(hidden_sizes), inputs=inputs, output=output, **options
+            )
+
+        discriminator: Discriminator
+        if config.method == "gail":
+            discriminator = GAILDiscriminator(net(config.reward_inputs, config.hidden_sizes, "softplus"))
+        else:
+            discriminator = AIRLDiscriminator(
+                net(config.reward_inputs, config.hidden_sizes),
+                net("s", config.potential_hidden_sizes),
+                gamma=ppo_config.gamma,
+                policy_entropy=config.policy_entropy,
+            )
+        return _Method(
+            name=config.method,
+            config=config_json(config),
+            reward=discriminator.recovered_reward(),
+            learner=lambda ppo, transitions: AdversarialImitation(ppo, discriminator, transitions, config),
+            loss="discriminator_loss",
+        )
+
+    return _irl_with_ppo(demos, env_id, config.seed, ppo_config, out, make, progress=progress, resume=resume)
+
+
+@dataclass
+class _Method:
+    """What a PPO-based IRL method brings to `_irl_with_ppo`: its name and config (for
+    config.json), the reward it exports, its learner over PPO, and the name of its loss."""
+
+    name: str
+    config: dict[str, Any]
+    reward: RewardNet
+    learner: Callable[[PPO, TransitionTensors], Learner]
+    loss: str
+
+
+def _irl_with_ppo(
+    demos: list[str],
+    env_id: str,
+    seed: int,
+    ppo_config: PPOConfig,
+    out: str | os.PathLike,
+    make_method: Callable[[gym.Space, gym.Space, dict[str, Any]], _Method],
+    *,
+    progress: bool,
+    resume: bool,
+) -> dict[str, Any]:
+    """The run of an IRL method that learns alongside PPO: demos loaded (with their frames and
+    stack when recorded with `record --pixels`), the method's learner run, the reward and PPO's
+    policy saved, the curves plotted and the policy evaluated."""
+    ppo_config.validate()
+    seed_everything(seed)
     dataset = DemoDataset(demos)
     first = dataset.files[0]
     pixels, frames = recorded_pixels(first.user_metadata, str(first.path))
@@ -142,49 +234,45 @@ def gcl_job(
         observation_space, action_space = stacked_space(env.observation_space, frames), env.action_space
     loaded = load_transitions(dataset, next_observations=True)
     transitions = transitions_to_torch(with_frame_stacks(loaded, frames, image_keys(env.observation_space)))
-    pixel_options: dict[str, Any] = (
-        {"observation_keys": [PIXELS_KEY], "frame_stack": frames, "pixels": pixels.to_json()} if pixels is not None else {}
+    options: dict[str, Any] = (
+        {"observation_keys": [PIXELS_KEY], "frame_stack": frames, "pixels": pixels.to_json()}
+        if pixels is not None
+        else {"normalize_observations": isinstance(observation_space, gym.spaces.Box) and not image_keys(observation_space)}
     )
-    reward = make_reward_model(
-        observation_space,
-        action_space,
-        hidden_sizes=list(config.hidden_sizes),
-        inputs=config.inputs,
-        normalize_observations=isinstance(observation_space, gym.spaces.Box) and not image_keys(observation_space),
-        **pixel_options,
-    )
+    method = make_method(observation_space, action_space, options)
     run_config = RunConfig(
         kind="reward",
         env_id=env_id,
         demos=[str(p) for p in demos],
         demo_fingerprints=fingerprints(dataset),
-        irl={"method": "gcl", **config_json(config)},
+        irl={"method": method.name, **method.config},
         ppo=config_json(ppo_config),
-        reward=reward.config.to_json(),
+        reward=method.reward.config.to_json(),
     )
+    title = f"{method.name.upper()} on {env_id}"
     with training_run(out, run_config, resume=resume) as run:
         ppo = PPO(ppo_config)
         try:
-            learner = GuidedCostLearning(ppo, reward, transitions, config)
+            learner = method.learner(ppo, transitions)
             run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
             seconds = ppo.clock.seconds  # training only, not the evaluation below
         finally:
             ppo.close()
-        run.save_weights(reward_tensors(reward) | policy_tensors(ppo.policy))
+        run.save_weights(reward_tensors(method.reward) | policy_tensors(ppo.policy))
         run.update_config(policy=ppo.policy.config.to_json())
         plot_curve(
             run.file("learning_curve.png"),
             run.history,
             x="step",
             ys=["return", "optimised_return"],
-            title=f"GCL on {env_id}: PPO's returns",
+            title=f"{title}: PPO's returns",
         )
         plot_curve(
             run.file("reward_curve.png"),
             run.history,
             x="step",
-            ys=["reward_loss", "demo_accuracy", "sample_accuracy"],
-            title=f"GCL on {env_id}: reward learning",
+            ys=[method.loss, "demo_accuracy", "sample_accuracy"],
+            title=f"{title}: reward learning",
         )
         policy = ppo.policy.cpu()
         with closing(make_acting_env(policy.config, env_id)) as env:  # rendering frames for a pixel policy
@@ -192,12 +280,12 @@ def gcl_job(
         last = run.history[-1]
         metrics = {
             "env_id": env_id,
-            "method": "gcl",
+            "method": method.name,
             "demo_episodes": len(dataset),
             "demo_return": float(np.mean([facts.episode_return for facts in dataset.episodes])),
             "steps": ppo.global_step,
             "seconds": seconds,
-            "reward_loss": last["reward_loss"],
+            method.loss: last[method.loss],
             "demo_accuracy": last["demo_accuracy"],
             "sample_accuracy": last["sample_accuracy"],
             "final_train_return": last["return"],

@@ -21,7 +21,7 @@ from imitation.envs.pixels import image_keys
 @dataclass(frozen=True)
 class EnvPreset:
     ppo: dict[str, Any] = field(default_factory=dict)  # PPOConfig fields
-    gcl_steps: int = 200_000  # PPO steps of `train irl --method gcl`
+    irl_steps: int = 200_000  # PPO steps of `train irl --method gcl|gail|airl`
     retrain_steps: int = 200_000  # PPO steps of each retraining in `eval reward`
 
 
@@ -65,7 +65,7 @@ PRESETS: dict[str, EnvPreset] = {
             log_std_init=-0.5,
             entropy_coef=0.01,
         ),
-        gcl_steps=500_000,
+        irl_steps=500_000,
         retrain_steps=600_000,
     ),
     "MountainCarContinuous-v0": EnvPreset(
@@ -74,7 +74,7 @@ PRESETS: dict[str, EnvPreset] = {
     # Without termination, most early steps are spent after the fall, where nothing can be
     # learnt, and the policy turns near-deterministic early: an entropy bonus keeps it exploring.
     "imitation/CartPoleFixedHorizon-v0": EnvPreset(
-        ppo=_CARTPOLE | {"entropy_coef": 0.01}, gcl_steps=200_000, retrain_steps=300_000
+        ppo=_CARTPOLE | {"entropy_coef": 0.01}, irl_steps=200_000, retrain_steps=300_000
     ),
 }
 

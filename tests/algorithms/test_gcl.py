@@ -11,7 +11,7 @@ import torch
 from support import DATASETS
 
 import imitation.envs  # noqa: F401  (registers the ids)
-from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning, RewardLearner, _env_action_log_probs
+from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning, RewardLearner, env_action_log_probs
 from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import load_transitions, transitions_to_torch
@@ -285,7 +285,7 @@ def test_log_probabilities_of_a_pool_longer_than_one_chunk_are_those_of_one_pass
     observations, actions = torch.randn(70_000, 3), torch.rand(70_000, 1) * 4 - 2
     with torch.no_grad():
         expected = policy.env_action_log_prob(policy.distribution(policy.encode(observations)), actions)
-    assert torch.allclose(_env_action_log_probs(policy, observations, actions), expected, atol=1e-6)
+    assert torch.allclose(env_action_log_probs(policy, observations, actions), expected, atol=1e-6)
 
 
 @pytest.mark.parametrize(("changes", "field"), [

@@ -11,23 +11,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from support import DATASETS
+from support import DATASETS, random_policy_return
 
 from imitation.algorithms.gcl import GCLConfig
 from imitation.algorithms.ppo import PPOConfig
 from imitation.envs.make import make_env
-from imitation.evaluation.policy import evaluate_policy
 from imitation.jobs.irl import gcl_job
 from imitation.jobs.ppo import ppo_job
 from imitation.jobs.presets import ppo_settings, preset
 from imitation.rewards import make_reward_model, reward_tensors
 from imitation.runs import RunWriter
-
-
-def _random_return(env_id: str) -> float:
-    env = make_env(env_id)
-    env.action_space.seed(0)
-    return evaluate_policy(lambda observation: env.action_space.sample(), env, episodes=10, seed=0)["mean_return"]
 
 
 def _pipeline(env_id: str, demos: str, seed: int, tmp_path, *, irl_steps: int, retrain_steps: int, reward_run=None) -> float:
@@ -56,8 +49,8 @@ def _constant_reward_run(env_id: str, path) -> str:
 @pytest.mark.slow
 def test_gcl_on_fixed_horizon_cartpole_retrains_to_nine_tenths_and_beats_a_constant_reward(tmp_path) -> None:
     env_id, demos = "imitation/CartPoleFixedHorizon-v0", str(DATASETS / "CartPoleFixedHorizon-v0.mcap")
-    expert, random = 500.0, _random_return(env_id)
-    steps = {"irl_steps": preset(env_id).gcl_steps, "retrain_steps": preset(env_id).retrain_steps}
+    expert, random = 500.0, random_policy_return(env_id)
+    steps = {"irl_steps": preset(env_id).irl_steps, "retrain_steps": preset(env_id).retrain_steps}
     learned = [(_pipeline(env_id, demos, seed, tmp_path, **steps) - random) / (expert - random) for seed in (0, 1, 2)]
     constant = (_pipeline(env_id, demos, 0, tmp_path, irl_steps=0, retrain_steps=steps["retrain_steps"], reward_run=_constant_reward_run(env_id, tmp_path / "constant")) - random) / (expert - random)
     print(f"fixed-horizon CartPole, retrained on GCL's reward, normalised: {learned}; constant reward: {constant}")
@@ -67,8 +60,8 @@ def test_gcl_on_fixed_horizon_cartpole_retrains_to_nine_tenths_and_beats_a_const
 @pytest.mark.slow
 def test_gcl_on_pendulum_retrains_to_eight_tenths(tmp_path) -> None:
     env_id, demos = "Pendulum-v1", str(DATASETS / "Pendulum-v1.mcap")
-    expert, random = -160.2, _random_return(env_id)
-    steps = {"irl_steps": preset(env_id).gcl_steps, "retrain_steps": preset(env_id).retrain_steps}
+    expert, random = -160.2, random_policy_return(env_id)
+    steps = {"irl_steps": preset(env_id).irl_steps, "retrain_steps": preset(env_id).retrain_steps}
     learned = [(_pipeline(env_id, demos, seed, tmp_path, **steps) - random) / (expert - random) for seed in (0, 1, 2)]
     print(f"Pendulum, retrained on GCL's reward, normalised: {learned}")
     assert min(learned) >= 0.8, learned

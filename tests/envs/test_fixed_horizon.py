@@ -1,9 +1,11 @@
-"""CartPoleFixedHorizon: always 500 steps, +1 while within CartPole's limits, absorbing failure."""
+"""The fixed-horizon tasks: CartPole (always 500 steps, +1 while within its limits, absorbing failure) and the
+MuJoCo locomotion tasks (always 1000 steps)."""
 
 from __future__ import annotations
 
 import gymnasium as gym
 import numpy as np
+import pytest
 
 import imitation.envs  # noqa: F401  (registers the ids)
 from imitation.envs.rollout import play_episode
@@ -35,3 +37,24 @@ def test_the_scripted_expert_earns_the_full_horizon_and_a_constant_reward_teache
     assert play_episode(env, cartpole, seed=1000) == (500.0, 500)
     # Every policy's episode lasts 500 steps, so a constant reward pays them all the same.
     assert play_episode(env, lambda o: 1, seed=1000)[1] == 500
+
+
+@pytest.mark.parametrize("name", ["HalfCheetah", "Hopper", "Walker2d", "Swimmer", "Ant"])
+def test_the_mujoco_tasks_run_1000_steps_and_a_fallen_body_stops_earning_the_healthy_bonus(name: str) -> None:
+    env = gym.make(f"imitation/{name}FixedHorizon-v0")
+    reference = gym.make(f"{name}-v5")
+    assert env.observation_space == reference.observation_space and env.action_space == reference.action_space
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    rewards, unhealthy = [], []
+    for step in range(1, 1001):
+        _, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+        assert not terminated and truncated == (step == 1000)
+        rewards.append(float(reward))
+        unhealthy.append(hasattr(env.unwrapped, "is_healthy") and not env.unwrapped.is_healthy)
+    if name in ("Hopper", "Walker2d"):
+        # Random torques topple them within the horizon; v5 would have ended the episode there.
+        assert any(unhealthy)
+        fallen = [r for r, down in zip(rewards, unhealthy) if down]
+        upright = [r for r, down in zip(rewards, unhealthy) if not down]
+        assert np.mean(upright) - np.mean(fallen) > 0.5  # the healthy bonus of 1 is paid only while healthy

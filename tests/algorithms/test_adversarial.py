@@ -1,0 +1,223 @@
+"""GAIL and AIRL: the discriminator's loss and the rewards against hand-worked values, the
+discriminator learner's steps, pool and checkpoint, on PPO's rollouts of fixed-horizon CartPole."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from support import DATASETS
+
+import imitation.envs  # noqa: F401  (registers the ids)
+from imitation.algorithms.adversarial import (
+    AdversarialConfig,
+    AdversarialImitation,
+    DiscriminatorLearner,
+    Steps,
+    discriminator_loss,
+    input_gradient_penalty,
+)
+from imitation.algorithms.airl import AIRLDiscriminator, airl_shaped_reward
+from imitation.algorithms.gail import GAILDiscriminator, gail_reward
+from imitation.algorithms.ppo import PPO, PPOConfig
+from imitation.checkpoints import snapshot
+from imitation.data.dataset import DemoDataset
+from imitation.data.loader import load_transitions, transitions_to_torch
+from imitation.errors import ConfigError
+from imitation.jobs.loop import Checkpointing, run
+from imitation.jobs.presets import ppo_settings
+from imitation.rewards import RewardNet, constant_reward_like, make_reward_model
+
+ENV_ID = "imitation/CartPoleFixedHorizon-v0"
+BOX2 = gym.spaces.Box(-10.0, 10.0, (2,), np.float32)
+
+
+def linear(weights: list[float], bias: float = 0.0, *, inputs: str = "s", output: str = "linear") -> RewardNet:
+    net = make_reward_model(BOX2, gym.spaces.Discrete(2), hidden_sizes=[], inputs=inputs, output=output)
+    last = net.net[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.weight[0, : len(weights)] = torch.tensor(weights)
+        last.bias.fill_(bias)
+    return net
+
+
+def steps(observations, actions, next_observations, terminated) -> Steps:
+    return Steps(
+        torch.tensor(observations, dtype=torch.float32),
+        torch.tensor(actions),
+        torch.tensor(next_observations, dtype=torch.float32),
+        torch.tensor(terminated, dtype=torch.float32),
+    )
+
+
+def test_the_discriminator_loss_is_the_cross_entropy_of_demos_as_1_and_samples_as_0() -> None:
+    # (ln 2 + ln(1 + e⁻²)) / 2 + (ln(1 + e⁻¹) + ln(1 + e)) / 2, worked by hand.
+    loss = discriminator_loss(torch.tensor([0.0, 2.0]), torch.tensor([-1.0, 1.0]))
+    assert loss.item() == pytest.approx((0.693147 + 0.126928) / 2 + (0.313262 + 1.313262) / 2, abs=1e-5)
+    assert loss.item() == pytest.approx(1.223300, abs=1e-5)
+
+
+def test_gails_reward_is_minus_log_one_minus_d() -> None:
+    # D = ½ pays ln 2; D = ¾ (logit ln 3) pays −ln ¼ = ln 4; a confident "policy" (logit −30) pays ~e⁻³⁰.
+    rewards = gail_reward(torch.tensor([0.0, math.log(3.0), -30.0, 30.0]))
+    assert rewards.tolist() == pytest.approx([math.log(2.0), math.log(4.0), math.exp(-30.0), 30.0], rel=1e-6)
+
+
+def test_airls_shaped_reward_drops_the_next_potential_after_a_termination() -> None:
+    # g = 1, h(s) = 2, h(s') = 3, γ = 0.9: 1 + 2.7 − 2 = 1.7, and 1 − 2 = −1 once s' ended the episode.
+    f = airl_shaped_reward(torch.tensor([1.0, 1.0]), torch.tensor([2.0, 2.0]), torch.tensor([3.0, 3.0]), torch.tensor([0.0, 1.0]), 0.9)
+    assert f.tolist() == pytest.approx([1.7, -1.0])
+
+
+def test_airls_logit_is_f_minus_log_pi_so_d_is_exp_f_over_exp_f_plus_pi() -> None:
+    # g(s) = s₀, h(s) = s₁; s = (1, 2), s' = (3, 4), γ = ½: f = 1 + 2 − 2 = 1; π(a|s) = ¼.
+    discriminator = AIRLDiscriminator(linear([1.0, 0.0]), linear([0.0, 1.0]), gamma=0.5, policy_entropy=1.0)
+    batch = steps([[1.0, 2.0]], [0], [[3.0, 4.0]], [0.0])
+    log_pi = torch.tensor([math.log(0.25)])
+    logits, inputs = discriminator.logits(batch, log_pi, penalised=True)
+    assert logits.item() == pytest.approx(1.0 + math.log(4.0), abs=1e-6)
+    assert torch.sigmoid(logits).item() == pytest.approx(math.e / (math.e + 0.25), abs=1e-6)
+    # PPO's reward: log D − log(1 − D) = f − log π with α = 1; f alone with α = 0.
+    assert discriminator.policy_rewards(batch, log_pi).item() == pytest.approx(1.0 + math.log(4.0), abs=1e-6)
+    discriminator.policy_entropy = 0.0
+    assert discriminator.policy_rewards(batch, log_pi).item() == pytest.approx(1.0, abs=1e-6)
+    # The gradient of f with respect to g's input (1, 0), h(s)'s (0, −1) and h(s')'s (0, ½): ‖·‖² = 1 + 1 + ¼.
+    assert input_gradient_penalty(logits, inputs).item() == pytest.approx(2.25, abs=1e-6)
+    assert discriminator.recovered_reward() is discriminator.reward
+
+
+def test_gails_logit_is_its_nets_linear_output_and_its_exported_reward_pays_softplus_of_it() -> None:
+    net = linear([2.0, -1.0], 0.5, inputs="sa", output="softplus")
+    discriminator = GAILDiscriminator(net)
+    batch = steps([[1.0, 1.0]], [1], [[0.0, 0.0]], [0.0])
+    logits, _ = discriminator.logits(batch, None, penalised=False)
+    assert logits.item() == pytest.approx(1.5)  # 2·1 − 1·1 + 0.5 (the action's one-hot weights are 0)
+    assert discriminator.policy_rewards(batch, None).item() == pytest.approx(math.log1p(math.exp(1.5)), abs=1e-6)
+    assert net(batch.observations, batch.env_actions, batch.next_observations).item() == pytest.approx(math.log1p(math.exp(1.5)), abs=1e-6)
+    # The constant control of `eval reward` still pays 1 through the softplus.
+    assert constant_reward_like(net)(batch.observations, batch.env_actions, batch.next_observations).item() == pytest.approx(1.0, abs=1e-6)
+    with pytest.raises(ValueError, match="softplus"):
+        GAILDiscriminator(linear([1.0], inputs="sa"))
+
+
+def test_the_penalty_of_a_linear_logit_is_its_squared_weight_norm() -> None:
+    x = torch.tensor([[1.0, 2.0], [-3.0, 0.5]], requires_grad=True)
+    logits = x @ torch.tensor([3.0, 4.0])
+    assert input_gradient_penalty(logits, [x]).item() == pytest.approx(25.0)
+
+
+def demos() -> object:
+    return transitions_to_torch(load_transitions(DemoDataset([DATASETS / "CartPoleFixedHorizon-v0.mcap"]), next_observations=True))
+
+
+def make_learner(method: str, seed: int, config: PPOConfig, **changes) -> AdversarialImitation:
+    torch.manual_seed(seed)
+    env = gym.make(ENV_ID)
+    adversarial = AdversarialConfig(**{"method": method, "batch_size": 64, "discriminator_steps": 4, "seed": seed} | changes)
+
+    def net(inputs: str, output: str = "linear") -> RewardNet:
+        return make_reward_model(env.observation_space, env.action_space, hidden_sizes=[16], inputs=inputs, output=output, normalize_observations=True)
+
+    if method == "gail":
+        discriminator = GAILDiscriminator(net("sa", "softplus"))
+    else:
+        discriminator = AIRLDiscriminator(net("s"), net("s"), gamma=config.gamma)
+    return AdversarialImitation(PPO(config), discriminator, demos(), adversarial)
+
+
+@pytest.mark.parametrize("method", ["gail", "airl"])
+def test_the_discriminator_learns_to_tell_demo_steps_from_a_random_policys(method: str) -> None:
+    config = PPOConfig(env_id=ENV_ID, total_steps=256, **ppo_settings(ENV_ID) | {"device": "cpu"})
+    learner = make_learner(method, 0, config, discriminator_steps=200, learning_rate=1e-2)
+    rollout = learner.ppo.collect_rollout()
+    learner.discriminator.add_rollout(rollout)
+    statistics = learner.discriminator.learn(learner.ppo.policy)
+    assert statistics["demo_accuracy"] > 0.7 and statistics["sample_accuracy"] > 0.7
+    # Afterwards PPO's reward pays the demos' steps more than the policy's.
+    rewards = learner.discriminator.policy_rewards(learner.discriminator.rollouts[-1], learner.ppo.policy)
+    demo_rewards = learner.discriminator.policy_rewards(learner.discriminator.demos, learner.ppo.policy)
+    assert demo_rewards.mean() > rewards.mean() + 1.0
+
+
+def test_the_pool_keeps_the_last_rollouts_as_copies() -> None:
+    config = PPOConfig(env_id=ENV_ID, total_steps=3 * 256, **ppo_settings(ENV_ID) | {"device": "cpu"})
+    learner = make_learner("gail", 0, config, pool_rollouts=2)
+    pooled = []
+    for _ in range(3):
+        rollout = learner.ppo.collect_rollout()
+        pooled.append(learner.discriminator.add_rollout(rollout).observations.clone())
+        learner.ppo.update(rollout, rollout.env_rewards)
+    assert len(learner.discriminator.rollouts) == 2
+    for kept, expected in zip(learner.discriminator.rollouts, pooled[1:]):
+        assert torch.equal(kept.observations, expected)  # not overwritten by PPO's next rollout
+
+
+def test_the_discriminator_steps_every_policy_updates_updates() -> None:
+    config = PPOConfig(env_id=ENV_ID, total_steps=4 * 256, **ppo_settings(ENV_ID) | {"device": "cpu"})
+    learner = make_learner("airl", 0, config, policy_updates=2)
+    run(learner)
+    assert learner.discriminator.learned == 2 and learner.ppo.updates == 4
+
+
+@pytest.mark.parametrize("method", ["gail", "airl"])
+def test_a_discriminator_restored_from_its_checkpoint_goes_on_exactly_as_the_original(method: str) -> None:
+    config = PPOConfig(env_id=ENV_ID, total_steps=3 * 256, **ppo_settings(ENV_ID) | {"device": "cpu"})
+    source = make_learner(method, 0, config)
+    rollouts = []
+    for _ in range(3):
+        rollout = source.ppo.collect_rollout()
+        rollouts.append(rollout.cpu_copy())
+        source.ppo.update(rollout, rollout.env_rewards)
+    policy = source.ppo.policy
+    original = make_learner(method, 0, config, pool_rollouts=2).discriminator
+    for rollout in rollouts[:2]:
+        original.add_rollout(rollout)
+        original.learn(policy)
+    checkpoint = snapshot(*original.state_dict())  # the loop's copy: state_dict() hands out live tensors
+    copy = make_learner(method, 1, config, pool_rollouts=2).discriminator  # other weights: the checkpoint must set them
+    copy.load_state_dict(checkpoint)
+    assert copy.learned == 2 and len(copy.rollouts) == 2
+    results = []
+    for learner in (original, copy):
+        steps = learner.add_rollout(rollouts[2])
+        results.append((learner.learn(policy), learner.policy_rewards(steps, policy)))
+    assert results[0][0] == results[1][0]
+    assert torch.equal(results[0][1], results[1][1])
+    for name, tensor in original.discriminator.state_dict().items():
+        assert torch.equal(copy.discriminator.state_dict()[name], tensor), name
+
+
+def test_the_discriminator_rides_in_ppos_checkpoints_and_resumes_with_them() -> None:
+    config = PPOConfig(env_id=ENV_ID, total_steps=4 * 256, **ppo_settings(ENV_ID) | {"device": "cpu"})
+    saved = []
+    first = make_learner("airl", 0, config, pool_rollouts=3)
+    run(first, checkpoints=Checkpointing(save=lambda tensors, state: saved.append((tensors, state)), every=2))
+    tensors, state = saved[0]
+    assert state["update"] == 2 and state["learner"]["learned"] == 2 and tensors["learner.pool.1.terminated"].shape == (256,)
+    resumed = make_learner("airl", 1, config, pool_rollouts=3)
+    rows = run(resumed, checkpoints=Checkpointing(save=lambda *a: None, resume=saved[0]))
+    assert resumed.discriminator.learned == 4 and len(rows) == 2 and all("discriminator_loss" in row for row in rows)
+    assert len(resumed.discriminator.rollouts) == 3, "the pool kept the rollouts from before the interruption"
+
+
+@pytest.mark.parametrize(
+    ("changes", "field"),
+    [
+        ({"method": "gan"}, "method"),
+        ({"inputs": "a"}, "inputs"),
+        ({"discriminator_steps": 0}, "discriminator_steps"),
+        ({"policy_updates": 0}, "policy_updates"),
+        ({"pool_rollouts": 0}, "pool_rollouts"),
+        ({"learning_rate": float("nan")}, "learning_rate"),
+        ({"gradient_penalty": -1.0}, "gradient_penalty"),
+        ({"policy_entropy": float("inf")}, "policy_entropy"),
+    ],
+)
+def test_config_out_of_range_is_refused_naming_the_field(changes: dict, field: str) -> None:
+    with pytest.raises(ConfigError) as error:
+        AdversarialConfig(**changes).validate()
+    assert error.value.field == field
