@@ -416,3 +416,16 @@ def test_a_policy_for_other_spaces_than_the_envs_is_refused_in_one_line_naming_w
     with pytest.raises(ImitationError, match=re.escape("here: the policy's observation space Box(float32, (4,)) does not")):
         check_policy_fits_env(policy, env, where="here")
     check_policy_fits_env(make_policy(env.observation_space, env.action_space, hidden_sizes=[4]), env, where="here")
+
+
+def test_acting_one_observation_at_a_time_runs_an_mlp_on_one_thread_and_leaves_a_cnn_its_threads() -> None:
+    previous = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        image = gym.spaces.Box(0, 255, (36, 36, 1), np.uint8)
+        SingleObservationPolicy(make_policy(image, gym.spaces.Discrete(2), hidden_sizes=[4]))
+        assert torch.get_num_threads() == 2
+        SingleObservationPolicy(make_policy(BOX4, gym.spaces.Discrete(2), hidden_sizes=[4]))
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(previous)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import gymnasium as gym
@@ -12,6 +13,8 @@ from imitation.errors import ImitationError
 def make_env(env_id: str, **kwargs: Any) -> gym.Env:
     """`gymnasium.make(env_id)`, turning gymnasium's errors into a one-line ImitationError."""
     try:
+        if "mujoco" in str(gym.spec(env_id).entry_point):
+            _route_mujoco_warnings()
         return gym.make(env_id, **kwargs)
     except gym.error.Error as error:
         raise ImitationError(f"environment {env_id!r}: {str(error).splitlines()[0]}") from None
@@ -19,6 +22,21 @@ def make_env(env_id: str, **kwargs: Any) -> gym.Env:
         raise ImitationError(
             f"environment {env_id!r} needs the Python package {error.name!r}, which is not installed"
         ) from None
+
+
+def _route_mujoco_warnings() -> None:
+    """MuJoCo writes its warnings to stderr and appends them to MUJOCO_LOG.TXT in the working
+    directory. gymnasium's HalfCheetah model uses a compiler attribute that MuJoCo 3.3 and later
+    deprecate, so every HalfCheetah made would print a line and leave that file behind in the
+    user's folder. Deprecation notices about gymnasium's own models are dropped; every other
+    MuJoCo warning (an unstable simulation, say) becomes a Python warning."""
+    import mujoco
+
+    def warn(text: str) -> None:
+        if "deprecated" not in text:
+            warnings.warn(f"MuJoCo: {text}", RuntimeWarning, stacklevel=2)
+
+    mujoco.set_mju_user_warning(warn)
 
 
 def control_period(env: gym.Env) -> float | None:

@@ -3,9 +3,14 @@ MuJoCo locomotion tasks (always 1000 steps)."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import gymnasium as gym
 import numpy as np
 import pytest
+from support import REPO
 
 import imitation.envs  # noqa: F401  (registers the ids)
 from imitation.envs.rollout import play_episode
@@ -58,3 +63,12 @@ def test_the_mujoco_tasks_run_1000_steps_and_a_fallen_body_stops_earning_the_hea
         fallen = [r for r, down in zip(rewards, unhealthy) if down]
         upright = [r for r, down in zip(rewards, unhealthy) if not down]
         assert np.mean(upright) - np.mean(fallen) > 0.5  # the healthy bonus of 1 is paid only while healthy
+
+
+def test_making_halfcheetah_leaves_no_mujoco_log_and_prints_nothing(tmp_path) -> None:
+    # gymnasium's HalfCheetah model uses an attribute MuJoCo deprecates; MuJoCo would print that and
+    # append it to MUJOCO_LOG.TXT in the working directory, the user's folder.
+    code = "import imitation.envs; from imitation.envs.make import make_env; make_env('imitation/HalfCheetahFixedHorizon-v0').reset(seed=0)"
+    completed = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert completed.returncode == 0 and "deprecated" not in completed.stderr
+    assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
