@@ -13,7 +13,8 @@ from imitation.errors import ImitationError
 def make_env(env_id: str, **kwargs: Any) -> gym.Env:
     """`gymnasium.make(env_id)`, turning gymnasium's errors into a one-line ImitationError."""
     try:
-        if "mujoco" in str(gym.spec(env_id).entry_point):
+        spec = gym.registry.get(env_id)  # None for "module:id", which gym.make imports first
+        if spec is not None and "mujoco" in str(spec.entry_point):
             _route_mujoco_warnings()
         return gym.make(env_id, **kwargs)
     except gym.error.Error as error:
