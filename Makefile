@@ -5,7 +5,7 @@ DEMO_OUT := demo-output
 # Bundled datasets: seeds start at 1000 so evaluations on seeds 0, 1, 2, ... see fresh starts.
 DATASET_SEED := 1000
 
-.PHONY: venv demo lint test test-all bench bench-claims fuzz mutate datasets clean
+.PHONY: venv demo lint test test-all bench bench-mujoco bench-claims fuzz mutate datasets clean
 
 venv:
 	@bash scripts/bootstrap.sh
@@ -36,6 +36,11 @@ bench: venv
 	$(PY) bench/dagger_vs_bc.py
 	$(PY) bench/irl.py
 	$(PY) bench/irl.py --continuous
+
+# The MuJoCo table (issue 20): BC, DAgger, GAIL, AIRL and PPO on recovered rewards, 3 seeds, beside
+# imitation 1.0.1 run on the same demos (its venv under bench/). Hours on 2 cores; resumes where it stopped.
+bench-mujoco: venv
+	$(PY) bench/mujoco.py --peer
 
 # The notes' claims as experiments, each ending in a verdict line (figures and plots: bench/RESULTS.md,
 # "The notes' claims as experiments"); under an hour on 2 cores.

@@ -3,7 +3,7 @@
 One recording (`record --pixels 84x84 --grayscale --crop 150,216,168,168 --frame-stack 4
 --action-noise P`), its last 4 episodes held out, and a BC network trained on the rest for a
 fixed number of Adam steps (batch 128, random shift 4), then rolled out deterministically. The
-variants measured in bench/RESULTS.md:
+variants (those from `--newest-diff` on, remedies aimed at copycat, not yet in bench/RESULTS.md):
 
 - `--scale raw|standardised`: pixels divided by 255, or standardised by the training frames' mean
   and std (what the policies do with normalised observations);
@@ -13,7 +13,24 @@ variants measured in bench/RESULTS.md:
 - `--state-aux C`: add C × the squared error of predicting the standardised state (x, ẋ, θ, θ̇)
   from the CNN's features, the state recorded beside the frames;
 - `--differences`: feed the frame differences as extra planes;
-- `--stride S`: stack every S-th frame, so that the stack spans (k − 1)·S steps.
+- `--stride S`: stack every S-th frame, so that the stack spans (k − 1)·S steps;
+- `--newest-diff`: feed only the newest frame and its difference from the oldest in the stack
+  (with `--frames 2 --stride 2`: the frame 2 steps earlier);
+- `--keyframe W`: weight W for samples at the expert's action changepoints (label ≠ previous
+  label in the episode), 1 elsewhere (Wen et al. 2021); `--keyframe prior`: weight
+  1 − p(label | previous label) from the training labels' counts, scaled to mean 1;
+- `--cnn-lr LR`: a separate Adam learning rate for the CNN (convolutions and 512 features of
+  `plain`, the image encoder of `library`, the convolutions of `keypoints`), `--lr` for the rest;
+- `--history-dropout P`: in training, zero (after standardising) the older frames of each sample
+  with probability P;
+- `--adversary C`: a gradient-reversed head (×C) predicting the previous executed action (the sign
+  of the recorded cart's velocity change) from the features and the current label (Wen et al.
+  2020's conditional adversary against copycat);
+- `--label-window K`: train on soft labels, the fraction of "right" among the expert's labels
+  K steps either side in the same episode (the expert's chatter near upright averaged out);
+- `--threads N`: torch threads (default 1).
+
+The last line printed, `summary`, gives held-out accuracy, mean return and training seconds.
 
 Usage: python bench/pixels_cartpole_probe.py DEMOS.mcap [--scale standardised] [--seed 0] …
 """
@@ -34,6 +51,19 @@ from imitation.envs.pixels import PixelRecipe, StackFrames, frame_stack_index, m
 from imitation.policies import make_policy
 
 RECIPE = PixelRecipe.parse("84x84", grayscale=True, crop="150,216,168,168")
+
+
+class ReverseGradient(torch.autograd.Function):
+    """Identity forward; the gradient times −scale backward (Ganin & Lempitsky 2015)."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor, scale: float) -> torch.Tensor:  # type: ignore[override]
+        ctx.scale = scale
+        return x.view_as(x)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> tuple[torch.Tensor, None]:  # type: ignore[override]
+        return -ctx.scale * grad, None
 
 
 class PlainNet(nn.Module):
@@ -94,12 +124,21 @@ def main() -> None:
     parser.add_argument("--stride", type=int, default=1)
     parser.add_argument("--frames", type=int, default=4)
     parser.add_argument("--lr", type=float, default=3e-4)
+    parser.add_argument("--newest-diff", action="store_true")
+    parser.add_argument("--keyframe", default="", help="W (changepoint weight) or 'prior'")
+    parser.add_argument("--cnn-lr", type=float, default=None)
+    parser.add_argument("--history-dropout", type=float, default=0.0)
+    parser.add_argument("--adversary", type=float, default=0.0)
+    parser.add_argument("--label-window", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--steps", type=int, default=1500)
     parser.add_argument("--episodes", type=int, default=8, help="evaluation episodes")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     torch.manual_seed(args.seed)
-    torch.set_num_threads(2)
+    torch.set_num_threads(args.threads)
+    if (args.newest_diff or args.history_dropout) and args.head != "plain":
+        parser.error("--newest-diff and --history-dropout need --head plain")
 
     data = load_transitions(args.demos, next_observations=False)
     span = (args.frames - 1) * args.stride + 1
@@ -111,9 +150,44 @@ def main() -> None:
     sample = frames[~held_out][::7].float()
     mean, std = (sample.mean(), sample.std()) if args.scale == "standardised" else (torch.tensor(0.0), torch.tensor(255.0))
 
-    def planes(batch: torch.Tensor) -> torch.Tensor:
+    # previous label within the episode (the first step's own label), changepoints, and the previous
+    # executed action: the sign of the cart's velocity change from the step before (force dominates)
+    actions = labels.numpy()
+    starts = np.ones(len(actions), dtype=bool)
+    starts[1:] = data.episode_index[1:] != data.episode_index[:-1]
+    previous = np.where(starts, actions, np.roll(actions, 1))
+    raw_state = np.asarray(data.observations["state"], dtype=np.float32)
+    executed = torch.as_tensor(np.where(starts, actions, (raw_state[:, 1] > np.roll(raw_state[:, 1], 1)).astype(np.int64)))
+    weights = torch.ones(len(actions))
+    if args.keyframe == "prior":
+        train = ~held_out.numpy()
+        counts = np.ones((2, 2))
+        np.add.at(counts, (previous[train], actions[train]), 1)
+        conditional = counts / counts.sum(1, keepdims=True)
+        weights = torch.as_tensor(1 - conditional[previous, actions], dtype=torch.float32)
+        weights = weights / weights[~held_out].mean()
+    elif args.keyframe:
+        weights = torch.where(torch.as_tensor(actions != previous), float(args.keyframe), 1.0)
+    targets = nn.functional.one_hot(labels, 2).float()
+    if args.label_window:
+        neighbours = np.arange(len(actions))[:, None] + np.arange(-args.label_window, args.label_window + 1)[None]
+        inside = (neighbours >= 0) & (neighbours < len(actions))
+        neighbours = np.clip(neighbours, 0, len(actions) - 1)
+        inside &= data.episode_index[neighbours] == data.episode_index[:, None]
+        right = (actions[neighbours] * inside).sum(1) / inside.sum(1)
+        targets = torch.as_tensor(np.stack([1 - right, right], 1), dtype=torch.float32)
+    changepoints = float((actions != previous)[~held_out.numpy()].mean())
+    copied = float((executed.numpy() == previous).mean())
+    print(f"changepoints {changepoints:.3f} of training labels; executed = previous label {copied:.3f}")
+
+    def planes(batch: torch.Tensor, drop: float = 0.0) -> torch.Tensor:
         b, k, h, w, c = batch.shape
         x = (batch.permute(0, 1, 4, 2, 3).reshape(b, k * c, h, w).float() - mean) / std
+        if drop:
+            keep = (torch.rand(b, 1, 1, 1) >= drop).float()
+            x = torch.cat([x[:, :-c] * keep, x[:, -c:]], 1)
+        if args.newest_diff:
+            return torch.cat([x[:, -c:], 5 * (x[:, -c:] - x[:, :c])], 1)
         return torch.cat([x, 5 * (x[:, 1:] - x[:, :-1])], 1) if args.differences else x
 
     if args.head == "library":
@@ -125,20 +199,30 @@ def main() -> None:
         policy.update_normalizer({"pixels": frames[~held_out]})
         auxiliary = nn.Linear(policy.image_encoders[0].features, 4)
 
-        def forward(batch: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        def forward(batch: torch.Tensor, drop: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
             features = policy.encode({"pixels": batch})
             return policy.distribution(features).logits, features
 
         parameters = [*policy.parameters(), *auxiliary.parameters()]
+        cnn = list(policy.image_encoders.parameters())
     else:
         net = PlainNet(planes(frames[:1]).shape[1]) if args.head == "plain" else KeypointNet(args.frames)
         auxiliary = nn.Linear(512 if args.head == "plain" else 2 * 16 * args.frames, 4)
 
-        def forward(batch: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-            return net(planes(batch))
+        def forward(batch: torch.Tensor, drop: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
+            return net(planes(batch, drop))
 
         parameters = [*net.parameters(), *auxiliary.parameters()]
-    optimiser = torch.optim.Adam(parameters, lr=args.lr)
+        cnn = [*net.convolutions.parameters(), *(net.features.parameters() if args.head == "plain" else [])]
+    width = auxiliary.in_features
+    adversary = nn.Sequential(nn.Linear(width + 2, 64), nn.ReLU(), nn.Linear(64, 2))
+    parameters = [*parameters, *adversary.parameters()]
+    if args.cnn_lr is None:
+        optimiser = torch.optim.Adam(parameters, lr=args.lr)
+    else:
+        ids = {id(p) for p in cnn}
+        rest = [p for p in parameters if id(p) not in ids]
+        optimiser = torch.optim.Adam([{"params": cnn, "lr": args.cnn_lr}, {"params": rest, "lr": args.lr}])
     rows, rng = np.flatnonzero(~held_out.numpy()), np.random.default_rng(args.seed)
 
     def held_out_fit() -> tuple[float, float]:
@@ -151,8 +235,12 @@ def main() -> None:
     started = time.perf_counter()
     for step in range(1, args.steps + 1):
         batch = rng.choice(rows, 128)
-        logits, features = forward(random_shift(frames[batch], 4))
-        loss = nn.functional.cross_entropy(logits, labels[batch])
+        logits, features = forward(random_shift(frames[batch], 4), args.history_dropout)
+        loss = (nn.functional.cross_entropy(logits, targets[batch], reduction="none") * weights[batch]).mean()
+        if args.adversary:
+            reversed_features = ReverseGradient.apply(features, args.adversary)
+            guess = adversary(torch.cat([reversed_features, nn.functional.one_hot(labels[batch], 2).float()], 1))
+            loss = loss + nn.functional.cross_entropy(guess, executed[batch])
         if args.state_aux:
             loss = loss + args.state_aux * ((auxiliary(features) - state[batch]) ** 2).mean()
         optimiser.zero_grad()
@@ -162,6 +250,9 @@ def main() -> None:
             nll, accuracy = held_out_fit()
             seconds = time.perf_counter() - started
             print(f"step {step}: held-out NLL {nll:.3f}, accuracy {accuracy:.3f} ({seconds:.0f} s)", flush=True)
+    train_seconds = time.perf_counter() - started
+    if args.steps % 500:
+        nll, accuracy = held_out_fit()
 
     env = StackFrames(make_pixel_env("CartPole-v1", RECIPE), span)
     returns = []
@@ -175,6 +266,7 @@ def main() -> None:
             total, done = total + float(reward), terminated or truncated
         returns.append(total)
     print(f"returns {returns}: mean {np.mean(returns):.1f}")
+    print(f"summary: accuracy {accuracy:.3f}, NLL {nll:.3f}, return {np.mean(returns):.1f}, train {train_seconds:.0f} s")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,308 @@
+"""The MuJoCo table (issue 20): normalised returns of BC, DAgger, GAIL, AIRL, PPO retrained on AIRL's
+and GCL's recovered rewards, on the fixed-horizon locomotion tasks (`imitation/…FixedHorizon-v0`:
+gymnasium v5, no termination, 1000 steps), beside HumanCompatibleAI/imitation's published figures and,
+with `--peer`, imitation 1.0.1 itself run here on the same demos (BC and GAIL; bench/mujoco_peer.py).
+
+Every run is the command a user would type (`imitation record`, `train bc`, `train dagger`, `train irl`,
+`train ppo --reward`), in a fresh process, its wall time measured. Each finished run is appended to
+OUT/results.jsonl, so an interrupted benchmark resumes where it stopped.
+
+- Experts: rl-baselines3-zoo's SAC agents for HalfCheetah-v3 and Hopper-v3 (../shared/testdata,
+  `--expert sb3:ZIP`), acting on v5, whose observations are laid out as v3's; the other tasks need an
+  expert given with `--expert ENV=SPEC` (a run directory of `train ppo`, or `sb3:ZIP`).
+- Demos: `--episodes` (default 25) expert episodes per task, recorded with seeds from 1000 and DART
+  noise (`record --action-noise`, default 0.1: with that probability a step executes a random
+  action while the file keeps the expert's), so that the demos show the states just off the expert's
+  path, labelled. Every learner, ours and the peer's, gets the same file.
+- Normalised return = (R − R_random) / (R_expert − R_random): R the policy's mean over the 10
+  deterministic evaluation episodes every `train` command ends with, R_expert the expert's own mean
+  over 10 noise-free episodes (recorded with seeds from 2000), R_random a uniform random policy's
+  mean over 10 episodes (seeds 0-9).
+
+Usage: python bench/mujoco.py [--envs HalfCheetah,Hopper] [--methods bc,dagger,gail,airl,airl-ppo,gcl-ppo]
+       [--seeds 0,1,2] [--irl-steps N] [--retrain-steps N] [--peer] [--out bench/mujoco-runs]
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+BENCH = Path(__file__).resolve().parent
+ROOT = BENCH.parent
+# Run as a script, this file's folder comes first on sys.path, where this file would shadow the
+# `mujoco` package that gymnasium imports; bench/bc.py is loaded by path instead.
+sys.path[:] = [entry for entry in sys.path if Path(entry or ".").resolve() != BENCH]
+ZOO = ROOT.parent / "shared" / "testdata" / "experts" / "zoo"
+# The peer's gymnasium 0.29 runs the v4 tasks on the same MuJoCo as ours (imageio: gymnasium's mujoco extra).
+PEER_MUJOCO = ["mujoco==4.0.1", "imageio"]
+METHODS = ("bc", "dagger", "gail", "airl", "airl-ppo", "gcl-ppo")
+# HumanCompatibleAI/imitation's published aggregate over its seals MuJoCo tasks (its README's
+# benchmark summary; quoted in issue 20): normalised between a random policy and the expert.
+PUBLISHED = {"bc": 0.93, "dagger": 0.995, "gail": 0.94, "airl": 0.79}
+
+
+def zoo_expert(env: str) -> str | None:
+    path = ZOO / f"sac_{env}-v3" / f"{env}-v3.zip"
+    return f"sb3:{path}" if path.exists() else None
+
+
+def cli(*args: str, threads: int) -> tuple[dict[str, Any], float]:
+    """`imitation ARGS --json --quiet` in a fresh process: its JSON result and wall seconds."""
+    env = dict(os.environ, OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads), MUJOCO_GL="egl")
+    started = time.perf_counter()
+    completed = subprocess.run(
+        [sys.executable, str(ROOT / "cli.py"), *args, "--json", "--quiet"], capture_output=True, text=True, cwd=ROOT, env=env
+    )
+    seconds = time.perf_counter() - started
+    if completed.returncode != 0:
+        raise RuntimeError(f"imitation {' '.join(args)} failed: {completed.stderr.strip()[-2000:]}")
+    return json.loads(completed.stdout.strip().splitlines()[-1]), seconds
+
+
+def random_return(env_id: str) -> float:
+    import imitation.envs  # noqa: F401  (registers the ids)
+    from imitation.envs.make import make_env
+    from imitation.evaluation.policy import evaluate_policy
+
+    env = make_env(env_id)
+    env.action_space.seed(0)
+    return evaluate_policy(lambda observation: env.action_space.sample(), env, episodes=10, seed=0)["mean_return"]
+
+
+def demo_return(path: Path) -> float:
+    from imitation.data.dataset import DemoDataset
+
+    return float(np.mean([facts.episode_return for facts in DemoDataset([path]).episodes]))
+
+
+def export_npz(demos: Path, out: Path) -> Path:
+    """The demos as the peer reads them: obs, acts, next_obs (float32) and dones (episode ends)."""
+    from imitation.data.dataset import DemoDataset
+    from imitation.data.loader import load_transitions
+
+    transitions = load_transitions(DemoDataset([demos]), next_observations=True)
+    np.savez(
+        out,
+        obs=np.asarray(transitions.observations, dtype=np.float32),
+        acts=np.asarray(transitions.actions, dtype=np.float32),
+        next_obs=np.asarray(transitions.next_observations, dtype=np.float32),
+        dones=transitions.dones,
+    )
+    return out
+
+
+def bench_bc() -> Any:
+    """bench/bc.py as a module: it makes the peer venv (`ensure_imitation_venv`, `_peer_env`)."""
+    spec = importlib.util.spec_from_file_location("bench_bc", BENCH / "bc.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def ensure_peer() -> tuple[Path | None, str]:
+    """bench/.venv-imitation (bench/bc.py makes it) with MuJoCo added; (None, why) if impossible."""
+    bc = bench_bc()
+    python, versions = bc.ensure_imitation_venv()
+    if python is None:
+        return None, versions
+    probe = [str(python), "-c", "import mujoco, imageio"]
+    if subprocess.run(probe, capture_output=True, cwd=BENCH, env=bc._peer_env()).returncode != 0:
+        install = [str(python), "-m", "pip", "install", "--quiet", "--disable-pip-version-check", *PEER_MUJOCO]
+        completed = subprocess.run(install, capture_output=True, text=True)
+        if completed.returncode != 0:
+            return None, f"`{' '.join(install)}` failed: {completed.stderr.strip()[-1000:]}"
+    return python, f"{versions}, {' '.join(PEER_MUJOCO)}"
+
+
+def run_peer(python: Path, spec: dict[str, Any]) -> tuple[dict[str, Any], float]:
+    """One run of bench/mujoco_peer.py in the peer venv: its result and wall seconds."""
+    with tempfile.TemporaryDirectory(prefix="bench-mujoco-") as workdir:
+        spec_path, result_path = Path(workdir) / "spec.json", Path(workdir) / "result.json"
+        spec_path.write_text(json.dumps(spec))
+        started = time.perf_counter()
+        completed = subprocess.run(
+            [str(python), str(BENCH / "mujoco_peer.py"), str(spec_path), str(result_path)],
+            capture_output=True, text=True, cwd=BENCH, env=bench_bc()._peer_env(),
+        )  # fmt: skip
+        seconds = time.perf_counter() - started
+        if completed.returncode != 0:
+            raise RuntimeError(f"mujoco_peer.py {spec} failed: {completed.stderr.strip()[-2000:]}")
+        return json.loads(result_path.read_text()), seconds
+
+
+class Results:
+    """OUT/results.jsonl: one line per finished run, keyed by (side, env, method, seed)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.rows = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+    def get(self, side: str, env: str, method: str, seed: int) -> dict[str, Any] | None:
+        return next((r for r in self.rows if (r["side"], r["env"], r["method"], r["seed"]) == (side, env, method, seed)), None)
+
+    def add(self, row: dict[str, Any]) -> None:
+        self.rows.append(row)
+        with self.path.open("a") as file:
+            file.write(json.dumps(row) + "\n")
+
+
+def our_run(
+    method: str, env_id: str, expert: str, demos: Path, seed: int, runs: Path, args: argparse.Namespace
+) -> tuple[float, float]:
+    """One of our runs: (the policy's mean return, wall seconds, retraining included)."""
+    common = ["--env", env_id, "--seed", str(seed)]
+    out = runs / f"{method}-{seed}"
+    if method == "bc":
+        result, seconds = cli("train", "bc", *common, "--demos", str(demos), "--out", str(out), threads=args.threads)
+    elif method == "dagger":
+        result, seconds = cli(
+            "train", "dagger", *common, "--expert", expert, "--demos", str(demos), "--rounds", str(args.dagger_rounds),
+            "--out", str(out), threads=args.threads,
+        )  # fmt: skip
+    elif method in ("gail", "airl"):
+        result, seconds = cli(
+            "train", "irl", "--method", method, *common, "--demos", str(demos), "--steps", str(args.irl_steps),
+            "--out", str(out), threads=args.threads,
+        )  # fmt: skip
+    else:
+        irl = method.removesuffix("-ppo")
+        reward = runs / f"{irl}-reward-{seed}"
+        if irl == "airl" and (runs / f"airl-{seed}").exists():
+            reward, seconds = runs / f"airl-{seed}", 0.0  # the AIRL row's run: its g
+        else:
+            _, seconds = cli(
+                "train", "irl", "--method", irl, *common, "--demos", str(demos), "--steps", str(args.irl_steps),
+                "--out", str(reward), threads=args.threads,
+            )  # fmt: skip
+        result, retrain = cli(
+            "train", "ppo", *common, "--reward", str(reward), "--steps", str(args.retrain_steps), "--out", str(out),
+            threads=args.threads,
+        )  # fmt: skip
+        seconds += retrain
+    return float(result["eval"]["mean_return"]), seconds
+
+
+def table(results: Results, envs: list[str], methods: list[str], scale: dict[str, tuple[float, float]]) -> str:
+    """Markdown: per task and method, our mean normalised return with the seeds' figures and the
+    mean wall time; the peer's measured mean and imitation's published aggregate beside it."""
+    lines = [
+        "| task | method | ours: mean (seeds) | wall time / run | imitation 1.0.1 here: mean (seeds) "
+        "| imitation published (aggregate) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for env in envs:
+        random, expert = scale[env]
+        for method in methods:
+            cells = []
+            for side in ("ours", "peer"):
+                rows = [r for r in results.rows if (r["side"], r["env"], r["method"]) == (side, env, method)]
+                normalised = [(r["return"] - random) / (expert - random) for r in sorted(rows, key=lambda r: r["seed"])]
+                cells.append(
+                    (
+                        f"{np.mean(normalised):.2f} ({', '.join(f'{n:.2f}' for n in normalised)})",
+                        f"{np.mean([r['seconds'] for r in rows]):.0f} s",
+                    )
+                    if rows
+                    else ("–", "–")
+                )
+            published = f"{PUBLISHED[method]:.3g}" if method in PUBLISHED else "–"
+            lines.append(f"| {env} | {method} | {cells[0][0]} | {cells[0][1]} | {cells[1][0]} | {published} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--envs", default="HalfCheetah,Hopper")
+    parser.add_argument("--methods", default=",".join(METHODS))
+    parser.add_argument("--seeds", default="0,1,2")
+    parser.add_argument("--episodes", type=int, default=25, help="expert demo episodes per task")
+    parser.add_argument("--action-noise", type=float, default=0.1, help="DART noise of the demos (record --action-noise)")
+    parser.add_argument("--irl-steps", type=int, default=1_000_000)
+    parser.add_argument("--retrain-steps", type=int, default=1_000_000)
+    parser.add_argument("--dagger-rounds", type=int, default=5)
+    parser.add_argument(
+        "--expert", action="append", default=[], metavar="ENV=SPEC", help="an expert for a task without a zoo one"
+    )
+    parser.add_argument("--peer", action="store_true", help="also run imitation 1.0.1's BC and GAIL on the same demos")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--out", type=Path, default=BENCH / "mujoco-runs")
+    args = parser.parse_args()
+    envs, methods, seeds = args.envs.split(","), args.methods.split(","), [int(s) for s in args.seeds.split(",")]
+    experts = dict(spec.split("=", 1) for spec in args.expert)
+    args.out.mkdir(parents=True, exist_ok=True)
+    results = Results(args.out / "results.jsonl")
+    peer = ensure_peer() if args.peer else (None, "not asked (--peer)")
+    print(f"imitation 1.0.1: {peer[1]}", flush=True)
+    scale: dict[str, tuple[float, float]] = {}
+    for env in envs:
+        env_id = f"imitation/{env}FixedHorizon-v0"
+        expert = experts.get(env) or zoo_expert(env)
+        if expert is None:
+            print(f"{env}: no expert (give --expert {env}=SPEC); skipped", flush=True)
+            continue
+        demos, clean = args.out / f"{env}-demos.mcap", args.out / f"{env}-expert.mcap"
+        recording = ["record", "--env", env_id, "--expert", expert]
+        if not demos.exists():
+            noise = ["--action-noise", str(args.action_noise)]
+            cli(
+                *recording,
+                "--episodes",
+                str(args.episodes),
+                "--seed",
+                "1000",
+                *noise,
+                "--out",
+                str(demos),
+                threads=args.threads,
+            )
+        if not clean.exists():
+            cli(*recording, "--episodes", "10", "--seed", "2000", "--out", str(clean), threads=args.threads)
+        scale[env] = (random_return(env_id), demo_return(clean))
+        print(f"{env}: random {scale[env][0]:.1f}, expert {scale[env][1]:.1f}, demos {demo_return(demos):.1f}", flush=True)
+        for method in methods:
+            for seed in seeds:
+                if results.get("ours", env, method, seed) is None:
+                    returned, seconds = our_run(method, env_id, expert, demos, seed, args.out / env, args)
+                    results.add(
+                        {"side": "ours", "env": env, "method": method, "seed": seed, "return": returned, "seconds": seconds}
+                    )
+                    print(f"{env} {method} seed {seed}: ours {returned:.1f} in {seconds:.0f} s", flush=True)
+                if peer[0] is not None and method in ("bc", "gail") and results.get("peer", env, method, seed) is None:
+                    spec = {
+                        "method": method, "env": env, "demos": str(export_npz(demos, args.out / f"{env}-demos.npz")),
+                        "seed": seed, "eval_episodes": 10, "total_timesteps": args.irl_steps,
+                    }  # fmt: skip
+                    result, seconds = run_peer(peer[0], spec)
+                    results.add(
+                        {
+                            "side": "peer",
+                            "env": env,
+                            "method": method,
+                            "seed": seed,
+                            "return": result["mean_return"],
+                            "seconds": seconds,
+                        }
+                    )
+                    print(
+                        f"{env} {method} seed {seed}: imitation 1.0.1 {result['mean_return']:.1f} in {seconds:.0f} s",
+                        flush=True,
+                    )
+    report = table(results, [e for e in envs if e in scale], methods, scale)
+    (args.out / "table.md").write_text(report + "\n")
+    print(report)
+
+
+if __name__ == "__main__":
+    main()
