@@ -11,8 +11,6 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from imitation.data.loader import tree_map
-
 Policy = Callable[[Any], Any]
 
 
@@ -36,9 +34,14 @@ class Rollout:
     def cpu_copy(self) -> Rollout:
         """A copy on the CPU, for what outlives the rollout: PPO refills its buffers in place
         (on its own device) with the next one."""
-        return Rollout(
-            **{name: tree_map(lambda t: t.to("cpu", copy=True), getattr(self, name)) for name in Rollout.__dataclass_fields__}
-        )
+        return Rollout(**{name: _cpu_copy(getattr(self, name)) for name in Rollout.__dataclass_fields__})
+
+
+def _cpu_copy(tree: Any) -> Any:
+    """A tensor, or a dict of them (Dict observations), copied to the CPU."""
+    if isinstance(tree, dict):
+        return {key: _cpu_copy(value) for key, value in tree.items()}
+    return tree.to("cpu", copy=True)
 
 
 def play_episode(env: gym.Env, policy: Policy, *, seed: int | None) -> tuple[float, int]:
