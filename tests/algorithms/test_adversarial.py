@@ -15,7 +15,6 @@ import imitation.envs  # noqa: F401  (registers the ids)
 from imitation.algorithms.adversarial import (
     AdversarialConfig,
     AdversarialImitation,
-    DiscriminatorLearner,
     Steps,
     discriminator_loss,
     input_gradient_penalty,
