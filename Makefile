@@ -40,7 +40,7 @@ bench: venv
 # The MuJoCo table (issue 20): BC, DAgger, GAIL, AIRL and PPO on recovered rewards, 3 seeds, beside
 # imitation 1.0.1 run on the same demos (its venv under bench/). Hours on 2 cores; resumes where it stopped.
 bench-mujoco: venv
-	$(PY) bench/mujoco.py --peer
+	$(PY) bench/mujoco_table.py --peer
 
 # The notes' claims as experiments, each ending in a verdict line (figures and plots: bench/RESULTS.md,
 # "The notes' claims as experiments"); under an hour on 2 cores.

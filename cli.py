@@ -348,18 +348,25 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
     return 0
 
 
-def _train_gcl(args: argparse.Namespace) -> int:
-    from imitation.algorithms.gcl import GCLConfig
-    from imitation.jobs.irl import gcl_job, recorded_observation
+def _ppo_beside_irl(args: argparse.Namespace) -> Any:
+    """The PPOConfig of `train irl --method gcl|gail|airl`: the env's preset on a learned reward, its
+    IRL length, the flags, and the frames the demos were recorded with."""
+    from imitation.jobs.irl import recorded_observation
     from imitation.jobs.presets import ppo_config, preset
 
     fields = {"total_steps": preset(args.env).irl_steps} | _fields(args, "PPOConfig") | recorded_observation(args.demos)
-    config = ppo_config(args.env, learned_reward=True, **fields)
+    return ppo_config(args.env, learned_reward=True, **fields)
+
+
+def _train_gcl(args: argparse.Namespace) -> int:
+    from imitation.algorithms.gcl import GCLConfig
+    from imitation.jobs.irl import gcl_job
+
     result = gcl_job(
         args.demos,
         args.env,
         GCLConfig(**_fields(args, "GCLConfig")),
-        config,
+        _ppo_beside_irl(args),
         args.out,
         progress=not args.quiet,
         resume=args.resume,
@@ -378,15 +385,13 @@ def _train_gcl(args: argparse.Namespace) -> int:
 
 def _train_adversarial(args: argparse.Namespace) -> int:
     from imitation.algorithms.adversarial import AdversarialConfig
-    from imitation.jobs.irl import adversarial_job, recorded_observation
-    from imitation.jobs.presets import ppo_config, preset
+    from imitation.jobs.irl import adversarial_job
 
-    fields = {"total_steps": preset(args.env).irl_steps} | _fields(args, "PPOConfig") | recorded_observation(args.demos)
     result = adversarial_job(
         args.demos,
         args.env,
         AdversarialConfig(**_fields(args, "AdversarialConfig")),
-        ppo_config(args.env, learned_reward=True, **fields),
+        _ppo_beside_irl(args),
         args.out,
         progress=not args.quiet,
         resume=args.resume,

@@ -1,4 +1,4 @@
-"""Worker for bench/mujoco.py: one BC or GAIL run of HumanCompatibleAI/imitation 1.0.1 on MuJoCo.
+"""Worker for bench/mujoco_table.py: one BC or GAIL run of HumanCompatibleAI/imitation 1.0.1 on MuJoCo.
 
 Runs under bench/.venv-imitation/bin/python (Python 3.11, gymnasium 0.29.1, stable-baselines3
 2.2.1, torch 2.13.0 CPU; made by bench/bc.py's `ensure_imitation_venv()`), where `imitation` is
@@ -65,12 +65,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-# bench/mujoco.py (the orchestrator) sits beside this file, and Python puts the script's folder
-# first on sys.path: there it would shadow the `mujoco` package that gymnasium imports. So the
-# imports below come after this line.
-# ruff: noqa: E402, I001 (isort would also take their `imitation` for our first-party package)
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
-
+# ruff: noqa: I001 (isort would take their `imitation` for our first-party package)
 import gymnasium as gym
 import numpy as np
 import torch

@@ -721,8 +721,8 @@ class SingleObservationPolicy:
         self.deterministic = deterministic
         if getattr(policy, "layout", None) is None:
             # One observation at a time through an MLP: extra threads only synchronise, and on busy
-            # cores they wait for each other (a SAC expert's step measured 0.09 ms on one thread,
-            # 5.9 ms on two with both cores loaded). Learners set their own count when they start.
+            # cores they wait for each other (bench/single_observation_threads.py). Learners set
+            # their own count when they start.
             torch.set_num_threads(1)
 
     def __call__(self, observation: Any) -> Any:

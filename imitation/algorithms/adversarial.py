@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from imitation.algorithms.gcl import env_action_log_probs
+from imitation.algorithms.gcl import BesidePPO, env_action_log_probs
 from imitation.algorithms.ppo import PPO
 from imitation.checkpoints import (
     CheckpointData,
@@ -38,7 +38,6 @@ from imitation.checkpoints import (
     optimizer_checkpoint,
     prefixed,
     restore_optimizer,
-    restoring,
     tree_of_names,
     unprefixed,
 )
@@ -185,6 +184,7 @@ class DiscriminatorLearner:
         self.rollouts: list[Steps] = []
         self.generator = torch.Generator().manual_seed(config.seed)
         self.learned = 0  # rounds of discriminator steps so far
+        self.last: dict[str, float] = {}  # the last round's statistics, logged until the next round
 
     def add_rollout(self, rollout: Rollout) -> Steps:
         """Pool the rollout's steps (a CPU copy), dropping the oldest beyond `pool_rollouts`; the steps."""
@@ -211,11 +211,12 @@ class DiscriminatorLearner:
         self.discriminator.train(False)
         self.learned += 1
         loss, demo_accuracy, sample_accuracy = np.mean(statistics, axis=0)
-        return {
+        self.last = {
             "discriminator_loss": float(loss),
             "demo_accuracy": float(demo_accuracy),
             "sample_accuracy": float(sample_accuracy),
         }
+        return self.last
 
     def policy_rewards(self, steps: Steps, policy: ActorCritic) -> torch.Tensor:
         log_pi = (
@@ -253,7 +254,12 @@ class DiscriminatorLearner:
         tensors["generator"] = self.generator.get_state()
         for k, steps in enumerate(self.rollouts):
             tensors |= prefixed(f"pool.{k}", flat_names(vars(steps)))
-        return tensors, {"optimizer": optimizer_state, "learned": self.learned, "pooled": len(self.rollouts)}
+        return tensors, {
+            "optimizer": optimizer_state,
+            "learned": self.learned,
+            "pooled": len(self.rollouts),
+            "last": self.last,
+        }
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
         """Continue from a `state_dict()` (KeyError, TypeError or RuntimeError when it is not one)."""
@@ -263,53 +269,25 @@ class DiscriminatorLearner:
         self.generator.set_state(tensors["generator"])
         self.rollouts = [Steps(**tree_of_names(unprefixed(f"pool.{k}", tensors))) for k in range(int(state["pooled"]))]
         self.learned = int(state["learned"])
+        self.last = {str(name): float(value) for name, value in state["last"].items()}
 
 
-class AdversarialImitation:
+class AdversarialImitation(BesidePPO[DiscriminatorLearner]):
     """The learner: PPO and the discriminator, one PPO update per step (the loop of the module
-    docstring). Its checkpoint is PPO's, with the discriminator's state under "learner"."""
-
-    name = PPO.name  # its steps are PPO's updates, and an interruption is reported as PPO's
-    unit = PPO.unit
+    docstring)."""
 
     def __init__(self, ppo: PPO, discriminator: Discriminator, demos: TransitionTensors, config: AdversarialConfig) -> None:
-        self.ppo = ppo
-        self.discriminator = DiscriminatorLearner(discriminator, demos, config)
+        super().__init__(ppo, DiscriminatorLearner(discriminator, demos, config))
         self.policy_updates = config.policy_updates
-        self.total = ppo.total
-        self.last: dict[str, float] = {}
 
     @property
-    def completed(self) -> int:
-        return self.ppo.completed
-
-    @property
-    def done(self) -> bool:
-        return self.ppo.done
-
-    def position(self) -> str:
-        return self.ppo.position()
-
-    def progress(self, row: dict[str, float]) -> dict[str, str]:
-        return self.ppo.progress(row) | {"demo_acc": f"{row['demo_accuracy']:.2f}"}
+    def discriminator(self) -> DiscriminatorLearner:
+        return self.side
 
     def step(self) -> dict[str, float]:
         rollout = self.ppo.collect_rollout()  # τ ~ π_k
         steps = self.discriminator.add_rollout(rollout)
-        if self.ppo.updates % self.policy_updates == 0 or not self.last:
-            self.last = self.discriminator.learn(self.ppo.policy)
+        if self.ppo.updates % self.policy_updates == 0:
+            self.discriminator.learn(self.ppo.policy)
         rewards = self.discriminator.policy_rewards(steps, self.ppo.policy)
-        return self.ppo.update(rollout, rewards.reshape(rollout.env_rewards.shape)) | self.last
-
-    def state_dict(self) -> CheckpointData:
-        tensors, state = self.ppo.state_dict()
-        learner_tensors, state["learner"] = self.discriminator.state_dict()
-        state["learner"]["last"] = self.last
-        return tensors | prefixed("learner", learner_tensors), state
-
-    def load_state_dict(self, checkpoint: CheckpointData) -> None:
-        tensors, state = checkpoint
-        self.ppo.load_state_dict(checkpoint)
-        with restoring("PPO"):
-            self.discriminator.load_state_dict((unprefixed("learner", tensors), state["learner"]))
-            self.last = {str(name): float(value) for name, value in state["learner"]["last"].items()}
+        return self.ppo.update(rollout, rewards.reshape(rollout.env_rewards.shape)) | self.discriminator.last

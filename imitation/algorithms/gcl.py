@@ -62,7 +62,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass, field
-from typing import cast
+from typing import Protocol, cast
 
 import numpy as np
 import torch
@@ -333,17 +333,23 @@ def env_action_log_probs(policy: ActorCritic, observations: TensorTree, env_acti
         return torch.cat(parts)
 
 
-class GuidedCostLearning:
-    """The learner: PPO and the reward learner, one PPO update per step (the outer loop of the
-    module docstring). Its checkpoint is PPO's, with the reward learner's state under "learner"."""
+class Checkpointed(Protocol):
+    def state_dict(self) -> CheckpointData: ...
+
+    def load_state_dict(self, checkpoint: CheckpointData) -> None: ...
+
+
+class BesidePPO[Side: Checkpointed]:
+    """A learner that runs beside PPO, one PPO update per step (GCL's reward learner, GAIL's and
+    AIRL's discriminator): PPO's steps, progress and interruption messages, and PPO's checkpoint
+    with the other side's state under "learner"."""
 
     name = PPO.name  # its steps are PPO's updates, and an interruption is reported as PPO's
     unit = PPO.unit
 
-    def __init__(self, ppo: PPO, reward: RewardNet, demos: TransitionTensors, config: GCLConfig) -> None:
+    def __init__(self, ppo: PPO, side: Side) -> None:
         self.ppo = ppo
-        self.rewards = RewardLearner(reward, demos, config, updates=ppo.total)
-        self.policy_entropy = config.policy_entropy
+        self.side = side
         self.total = ppo.total
 
     @property
@@ -360,20 +366,33 @@ class GuidedCostLearning:
     def progress(self, row: dict[str, float]) -> dict[str, str]:
         return self.ppo.progress(row) | {"demo_acc": f"{row['demo_accuracy']:.2f}"}
 
+    def state_dict(self) -> CheckpointData:
+        tensors, state = self.ppo.state_dict()
+        side_tensors, state["learner"] = self.side.state_dict()
+        return tensors | prefixed("learner", side_tensors), state
+
+    def load_state_dict(self, checkpoint: CheckpointData) -> None:
+        tensors, state = checkpoint
+        self.ppo.load_state_dict(checkpoint)
+        with restoring("PPO"):
+            self.side.load_state_dict((unprefixed("learner", tensors), state["learner"]))
+
+
+class GuidedCostLearning(BesidePPO[RewardLearner]):
+    """The learner: PPO and the reward learner, one PPO update per step (the outer loop of the
+    module docstring)."""
+
+    def __init__(self, ppo: PPO, reward: RewardNet, demos: TransitionTensors, config: GCLConfig) -> None:
+        super().__init__(ppo, RewardLearner(reward, demos, config, updates=ppo.total))
+        self.policy_entropy = config.policy_entropy
+
+    @property
+    def rewards(self) -> RewardLearner:
+        return self.side
+
     def step(self) -> dict[str, float]:
         rollout = self.ppo.collect_rollout()  # τ ~ π_k
         log_pi = self.rewards.add_rollout(rollout, self.ppo.policy)  # (1)
         statistics = self.rewards.learn()  # (2)
         optimised = self.rewards.reward.relabel(rollout) - self.policy_entropy * log_pi.to(rollout.env_rewards.device)
         return self.ppo.update(rollout, optimised) | statistics  # (3)
-
-    def state_dict(self) -> CheckpointData:
-        tensors, state = self.ppo.state_dict()
-        learner_tensors, state["learner"] = self.rewards.state_dict()
-        return tensors | prefixed("learner", learner_tensors), state
-
-    def load_state_dict(self, checkpoint: CheckpointData) -> None:
-        tensors, state = checkpoint
-        self.ppo.load_state_dict(checkpoint)
-        with restoring("PPO"):
-            self.rewards.load_state_dict((unprefixed("learner", tensors), state["learner"]))

@@ -19,14 +19,13 @@ OUT/results.jsonl, so an interrupted benchmark resumes where it stopped.
   over 10 noise-free episodes (recorded with seeds from 2000), R_random a uniform random policy's
   mean over 10 episodes (seeds 0-9).
 
-Usage: python bench/mujoco.py [--envs HalfCheetah,Hopper] [--methods bc,dagger,gail,airl,airl-ppo,gcl-ppo]
+Usage: python bench/mujoco_table.py [--envs HalfCheetah,Hopper] [--methods bc,dagger,gail,airl,airl-ppo,gcl-ppo]
        [--seeds 0,1,2] [--irl-steps N] [--retrain-steps N] [--peer] [--out bench/mujoco-runs]
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
 import subprocess
@@ -40,9 +39,6 @@ import numpy as np
 
 BENCH = Path(__file__).resolve().parent
 ROOT = BENCH.parent
-# Run as a script, this file's folder comes first on sys.path, where this file would shadow the
-# `mujoco` package that gymnasium imports; bench/bc.py is loaded by path instead.
-sys.path[:] = [entry for entry in sys.path if Path(entry or ".").resolve() != BENCH]
 ZOO = ROOT.parent / "shared" / "testdata" / "experts" / "zoo"
 # The peer's gymnasium 0.29 runs the v4 tasks on the same MuJoCo as ours (imageio: gymnasium's mujoco extra).
 PEER_MUJOCO = ["mujoco==4.0.1", "imageio"]
@@ -102,18 +98,10 @@ def export_npz(demos: Path, out: Path) -> Path:
     return out
 
 
-def bench_bc() -> Any:
-    """bench/bc.py as a module: it makes the peer venv (`ensure_imitation_venv`, `_peer_env`)."""
-    spec = importlib.util.spec_from_file_location("bench_bc", BENCH / "bc.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def ensure_peer() -> tuple[Path | None, str]:
     """bench/.venv-imitation (bench/bc.py makes it) with MuJoCo added; (None, why) if impossible."""
-    bc = bench_bc()
+    import bc  # bench/bc.py, beside this script: it makes the peer venv
+
     python, versions = bc.ensure_imitation_venv()
     if python is None:
         return None, versions
@@ -128,13 +116,15 @@ def ensure_peer() -> tuple[Path | None, str]:
 
 def run_peer(python: Path, spec: dict[str, Any]) -> tuple[dict[str, Any], float]:
     """One run of bench/mujoco_peer.py in the peer venv: its result and wall seconds."""
+    import bc  # bench/bc.py, beside this script
+
     with tempfile.TemporaryDirectory(prefix="bench-mujoco-") as workdir:
         spec_path, result_path = Path(workdir) / "spec.json", Path(workdir) / "result.json"
         spec_path.write_text(json.dumps(spec))
         started = time.perf_counter()
         completed = subprocess.run(
             [str(python), str(BENCH / "mujoco_peer.py"), str(spec_path), str(result_path)],
-            capture_output=True, text=True, cwd=BENCH, env=bench_bc()._peer_env(),
+            capture_output=True, text=True, cwd=BENCH, env=bc._peer_env(),
         )  # fmt: skip
         seconds = time.perf_counter() - started
         if completed.returncode != 0:
