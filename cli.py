@@ -26,7 +26,7 @@ EXIT_INTERRUPTED = 130
 MAX_ERROR_CHARS = 2000
 
 
-def _print_json(data: dict[str, Any]) -> None:
+def _print_json(data: dict[str, Any] | list[dict[str, Any]]) -> None:
     print(json.dumps(data, sort_keys=False))
 
 
@@ -58,8 +58,20 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from imitation.data.summary import format_summary, summarize
+    from imitation.data.summary import format_rounds, format_summary, round_files, summarize
 
+    if os.path.isdir(args.file):
+        rounds = round_files(args.file)
+        if not rounds:
+            raise ImitationError(
+                f"{args.file}: a directory without rounds/round-NN.mcap files (a DAgger run); give a demo file"
+            )
+        summaries = [summarize(path) for path in rounds]
+        if args.json:
+            _print_json(summaries)
+        else:
+            print(format_rounds(summaries))
+        return EXIT_ERROR if any(summary["damage"] for summary in summaries) else 0
     summary = summarize(args.file)
     if args.json:
         _print_json(summary)
@@ -237,6 +249,14 @@ def _finite(text: str) -> float:
     return value
 
 
+def _speed(text: str) -> float:
+    """A speed factor of a person's window, from 1/8 to 4 times real time."""
+    value = _finite(text)
+    if not 0.125 <= value <= 4:
+        raise argparse.ArgumentTypeError(f"expected a factor from 0.125 to 4, got {text[:100]!r}")
+    return value
+
+
 def _megabytes(text: str) -> int:
     """A size in megabytes (MiB, fractions allowed) → bytes; at least one byte."""
     value = _finite(text)
@@ -309,7 +329,15 @@ def cmd_train_dagger(args: argparse.Namespace) -> int:
 
     pixels = PixelRecipe.parse(args.pixels, grayscale=args.grayscale, crop=args.crop) if args.pixels else None
     result = dagger_job(
-        args.env, args.expert, config, args.out, demos=args.demos, pixels=pixels, progress=not args.quiet, resume=args.resume
+        args.env,
+        args.expert,
+        config,
+        args.out,
+        demos=args.demos,
+        pixels=pixels,
+        speed=args.speed,
+        progress=not args.quiet,
+        resume=args.resume,
     )
     if args.json:
         _print_json(result)
@@ -321,6 +349,9 @@ def cmd_train_dagger(args: argparse.Namespace) -> int:
             f"labels; return by round: {returns}; eval return {evaluation['mean_return']:.1f} ± "
             f"{evaluation['std_return']:.1f}; run: {result['run']}"
         )
+        if config.mode == "takeover":
+            rates = ", ".join(f"{100 * rate:.1f} %" for rate in result["intervention_rates"])
+            print(f"intervention rate by round (share of steps the expert drove): {rates}")
     return 0
 
 
@@ -569,6 +600,7 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "random_shift": "--random-shift",
             "observation_keys": "--observation-keys",
             "stream_memory": "--stream-memory",
+            "steps": "--steps",
             "mixed_precision": "--mixed-precision",
             "seed": "--seed",
             "device": "--device",
@@ -582,6 +614,8 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "episodes_per_round": "--episodes-per-round",
             "beta_schedule": "--beta-schedule",
             "beta_decay": "--beta-decay",
+            "mode": "--mode",
+            "label": "--label",
             "seed": "--seed",
         },
         "BCConfig": {
@@ -864,10 +898,11 @@ def build_parser() -> argparse.ArgumentParser:
     info = commands.add_parser(
         "info",
         help="describe a demo file: episodes, returns, lengths, spaces, channels, damage",
-        description="Describe an MCAP demo file. Every chunk is checked; a damaged file is described by the "
+        description="Describe an MCAP demo file, or each round of a DAgger run directory, with how much a person "
+        "drove (the intervention rate) where the file records it. Every chunk is checked; a damaged file is described by the "
         "complete episodes that can be salvaged and the command exits with code 1.",
     )
-    info.add_argument("file", metavar="F.mcap", help="demo file")
+    info.add_argument("file", metavar="F.mcap", help="demo file, or a DAgger run directory: one line per round")
     info.add_argument("--json", action="store_true", help="print one JSON object")
     info.set_defaults(handler=cmd_info)
 
@@ -1083,6 +1118,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--loss", choices=["nll", "mse"], help="nll (log-likelihood) or mse (continuous actions only) (default: nll)"
     )
     bc.add_argument(
+        "--steps",
+        choices=["all", "human"],
+        help="all steps, or only those a person drove, as the /intervention channels of DAgger's round files record "
+        "them: human (default: all)",
+    )
+    bc.add_argument(
         "--previous-action",
         choices=["auto", "on", "off"],
         help="condition the policy on the previous action and predict its change, as for a recorded command stream "
@@ -1136,10 +1177,40 @@ def build_parser() -> argparse.ArgumentParser:
         "dagger",
         help="DAgger: BC on expert-labelled states the learner itself visits",
         description="DAgger: each round rolls out a β-mixture of expert and learner, labels every visited state with the "
-        "expert's action, writes the round as RUN_DIR/rounds/round-NN.mcap and retrains BC on everything so far.",
+        "expert's action, writes the round as RUN_DIR/rounds/round-NN.mcap and retrains BC on everything so far. With "
+        "--mode takeover (HG-DAgger) the learner drives until the expert takes the controls, and BC learns from the "
+        "steps the expert drove. Each round file records who drove every step, the learner's proposed and the executed "
+        "action (/intervention channels; `imitation info RUN_DIR` shows the rate by round). A person as the expert "
+        "(keyboard, gamepad) sees a window: P pauses, - and = halve and double the speed, Esc stops (the round's "
+        "finished episodes are kept; --resume continues the round).",
     )
     dagger.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
-    dagger.add_argument("--expert", required=True, metavar="SPEC", help="scripted, keyboard, a run directory, or sb3:ZIP")
+    dagger.add_argument(
+        "--expert",
+        required=True,
+        metavar="SPEC",
+        help="scripted, standin (a scripted person who takes over when the state turns risky; CartPole), keyboard "
+        "(discrete actions), gamepad (continuous actions; arrow keys without one), a run directory, or sb3:ZIP",
+    )
+    dagger.add_argument(
+        "--mode",
+        choices=["label", "takeover"],
+        help="label: the expert labels every visited state (classic DAgger); takeover: the learner drives until the "
+        "expert takes the controls (standin, keyboard, gamepad) (default: label)",
+    )
+    dagger.add_argument(
+        "--label",
+        choices=["human", "all"],
+        help="with --mode takeover: train on the steps the expert drove (human), or on all steps, taking the learner's "
+        "actions the expert let pass as labels (all) (default: human)",
+    )
+    dagger.add_argument(
+        "--speed",
+        type=_speed,
+        default=1.0,
+        metavar="X",
+        help="a person's window runs at X times real time (default: 1; 0.5 is half speed)",
+    )
     dagger.add_argument("--demos", nargs="+", metavar="F.mcap", help="expert demos to start from (optional)")
     dagger.add_argument("--rounds", type=int, default=5, metavar="R", help="rounds (default: 5)")
     dagger.add_argument("--episodes-per-round", type=int, default=5, metavar="N", help="rollouts per round (default: 5)")

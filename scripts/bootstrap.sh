@@ -31,6 +31,23 @@ find_python() {
     return 1
 }
 
+# The tests of the human experts' windows draw on a virtual X display (tests/xvfb.py) and are
+# skipped without Xvfb: install it where we can (root with apt-get), never failing the bootstrap.
+install_xvfb() {
+    [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 || return 1
+    export DEBIAN_FRONTEND=noninteractive
+    # A fresh container has no package lists: fetch them only when the plain install fails.
+    apt-get install -y -qq --no-install-recommends xvfb >/dev/null 2>&1 \
+        || { apt-get update -qq >/dev/null 2>&1 && apt-get install -y -qq --no-install-recommends xvfb >/dev/null 2>&1; }
+}
+if ! command -v Xvfb >/dev/null 2>&1; then
+    if install_xvfb; then
+        echo "bootstrap: installed Xvfb (for the expert-window tests)" >&2
+    else
+        echo "bootstrap: Xvfb missing and not installable here (needs root and apt-get); the expert-window tests will be skipped" >&2
+    fi
+fi
+
 if [ -f "$STAMP" ] && [ "$STAMP" -nt pyproject.toml ] && is_new_enough "$VENV/bin/python"; then
     exit 0
 fi

@@ -45,6 +45,7 @@ from imitation.errors import ConfigError, ImitationError
 from imitation.policies import ActorCritic
 
 LOSSES = ("nll", "mse")
+STEPS = ("all", "human")
 PREVIOUS_ACTION = ("auto", "on", "off")
 
 
@@ -86,6 +87,8 @@ class BCConfig:
     # the demos into memory; a number streams shuffled batches from them, for image datasets
     # larger than memory.
     stream_memory: int | None = None
+    # "human": train on the steps a person drove (the /intervention channels of DAgger's rounds).
+    steps: str = "all"
     seed: int = 0
     device: str = "auto"
     # Autocast the forward pass to float16 (CUDA, with a gradient scaler) or bfloat16 (CPU); the
@@ -113,6 +116,8 @@ class BCConfig:
             raise ConfigError("random_shift", f"must be at least 0 pixels, got {self.random_shift}", owner="BCConfig")
         if self.threads is not None and not 1 <= self.threads <= 1024:
             raise ConfigError("threads", f"must be in [1, 1024], got {self.threads}", owner="BCConfig")
+        if self.steps not in STEPS:
+            raise ConfigError("steps", f"must be one of {', '.join(STEPS)}, got {self.steps!r}", owner="BCConfig")
         if self.stream_memory is not None and self.stream_memory < 1:
             raise ConfigError("stream_memory", f"must be at least 1 byte, got {self.stream_memory}", owner="BCConfig")
         for name in ("epochs", "batch_size", "patience"):

@@ -30,26 +30,41 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, Protocol, cast
 
 import gymnasium as gym
 import numpy as np
+import torch
 
 from imitation.algorithms.bc import BCConfig, BehaviouralCloning, fit
 from imitation.checkpoints import CheckpointData, checked_counter, prefixed, restoring, unprefixed
 from imitation.data.dataset import DemoDataset
-from imitation.data.loader import TransitionTensors, load_transitions, split_episodes, transitions_to_torch
-from imitation.data.mcap.writer import DemoWriter
-from imitation.data.types import Episode, stack_samples
+from imitation.data.loader import TransitionTensors, human_steps, load_transitions, split_episodes, transitions_to_torch
+from imitation.data.mcap.reader import DemoFile
+from imitation.data.mcap.writer import DemoWriter, write_episodes
+from imitation.data.types import Episode, Interventions, stack_samples
 from imitation.envs.make import control_period
 from imitation.envs.pixels import StackFrames, stack_frames
 from imitation.errors import ConfigError
 from imitation.policies import ActorCritic, SingleObservationPolicy
 
+
+class TakesOver(Protocol):
+    """An expert that can take the controls (`--mode takeover`): after each call, `engaged` says
+    whether it holds them (a person at the keyboard or gamepad, or `StandIn`)."""
+
+    engaged: bool
+
+    def __call__(self, observation: Any) -> Any: ...
+
+
 SCHEDULES = ("linear", "exponential")
+MODES = ("label", "takeover")
+LABELS = ("human", "all")
 Policy = Callable[[Any], Any]
 
 
@@ -60,10 +75,21 @@ class DAggerConfig:
     beta_schedule: str = "linear"
     beta_decay: float = 0.5  # p of the exponential schedule
     seed: int = 0
+    # "label": the learner drives with probability 1 - β and the expert labels every state;
+    # "takeover": the learner drives until the expert takes over (HG-DAgger).
+    mode: str = "label"
+    # Take-over: "human" trains on the steps the expert drove; "all" also on the learner's own
+    # actions where the expert let it drive.
+    label: str = "human"
     # Each round warm-starts from the previous learner, so it needs fewer epochs than BC from scratch.
     bc: BCConfig = field(default_factory=lambda: BCConfig(epochs=60, patience=15))
 
     def validate(self) -> None:
+        for name, choices in (("mode", MODES), ("label", LABELS)):
+            if getattr(self, name) not in choices:
+                raise ConfigError(
+                    name, f"must be one of {', '.join(choices)}, got {getattr(self, name)!r}", owner="DAggerConfig"
+                )
         if self.beta_schedule not in SCHEDULES:
             raise ConfigError(
                 "beta_schedule", f"must be one of {', '.join(SCHEDULES)}, got {self.beta_schedule!r}", owner="DAggerConfig"
@@ -82,6 +108,69 @@ def beta_for_round(round_index: int, config: DAggerConfig) -> float:
     return config.beta_decay ** (round_index - 1)
 
 
+def run_episode(
+    env: gym.Env,
+    learner: Policy | None,
+    expert: Policy,
+    *,
+    mode: str = "label",
+    beta: float = 1.0,
+    seed: int,
+    rng: np.random.Generator,
+    metadata: dict[str, Any],
+    status: Callable[[int, bool, int], None] | None = None,
+) -> Episode:
+    """One episode of expert and learner sharing the controls (see `DAggerConfig.mode`); the
+    episode records, step by step, who drove, what the learner proposed and what was executed,
+    with wall-clock timestamps. `status(step, human_in_control, takeovers)` is called before the
+    expert is asked at each step (a person's window shows it)."""
+    observation, _ = env.reset(seed=seed)
+    observations, times = [observation], [time.time_ns()]
+    actions: list[Any] = []
+    proposed: list[Any] = []
+    executed: list[Any] = []
+    rewards: list[float] = []
+    human: list[bool] = []
+    terminated = truncated = False
+    takeovers = 0
+    while not (terminated or truncated):
+        driving = bool(human[-1]) if human else False  # the learner holds the controls before step 0
+        if status is not None:
+            status(len(actions), driving, takeovers)
+        label = expert(observation)
+        learner_action = learner(observation) if learner is not None else label
+        if mode == "takeover":
+            person_drives = learner is None or cast(TakesOver, expert).engaged
+        else:
+            person_drives = learner is None or rng.random() < beta
+        action = label if person_drives else learner_action
+        takeovers += int(person_drives and not driving)
+        observation, reward, terminated, truncated, _ = env.step(action)
+        times.append(time.time_ns())
+        observations.append(observation)
+        # Labelling: the expert's command at every state. Take-over: what was executed; the
+        # steps the learner drove are told apart by `human` (the person let them pass).
+        actions.append(action if mode == "takeover" else label)
+        rewards.append(float(reward))
+        human.append(person_drives)
+        proposed.append(learner_action)
+        executed.append(action)
+    return Episode(
+        observations=stack_samples(observations, env.observation_space),
+        actions=stack_samples(actions, env.action_space),
+        rewards=np.asarray(rewards),
+        terminated=bool(terminated),
+        truncated=bool(truncated) and not terminated,
+        timestamps=np.asarray(times, dtype=np.int64),
+        interventions=Interventions(
+            human=np.asarray(human, dtype=bool),
+            proposed_actions=stack_samples(proposed, env.action_space),
+            executed_actions=stack_samples(executed, env.action_space),
+        ),
+        metadata={**metadata, "seed": seed, "expert_steps": int(sum(human))},
+    )
+
+
 def collect_round(
     env: gym.Env,
     learner: Policy | None,
@@ -92,33 +181,38 @@ def collect_round(
     seed: int,
     rng: np.random.Generator,
     metadata: dict[str, Any],
+    mode: str = "label",
 ) -> list[Episode]:
-    """Roll out the β-mixture of expert and learner; every action stored is the expert's label."""
-    collected = []
-    for i in range(episodes):
-        observation, _ = env.reset(seed=seed + i)
-        observations, labels, rewards, expert_drove = [observation], [], [], []
-        terminated = truncated = False
-        while not (terminated or truncated):
-            label = expert(observation)
-            use_expert = learner is None or rng.random() < beta
-            action = label if use_expert or learner is None else learner(observation)
-            observation, reward, terminated, truncated, _ = env.step(action)
-            observations.append(observation)
-            labels.append(label)
-            rewards.append(float(reward))
-            expert_drove.append(bool(use_expert))
-        collected.append(
-            Episode(
-                observations=stack_samples(observations, env.observation_space),
-                actions=stack_samples(labels, env.action_space),
-                rewards=np.asarray(rewards),
-                terminated=bool(terminated),
-                truncated=bool(truncated) and not terminated,
-                metadata={**metadata, "seed": seed + i, "expert_steps": int(sum(expert_drove))},
+    """`episodes` episodes of `run_episode`, episode i reset with seed `seed + i`."""
+    return [
+        run_episode(env, learner, expert, mode=mode, beta=beta, seed=seed + i, rng=rng, metadata=metadata)
+        for i in range(episodes)
+    ]
+
+
+def finished_episodes(path: Path) -> list[Episode]:
+    """The episodes an interrupted try of a round finished: those of `path` (closed on Ctrl-C)
+    or of `path`.partial (left by a killed process), whichever holds more. A partial with more
+    becomes `path` first, so that nothing is lost if this run is killed too."""
+    partial = path.with_name(path.name + ".partial")
+    kept = DemoFile(path).read_episodes() if path.exists() else []
+    if partial.exists():
+        salvaged = DemoFile(partial, salvage=True)
+        if len(salvaged) > len(kept):
+            kept = salvaged.read_episodes()
+            write_episodes(
+                path,
+                kept,
+                env_id=salvaged.env_id,
+                observation_space=salvaged.observation_space,
+                action_space=salvaged.action_space,
+                dt=salvaged.dt,
+                source=salvaged.source,
+                metadata=salvaged.user_metadata,
+                temporary=path.with_name(path.name + ".recovering"),
             )
-        )
-    return collected
+        partial.unlink()
+    return kept
 
 
 class DAgger:
@@ -177,43 +271,92 @@ class DAgger:
         if self.learner is None and self.demos:
             self.policy, _ = self._fit(self.demos)  # π̂_1 ← BC(demos)
             self.learner = SingleObservationPolicy(self.policy, deterministic=True)
+        elif self.learner is None and self.config.mode == "takeover":
+            self.learner = SingleObservationPolicy(self.policy, deterministic=True)  # the person corrects it from the start
         round_index = self.rounds + 1
         beta = beta_for_round(round_index, self.config)
-        episodes = collect_round(
-            self.env,
-            self.learner,
-            self.expert,
-            beta=beta,
-            episodes=self.config.episodes_per_round,
-            seed=self.config.seed * 100_000 + round_index * 1_000,
-            rng=self.rng,
-            metadata={"round": round_index, "beta": beta},
-        )
         path = self.round_dir / f"round-{round_index:02d}.mcap"
-        with DemoWriter(
+        episodes = finished_episodes(path)  # of an interrupted try of this round
+        if episodes and self.learner is not None and self.config.mode == "label":
+            self.rng.random(sum(len(episode) for episode in episodes))  # the draws they took, as if uninterrupted
+        seed = self.config.seed * 100_000 + round_index * 1_000
+        with self._round_writer(path, round_index, beta) as writer:
+            for episode in episodes:
+                writer.write(episode)
+            for i in range(len(episodes), self.config.episodes_per_round):
+                episode = run_episode(
+                    self.env,
+                    self.learner,
+                    self.expert,
+                    mode=self.config.mode,
+                    beta=beta,
+                    seed=seed + i,
+                    rng=self.rng,
+                    metadata={"round": round_index, "beta": beta},
+                    status=self._status(round_index, i + 1, episodes),
+                )
+                episodes.append(self._newest_frames(episode))
+                writer.write(episodes[-1])
+        self.files.append(path)
+        self.labels += int(sum(self._labels(episode).sum() for episode in episodes))
+        self.policy, validation_loss = self._fit([*self.demos, *self.files])
+        self.learner = SingleObservationPolicy(self.policy, deterministic=True)
+        self.rounds = round_index
+        steps = sum(len(episode) for episode in episodes)
+        return {
+            "round": float(round_index),
+            "beta": beta,
+            "expert_labels": float(self.labels),
+            "rollout_return": float(np.mean([episode.episode_return for episode in episodes])),
+            "intervention_rate": sum(self._human(episode).sum() for episode in episodes) / max(1, steps),
+            "takeovers": float(sum(self._takeovers(episode) for episode in episodes)),
+            "validation_loss": validation_loss,
+            "return": self.evaluate(self.policy) if self.evaluate is not None else float("nan"),
+        }
+
+    def _round_writer(self, path: Path, round_index: int, beta: float) -> DemoWriter:
+        """The round's file; each episode is flushed as it ends, so a killed run keeps it."""
+        return DemoWriter(
             path,
             env_id=self.env_id,
             observation_space=self.file_space,
             action_space=self.env.action_space,
             dt=control_period(self.env),
             source=f"dagger round {round_index}",
-            metadata={**self.metadata, "round": round_index, "beta": beta},
-        ) as writer:
-            for episode in episodes:
-                writer.write(self._newest_frames(episode))
-        self.files.append(path)
-        self.labels += sum(len(episode) for episode in episodes)
-        self.policy, validation_loss = self._fit([*self.demos, *self.files])
-        self.learner = SingleObservationPolicy(self.policy, deterministic=True)
-        self.rounds = round_index
-        return {
-            "round": float(round_index),
-            "beta": beta,
-            "expert_labels": float(self.labels),
-            "rollout_return": float(np.mean([episode.episode_return for episode in episodes])),
-            "validation_loss": validation_loss,
-            "return": self.evaluate(self.policy) if self.evaluate is not None else float("nan"),
-        }
+            metadata={**self.metadata, "round": round_index, "beta": beta, "mode": self.config.mode},
+            flush_episodes=True,
+        )
+
+    def _status(
+        self, round_index: int, episode_number: int, finished: list[Episode]
+    ) -> Callable[[int, bool, int], None] | None:
+        """What a person's window shows before each step, for an expert that has one."""
+        show = getattr(self.expert, "show_status", None)
+        if show is None:
+            return None
+        from imitation.experts.window import ControlStatus  # pygame's window only for a person
+
+        before = sum(self._takeovers(episode) for episode in finished)
+
+        def status(step: int, human_in_control: bool, takeovers: int) -> None:
+            show(ControlStatus(round_index, episode_number, step, human_in_control, before + takeovers, self.config.mode))
+
+        return status
+
+    @staticmethod
+    def _human(episode: Episode) -> np.ndarray:
+        return episode.interventions.human if episode.interventions is not None else np.ones(len(episode), dtype=bool)
+
+    @staticmethod
+    def _takeovers(episode: Episode) -> int:
+        return episode.interventions.takeovers if episode.interventions is not None else 0
+
+    def _labels(self, episode: Episode) -> np.ndarray:
+        """Which of a round episode's steps BC trains on: all of them, except in take-over
+        mode with `label="human"`, where only those the expert drove."""
+        if self.config.mode == "takeover" and self.config.label == "human":
+            return self._human(episode)
+        return np.ones(len(episode), dtype=bool)
 
     def _newest_frames(self, episode: Episode) -> Episode:
         """The episode as a round file holds it: of each stack of frames, the newest."""
@@ -247,9 +390,22 @@ class DAgger:
 
         train = load(train_ids)
         validation = load(validation_ids) if validation_ids else None
+        if self.config.mode == "takeover" and self.config.label == "human":
+            train, validation = (
+                self._expert_steps(dataset, train_ids, train),
+                (self._expert_steps(dataset, validation_ids, validation) if validation is not None else None),
+            )
+            if validation is not None and len(validation) == 0:
+                validation = None
         cloning = BehaviouralCloning(self.policy, train, validation, bc)
         losses = [row["validation_loss"] for row in fit(cloning) if np.isfinite(row["validation_loss"])]
         return cloning.policy, min(losses) if losses else float("nan")
+
+    @staticmethod
+    def _expert_steps(dataset: DemoDataset, episodes: list[int], transitions: TransitionTensors) -> TransitionTensors:
+        """The transitions the expert drove (demos: all of them)."""
+        mask = human_steps(dataset, episodes, unrecorded=True)
+        return transitions.select(torch.from_numpy(np.flatnonzero(mask)))
 
     def state_dict(self) -> CheckpointData:
         """The learner, the mixture's generator, the label count and the finished rounds' files

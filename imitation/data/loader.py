@@ -183,6 +183,26 @@ def load_transitions(
     return transitions
 
 
+def human_steps(dataset: DemoDataset, episodes: Sequence[int], *, unrecorded: bool | None = None) -> np.ndarray:
+    """Per transition of `episodes`, in `load_transitions`' order: whether a person (the expert)
+    drove it, from the episodes' intervention channels. An episode without them counts as
+    `unrecorded` throughout (True for demos the expert recorded alone); None makes it an error."""
+    indices = sorted(set(int(k) for k in episodes))
+    masks = []
+    for k, episode in zip(indices, _read(dataset, indices)):
+        if episode.interventions is not None:
+            masks.append(episode.interventions.human)
+        elif unrecorded is None:
+            file, local = dataset.locate(k)
+            raise ImitationError(
+                f"{file.path}: episode {local} does not record who drove it (no /intervention channels); "
+                "only the rounds of DAgger write them"
+            )
+        else:
+            masks.append(np.full(len(episode), unrecorded))
+    return np.concatenate(masks) if masks else np.zeros(0, dtype=bool)
+
+
 def _check_memory(dataset: DemoDataset, steps: int, episodes: int, *, next_observations: bool) -> None:
     """Refuse, before allocating, a load that cannot fit in the memory this machine has free:
     one line naming the size, instead of an out-of-memory kill or traceback midway."""

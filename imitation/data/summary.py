@@ -1,15 +1,18 @@
 """What `imitation info` reports about a demo file: counts, how the end flags were decided, return
-and length statistics, spaces, channels, format version, and damage (how many complete episodes
-were salvaged)."""
+and length statistics, spaces, channels, format version, damage (how many complete episodes
+were salvaged), and for episodes a person could take over, how often they did (the intervention
+rate); for a DAgger run directory, that rate round by round."""
 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from imitation.data.convert.endings import describe_end_flags
+from imitation.data.mcap.format import HUMAN_FIELD
 from imitation.data.mcap.reader import DemoFile
 from imitation.data.spaces import describe_space, space_from_json, space_to_json
 
@@ -48,7 +51,43 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "creator": demo.creator,
         "damage": demo.damage,
         "salvaged": len(demo) if demo.damage else None,
+        "interventions": intervention_rate(demo),
     }
+
+
+def intervention_rate(demo: DemoFile) -> dict[str, float] | None:
+    """How much of the file a person drove: steps under their control, their share of all steps
+    (the intervention rate), and the hand-overs to them; None for a file without the channels."""
+    if HUMAN_FIELD.topic not in demo.channels:
+        return None
+    steps = human_steps = takeovers = 0
+    for episode in demo:
+        steps += len(episode)
+        if episode.interventions is not None:
+            human_steps += int(episode.interventions.human.sum())
+            takeovers += episode.interventions.takeovers
+    return {"steps": steps, "human_steps": human_steps, "rate": human_steps / steps if steps else 0.0, "takeovers": takeovers}
+
+
+def round_files(run_directory: str | os.PathLike) -> list[Path]:
+    """A DAgger run directory's round files, in order (empty for any other directory)."""
+    return sorted(Path(run_directory).glob("rounds/round-*.mcap"))
+
+
+def format_rounds(summaries: list[dict[str, Any]]) -> str:
+    """One line per DAgger round: episodes, return, and who drove."""
+    lines = []
+    for summary in summaries:
+        rate = summary["interventions"]
+        drove = (
+            f"person drove {rate['human_steps']} of {rate['steps']} steps ({100 * rate['rate']:.1f} %), "
+            f"{rate['takeovers']} take-overs"
+            if rate
+            else "no intervention channels"
+        )
+        mean_return = summary["return"]["mean"] if summary["return"] else float("nan")
+        lines.append(f"{Path(summary['file']).name}:  {summary['episodes']} episodes, return {mean_return:.1f};  {drove}")
+    return "\n".join(lines)
 
 
 def format_summary(summary: dict[str, Any]) -> str:
@@ -72,6 +111,12 @@ def format_summary(summary: dict[str, Any]) -> str:
         f"channels:      {', '.join(summary['channels'])}",
         f"source:        {summary['source'] or '-'}  (written by {summary['creator'] or 'unknown'})",
     ]
+    if summary["interventions"]:
+        rate = summary["interventions"]
+        lines.append(
+            f"interventions: a person drove {rate['human_steps']} of {rate['steps']} steps ({100 * rate['rate']:.1f} %), "
+            f"{rate['takeovers']} take-overs"
+        )
     if summary["damage"]:
         lines.append(f"DAMAGED:       {summary['damage']}; salvaged {summary['salvaged']} complete episodes")
     return "\n".join(lines)

@@ -58,6 +58,36 @@ def stack_samples(samples: Sequence[Any], space: gym.Space) -> Tree:
 
 
 @dataclass(frozen=True, kw_only=True)
+class Interventions:
+    """Who drove each step of an episode in which a person (or a stand-in for one) could take the
+    controls from a learner: `human[t]` is true when the person's command was executed at step t,
+    `proposed_actions` are the learner's action at every step (also when the person drove) and
+    `executed_actions` what the env was stepped with. Hand-overs are where `human` changes, the
+    learner holding the controls before step 0 (`handovers`)."""
+
+    human: np.ndarray
+    proposed_actions: Tree
+    executed_actions: Tree
+
+    def __post_init__(self) -> None:
+        if self.human.ndim != 1 or self.human.dtype != np.bool_:
+            raise ValueError(f"interventions.human must be a 1-D bool array, got {self.human.dtype}{list(self.human.shape)}")
+        for name in ("proposed_actions", "executed_actions"):
+            if tree_rows(getattr(self, name)) != len(self.human):
+                raise ValueError(f"interventions.{name} need {len(self.human)} rows, got {tree_rows(getattr(self, name))}")
+
+    def handovers(self) -> list[tuple[int, bool]]:
+        """(step, to_human) for every change of controller, the learner holding them before step 0."""
+        before = np.concatenate([[False], self.human[:-1]])
+        return [(int(step), bool(self.human[step])) for step in np.flatnonzero(self.human != before)]
+
+    @property
+    def takeovers(self) -> int:
+        """Hand-overs to the person."""
+        return sum(to_human for _, to_human in self.handovers())
+
+
+@dataclass(frozen=True, kw_only=True)
 class Episode:
     """One episode: `observations` has T+1 rows (the last is the final observation), every
     per-step field T rows.
@@ -65,8 +95,9 @@ class Episode:
     `terminated` means the MDP reached a terminal state (no bootstrapping past it); `truncated`
     means it was cut short (time limit, user stop) and the final observation is not terminal.
     `timestamps` (int64 ns, T+1 rows, one per observation) is given for real recordings and is
-    None for simulators, whose step times are t_start + i·dt. `metadata` holds per-episode facts
-    such as `seed` and `source`; it must be JSON-serialisable.
+    None for simulators, whose step times are t_start + i·dt. `interventions` (T rows) says who
+    drove each step when a person could take over from a learner. `metadata` holds per-episode
+    facts such as `seed` and `source`; it must be JSON-serialisable.
     """
 
     observations: Tree
@@ -76,6 +107,7 @@ class Episode:
     truncated: bool = False
     infos: list[dict[str, Any]] | None = None
     timestamps: np.ndarray | None = None
+    interventions: Interventions | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -90,6 +122,8 @@ class Episode:
             raise ValueError(f"infos need T = {steps} entries, got {len(self.infos)}")
         if self.timestamps is not None and self.timestamps.shape != (steps + 1,):
             raise ValueError(f"timestamps need shape ({steps + 1},), got {self.timestamps.shape}")
+        if self.interventions is not None and len(self.interventions.human) != steps:
+            raise ValueError(f"interventions need T = {steps} rows, got {len(self.interventions.human)}")
         if self.terminated and self.truncated:
             raise ValueError("an episode cannot be both terminated and truncated")
 

@@ -13,27 +13,31 @@ from imitation.envs.tabular import TabularEnv
 from imitation.errors import ImitationError
 from imitation.experts.sb3 import load_sb3_expert
 from imitation.experts.scripted import scripted_expert
+from imitation.experts.standin import StandIn
 from imitation.experts.tabular import SoftOptimalExpert
 from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
 
 Policy = Callable[[Any], Any]
-EXPERT_SPECS = ("scripted", "random", "keyboard", "RUN_DIR", "sb3:PATH")
+EXPERT_SPECS = ("scripted", "random", "standin", "keyboard", "gamepad", "RUN_DIR", "sb3:PATH")
+PEOPLE = ("keyboard", "gamepad")
 
 
 def make_env_for_expert(env_id: str, spec: str, *, pixels: bool = False) -> gym.Env:
     """The env an expert acts in: rendered to frames when a human must see them or when they
     are recorded (`pixels`)."""
-    return make_env(env_id, render_mode="rgb_array") if spec == "keyboard" or pixels else make_env(env_id)
+    return make_env(env_id, render_mode="rgb_array") if spec in PEOPLE or pixels else make_env(env_id)
 
 
-def load_expert(spec: str, env: gym.Env, *, seed: int) -> Policy:
+def load_expert(spec: str, env: gym.Env, *, seed: int, speed: float = 1.0) -> Policy:
     """`scripted`: the hand-written controller for env's id (for a tabular MDP: its soft-optimal
     policy, see `imitation.experts.tabular`); `random`: uniform actions from the
     action space, seeded with `seed` so recordings are reproducible; a run directory: its saved
     policy (PPO, BC, DAgger), acting deterministically; `sb3:PATH`: the policy in a
     stable-baselines3 zip (PPO, A2C, SAC, TD3, TQC, DQN, QR-DQN), read without unpickling
-    (see `imitation.experts.sb3`), acting deterministically; `keyboard`: a human (see
-    `imitation.experts.keyboard`; the env must come from `make_env_for_expert`)."""
+    (see `imitation.experts.sb3`), acting deterministically; `standin`: a scripted person who
+    takes the controls when the state turns risky (see `imitation.experts.standin`); `keyboard`,
+    `gamepad`: a person (see `imitation.experts.keyboard` and `imitation.experts.gamepad`; the
+    env must come from `make_env_for_expert`), whose window runs at `speed` times real time."""
     if Path(spec).is_dir():
         policy = load_policy(spec)
         if policy.config.previous_action:
@@ -54,7 +58,13 @@ def load_expert(spec: str, env: gym.Env, *, seed: int) -> Policy:
     if spec == "keyboard":
         from imitation.experts.keyboard import KeyboardExpert  # pygame only when a human plays
 
-        return KeyboardExpert(env)
+        return KeyboardExpert(env, speed=speed)
+    if spec == "gamepad":
+        from imitation.experts.gamepad import GamepadExpert  # pygame only when a human plays
+
+        return GamepadExpert(env, speed=speed)
+    if spec == "standin":
+        return StandIn(env.spec.id if env.spec else "")
     if spec == "random":
         action_space = env.action_space
         action_space.seed(seed)

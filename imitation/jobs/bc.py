@@ -16,6 +16,7 @@ from imitation.algorithms.bc import BCConfig, BehaviouralCloning, policy_options
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import (
     TransitionTensors,
+    human_steps,
     load_transitions,
     split_episode_tails,
     split_episodes,
@@ -72,6 +73,8 @@ def bc_job(
         raise ConfigError("frame_stack", "stacks image observations, and the demos hold none", owner="BCConfig")
     train: TransitionTensors | StreamingLoader
     validation: TransitionTensors | StreamingLoader | None
+    if config.stream_memory is not None and config.steps == "human":
+        raise ConfigError("steps", "human reads whole episodes; leave the streaming memory budget unset", owner="BCConfig")
     if config.stream_memory is not None:
         train, validation, split = _streams(dataset, config, previous_action=previous_action, frames=frames, image_keys=keys)
     else:
@@ -268,13 +271,24 @@ def _split(
             transitions = dataclasses.replace(transitions, observations=observations)
         return _with_previous_actions(transitions) if previous_action else transitions
 
+    def chosen(episodes: list[int], transitions: TransitionTensors) -> TransitionTensors:
+        """With `steps="human"`, the steps a person drove."""
+        if config.steps != "human":
+            return transitions
+        return transitions.select(torch.from_numpy(np.flatnonzero(human_steps(dataset, episodes))))
+
     train_ids, validation_ids = split_episodes(len(dataset), validation_fraction=config.validation_fraction, seed=config.seed)
     if validation_ids or not offline or config.validation_fraction == 0:
-        train = transitions_to_torch(load(train_ids))
-        validation = transitions_to_torch(load(validation_ids)) if validation_ids else None
+        train = chosen(train_ids, transitions_to_torch(load(train_ids)))
+        validation = chosen(validation_ids, transitions_to_torch(load(validation_ids))) if validation_ids else None
+        if not len(train):
+            raise ImitationError(f"{dataset.files[0].path}: no step of the training episodes was driven by a person")
         return train, validation, {"train_episodes": train_ids, "validation_episodes": validation_ids}
     every = load()
     train_rows, validation_rows = split_episode_tails(every, validation_fraction=config.validation_fraction)
+    if config.steps == "human":
+        person = human_steps(dataset, range(len(dataset)))
+        train_rows, validation_rows = train_rows[person[train_rows]], validation_rows[person[validation_rows]]
     tensors = transitions_to_torch(every)
     validation = tensors.select(torch.from_numpy(validation_rows)) if len(validation_rows) else None
     return (

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import os
-from contextlib import closing
-from typing import Any
+from contextlib import closing, nullcontext
+from typing import Any, Protocol, runtime_checkable
 
 from imitation.algorithms.bc import policy_options
 from imitation.algorithms.dagger import DAgger, DAggerConfig
@@ -21,6 +21,11 @@ from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy
 from imitation.seeding import seed_everything
 
 
+@runtime_checkable
+class SupportsClose(Protocol):
+    def close(self) -> None: ...
+
+
 def dagger_job(
     env_id: str,
     expert_spec: str,
@@ -29,6 +34,7 @@ def dagger_job(
     *,
     demos: list[str] | None = None,
     pixels: PixelRecipe | None = None,
+    speed: float = 1.0,
     progress: bool = True,
     resume: bool = False,
 ) -> dict[str, Any]:
@@ -49,8 +55,15 @@ def dagger_job(
     frames = config.bc.frame_stack or 1
     if frames > 1 and pixels is None:
         raise ConfigError("frame_stack", "stacks rendered frames: give --pixels too", owner="BCConfig")
+    config.validate()
     env = make_env_for_expert(env_id, expert_spec, pixels=pixels is not None)
-    expert = load_expert(expert_spec, env, seed=config.seed)
+    expert = load_expert(expert_spec, env, seed=config.seed, speed=speed)
+    if config.mode == "takeover" and not hasattr(expert, "engaged"):
+        raise ConfigError(
+            "mode",
+            f"takeover needs an expert that takes the controls (standin, keyboard, gamepad), not {expert_spec}",
+            owner="DAggerConfig",
+        )
     pixel_options: dict[str, Any] = {}
     metadata: dict[str, Any] = {}
     if pixels is not None:
@@ -82,7 +95,12 @@ def dagger_job(
         dagger=config_json(config),
         policy=policy.config.to_json(),
     )
-    with closing(env), training_run(out, run_config, x_axis="round", resume=resume) as run:
+    window = expert if isinstance(expert, SupportsClose) else None  # a person's window
+    with (
+        closing(env),
+        closing(window) if window is not None else nullcontext(),
+        training_run(out, run_config, x_axis="round", resume=resume) as run,
+    ):
         learner = DAgger(
             env,
             expert,
@@ -103,6 +121,14 @@ def dagger_job(
             ys=["return", "rollout_return"],
             title=f"DAgger on {env_id}",
         )
+        if config.mode == "takeover":
+            plot_curve(
+                run.file("intervention_curve.png"),
+                run.history,
+                x="round",
+                ys=["intervention_rate"],
+                title=f"DAgger (take-over) on {env_id}: share of steps the expert drove",
+            )
         plot_curve(
             run.file("loss_curve.png"),
             run.history,
@@ -116,6 +142,7 @@ def dagger_job(
             "rounds": len(run.history),
             "expert_labels": int(run.history[-1]["expert_labels"]),
             "round_returns": [row["return"] for row in run.history],
+            "intervention_rates": [row["intervention_rate"] for row in run.history],
             "eval": final_evaluation(learner.policy.cpu(), env),
         }
         run.finish(metrics)

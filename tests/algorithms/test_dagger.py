@@ -204,7 +204,7 @@ def test_dagger_rounds_mix_expert_and_greedy_learner_by_the_generator_and_record
     dagger = coin_dagger(tmp_path / "run" / "rounds", evaluate=lambda policy: evaluated.append(policy) or 7.0)
     first = dagger.step()
     round_one = DemoFile(tmp_path / "run" / "rounds" / "round-01.mcap")
-    assert (round_one.source, round_one.dt, round_one.user_metadata) == ("dagger round 1", 0.05, {"round": 1, "beta": 1.0})
+    assert (round_one.source, round_one.dt, round_one.user_metadata) == ("dagger round 1", 0.05, {"round": 1, "beta": 1.0, "mode": "label"})
     assert [facts.metadata for facts in round_one.episodes] == [
         {"round": 1, "beta": 1.0, "seed": 101_000 + i, "expert_steps": 5} for i in range(10)
     ]

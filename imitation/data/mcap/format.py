@@ -13,6 +13,9 @@ of an episode, and the JSON and checksums of its metadata. docs/FORMAT.md specif
   index finds episode k by time without reading the others.
 - On close, an `imitation.episodes` Metadata record repeats every episode's facts, so `info` and
   random access need only the summary and two small records.
+- Episodes a person could take over from a learner carry `/intervention/…` JSON channels, one
+  message per step (who drove, the learner's proposed and the executed action) and one per
+  hand-over; readers that do not know them skip them.
 - Image observations (uint8 (H, W[, C]) leaves) are the exception to blocks: one Foxglove image
   message per frame, codec in the channel metadata (`images`). Files with such channels are
   format version 2; all others stay version 1, byte for byte.
@@ -114,7 +117,7 @@ class EpisodeFacts:
 class Field:
     """One channel: which part of an episode it carries and how its rows are laid out."""
 
-    kind: str  # "observation" | "action" | "reward" | "time" | "info"
+    kind: str  # "observation" | "action" | "reward" | "time" | "info" | "intervention"
     path: LeafPath
     dtype: np.dtype | None  # None for JSON channels
     shape: tuple[int, ...]
@@ -152,6 +155,13 @@ class Field:
 
 REWARD_FIELD = Field("reward", (), np.dtype("<f8"), ())
 TIME_FIELD = Field("time", (), np.dtype("<i8"), ())
+# Episodes a person could take over (docs/FORMAT.md §6.7): one JSON message per step on each
+# per-step channel, so that Foxglove plots them on the recording's timeline, and one per hand-over.
+HUMAN_FIELD = Field("intervention", ("human",), None, ())
+PROPOSED_FIELD = Field("intervention", ("proposed_action",), None, ())
+EXECUTED_FIELD = Field("intervention", ("executed_action",), None, ())
+HANDOVER_FIELD = Field("intervention", ("handover",), None, ())
+INTERVENTION_FIELDS = (HUMAN_FIELD, PROPOSED_FIELD, EXECUTED_FIELD, HANDOVER_FIELD)
 
 
 def fields_for(observation_space: gym.Space, action_space: gym.Space, image_codec: str | None = None) -> list[Field]:
@@ -162,7 +172,7 @@ def fields_for(observation_space: gym.Space, action_space: gym.Space, image_code
         for path, dtype, shape in space_leaves(observation_space)
     ]
     fields += [Field("action", path, dtype.newbyteorder("<"), shape) for path, dtype, shape in space_leaves(action_space)]
-    fields += [REWARD_FIELD, TIME_FIELD, Field("info", (), None, ())]
+    fields += [REWARD_FIELD, TIME_FIELD, Field("info", (), None, ()), *INTERVENTION_FIELDS]
     for f in fields:
         if f.dtype is not None and f.dtype.kind not in "biuf":
             raise ImitationError(f"space field {f.topic}: dtype {f.dtype} is not a number or bool")

@@ -30,8 +30,12 @@ from imitation.data.mcap.format import (
     DATASET_METADATA,
     EPISODE_TOPIC,
     EPISODES_METADATA,
+    EXECUTED_FIELD,
     FORMAT_VERSION,
+    HUMAN_FIELD,
+    INTERVENTION_FIELDS,
     MAGIC,
+    PROPOSED_FIELD,
     REWARD_FIELD,
     TIME_FIELD,
     EpisodeFacts,
@@ -60,7 +64,7 @@ from imitation.data.mcap.records import (
     iter_records_with_offsets,
 )
 from imitation.data.spaces import space_from_json
-from imitation.data.types import Episode, Tree, tree_from_leaves
+from imitation.data.types import Episode, Interventions, Tree, stack_samples, tree_from_leaves
 from imitation.errors import DemoFileError, ImitationError
 from imitation.limits import FREE_EXPANSION_BYTES, LIMITS, over_limit
 
@@ -92,6 +96,7 @@ class _EpisodeAssembler:
         # Known facts (from a checked index) by t_end_ns, the marker's log time, which is unique
         # per episode: looking them up is cheaper than parsing each marker's JSON again.
         self._facts_by_end_time = facts_by_end_time or {}
+        self._action_space = action_space
         fields = fields_for(observation_space, action_space)
         self._observation_fields = [f for f in fields if f.kind == "observation"]
         self._action_fields = [f for f in fields if f.kind == "action"]
@@ -141,6 +146,9 @@ class _EpisodeAssembler:
         timestamps = None
         if "/time" in blocks:
             timestamps = rows(TIME_FIELD, steps + 1) - facts.time_shift_ns
+        interventions = None
+        if any(f.topic in blocks for f in INTERVENTION_FIELDS):
+            interventions = _interventions(blocks, steps, self._action_space, facts.index)
         return Episode(
             observations=tree(self._observation_fields, steps + 1),
             actions=tree(self._action_fields, steps),
@@ -149,8 +157,30 @@ class _EpisodeAssembler:
             truncated=facts.truncated,
             infos=infos,
             timestamps=timestamps,
+            interventions=interventions,
             metadata=facts.metadata,
         )
+
+
+def _interventions(
+    blocks: dict[str, list[bytes | memoryview]], steps: int, action_space: gym.Space, episode: int
+) -> Interventions:
+    """An episode's intervention channels: T messages on each per-step channel (§6.7)."""
+
+    def values(f: Field, key: str) -> list[Any]:
+        messages = blocks.get(f.topic, [])
+        if len(messages) != steps:
+            raise ValueError(f"episode {episode}: {f.topic} holds {len(messages)} messages, expected {steps}")
+        return [json.loads(bytes(message))[key] for message in messages]
+
+    human = values(HUMAN_FIELD, "human")
+    if not all(isinstance(value, bool) for value in human):
+        raise ValueError(f"episode {episode}: {HUMAN_FIELD.topic} holds a value that is not true or false")
+    return Interventions(
+        human=np.array(human, dtype=bool).reshape(steps),
+        proposed_actions=stack_samples(values(PROPOSED_FIELD, "action"), action_space),
+        executed_actions=stack_samples(values(EXECUTED_FIELD, "action"), action_space),
+    )
 
 
 def _frames(f: Field, channel: Field, frames: list[bytes | memoryview], count: int, episode: int) -> np.ndarray:

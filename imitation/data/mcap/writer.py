@@ -30,9 +30,13 @@ from imitation.data.mcap.format import (
     EPISODE_SCHEMA,
     EPISODE_TOPIC,
     EPISODES_METADATA,
+    EXECUTED_FIELD,
+    HANDOVER_FIELD,
+    HUMAN_FIELD,
     IMAGE_FORMAT_VERSION,
     PLAIN_FORMAT_VERSION,
     PROFILE,
+    PROPOSED_FIELD,
     EpisodeFacts,
     Field,
     fields_for,
@@ -42,7 +46,7 @@ from imitation.data.mcap.format import (
 from imitation.data.mcap.images import CODECS, DEFAULT_JPEG_QUALITY, IMAGE_ENCODING, encode_frames, schema_data, schema_name
 from imitation.data.mcap.reader import salvageable_episodes
 from imitation.data.spaces import space_to_json
-from imitation.data.types import Episode, check_fits_space, first_nonfinite, tree_leaves
+from imitation.data.types import Episode, Interventions, Tree, check_fits_space, first_nonfinite, tree_leaves
 from imitation.errors import ImitationError
 from imitation.output import OutputLock, check_target, create_exclusive, lstat_kind, os_error
 
@@ -211,8 +215,13 @@ class DemoWriter:
         check_fits_space(episode.observations, self.observation_space, "observations")
         check_fits_space(episode.actions, self.action_space, "actions")
         rewards = np.asarray(episode.rewards, dtype=np.float64)
+        checked = [("observation", episode.observations), ("action", episode.actions), ("reward", rewards)]
+        if episode.interventions is not None:
+            for what in ("proposed_actions", "executed_actions"):
+                check_fits_space(getattr(episode.interventions, what), self.action_space, f"interventions.{what}")
+                checked.append((what.removesuffix("s").replace("_", " "), getattr(episode.interventions, what)))
         if self._finite_only:
-            for what, tree in (("observation", episode.observations), ("action", episode.actions), ("reward", rewards)):
+            for what, tree in checked:
                 if found := first_nonfinite(tree, what):
                     step, name, value = found
                     raise ImitationError(
@@ -250,6 +259,7 @@ class DemoWriter:
         rewards: np.ndarray,
     ) -> EpisodeFacts:
         steps = len(episode)
+        per_step = _intervention_messages(episode.interventions) if episode.interventions is not None else {}
         facts = EpisodeFacts(
             index=len(self._facts),
             length=steps,
@@ -272,11 +282,13 @@ class DemoWriter:
             if episode.infos is not None and start < steps:
                 infos = episode.infos[start : start + self._block_steps]
                 self._add("/info", int(times[start]), to_json_text(infos).encode())
-            # Each frame at its own row's time: after its block group (stamped with the group's
-            # first row), before the next group, row by row across image channels.
+            # Each frame and intervention message at its own row's time: after its block group
+            # (stamped with the group's first row), before the next group, row by row.
             for row in range(start, min(start + self._block_steps, steps + 1)):
                 for f, messages in frames:
                     self._add(f.topic, int(times[row]), messages[row])
+                for topic, message in per_step.get(row, []):
+                    self._add(topic, int(times[row]), message)
         self._add(EPISODE_TOPIC, facts.t_end_ns, to_json_text(facts.to_json()).encode())
         self._facts.append(facts)
         self._next_time_ns = facts.t_end_ns + self._dt_ns
@@ -372,6 +384,26 @@ class DemoWriter:
         # shift one that starts too early, and record the shift so readers can undo it.
         shift = max(0, self._next_time_ns - int(times[0]))
         return times + shift, shift
+
+
+def _intervention_messages(interventions: Interventions) -> dict[int, list[tuple[str, bytes]]]:
+    """Row → its intervention messages (topic, JSON): who drove, both actions, and a hand-over."""
+
+    def row_of(tree: Tree, row: int) -> object:
+        return {key: row_of(sub, row) for key, sub in tree.items()} if isinstance(tree, dict) else tree[row]
+
+    messages = {
+        row: [
+            (HUMAN_FIELD.topic, to_json_text({"human": bool(human)}).encode()),
+            (PROPOSED_FIELD.topic, to_json_text({"action": row_of(interventions.proposed_actions, row)}).encode()),
+            (EXECUTED_FIELD.topic, to_json_text({"action": row_of(interventions.executed_actions, row)}).encode()),
+        ]
+        for row, human in enumerate(interventions.human)
+    }
+    for row, to_human in interventions.handovers():
+        handover = {"step": row, "to": "human" if to_human else "learner"}
+        messages[row].append((HANDOVER_FIELD.topic, to_json_text(handover).encode()))
+    return messages
 
 
 def _clear_partial(partial: Path) -> None:
