@@ -45,6 +45,7 @@ def cmd_record(args: argparse.Namespace) -> int:
         frame_stack=args.frame_stack,
         image_codec=args.image_codec,
         action_noise=args.action_noise,
+        speed=args.speed,
         progress=not args.quiet,
     )
     if args.json:
@@ -735,6 +736,16 @@ def _flag_message(error: ConfigError, command_key: str) -> str:
     return error.renamed(flag) if flag is not None else str(error)
 
 
+def _add_speed(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--speed",
+        type=_speed,
+        default=1.0,
+        metavar="X",
+        help="with --expert keyboard or gamepad: the window runs at X times real time, from 0.125 to 4 (default: 1)",
+    )
+
+
 def _add_resume(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--resume",
@@ -891,6 +902,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="with probability P the env executes a random action while the file stores the expert's (DART): demos of "
         "the states just off the expert's path, labelled (default: 0)",
     )
+    _add_speed(record)
     record.add_argument("--json", action="store_true", help="print one JSON object with the results")
     record.add_argument("--quiet", action="store_true", help="no progress bar")
     record.set_defaults(handler=cmd_record)
@@ -1204,13 +1216,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --mode takeover: train on the steps the expert drove (human), or on all steps, taking the learner's "
         "actions the expert let pass as labels (all) (default: human)",
     )
-    dagger.add_argument(
-        "--speed",
-        type=_speed,
-        default=1.0,
-        metavar="X",
-        help="a person's window runs at X times real time (default: 1; 0.5 is half speed)",
-    )
+    _add_speed(dagger)
     dagger.add_argument("--demos", nargs="+", metavar="F.mcap", help="expert demos to start from (optional)")
     dagger.add_argument("--rounds", type=int, default=5, metavar="R", help="rounds (default: 5)")
     dagger.add_argument("--episodes-per-round", type=int, default=5, metavar="N", help="rollouts per round (default: 5)")

@@ -10,17 +10,29 @@
 its own state distribution and the expert says what it should have done there, which is what
 removes BC's compounding error (the notes' O(εT²) → O(εT)).
 
-Each round's labelled rollouts are written as an MCAP demo file (round-NN.mcap) whose actions
-are the expert's labels, so the aggregate dataset stays on disk and can be reloaded; the
-episodes' metadata record the round, β and which steps the expert actually drove.
+Take-over mode (HG-DAgger, Kelly et al. 2019; docs/THEORY.md §5.2), for an expert that can
+take the controls (a person, `imitation.experts.standin.StandIn`):
+
+    a_t = π*(s_t) while the expert is engaged, else π̂_i(s_t);   D_i = {(s_t, π*(s_t)) : the expert drove t}
+
+Round 1 already has a learner to correct (the untrained policy, or BC on the demos). With
+`label="all"` the steps the learner drove join D_i with its own actions as labels.
+
+Each round's rollouts are written, episode by episode, as an MCAP demo file (round-NN.mcap)
+whose actions are the expert's labels (take-over: the executed actions) and whose intervention
+channels record who drove each step, the learner's proposed and the executed action, with
+wall-clock times (docs/FORMAT.md §6.7); the episodes' metadata record the round, β and how many
+steps the expert drove. A round stopped midway (Ctrl-C twice, Esc in a person's window, a kill)
+keeps its finished episodes; the resumed run keeps them and plays the rest of the round.
 
 With pixel observations the learner acts on stacks of frames (`StackFrames`) while a round file
 holds single frames, the newest of each stack, and BC restacks them (`stack_frames`): what the
 learner trains on is exactly what it saw.
 
 The state saved after a round is the learner, the β-mixture's generator, the label count and
-the finished rounds' file names; a resumed run goes on with the next round and trains on the
-finished rounds' files as they are. Each round's BC starts afresh from
+the finished rounds' file names; a resumed run goes on with the next round (from its finished
+episodes, with the mixture's draws they took skipped) and trains on the finished rounds' files
+as they are. Each round's BC starts afresh from
 its seed (a new optimiser, the normaliser refitted), and rollouts are reset with seeds fixed by
 the round, so the resumed run ends exactly where an uninterrupted one does, as long as the
 expert is deterministic (`random` and tabular soft-optimal experts restart their generators).
@@ -397,6 +409,8 @@ class DAgger:
             )
             if validation is not None and len(validation) == 0:
                 validation = None
+            if len(train) == 0:  # the expert has not taken over yet: nothing to learn from
+                return self.policy, float("nan")
         cloning = BehaviouralCloning(self.policy, train, validation, bc)
         losses = [row["validation_loss"] for row in fit(cloning) if np.isfinite(row["validation_loss"])]
         return cloning.policy, min(losses) if losses else float("nan")

@@ -15,6 +15,7 @@ from imitation.experts.sb3 import load_sb3_expert
 from imitation.experts.scripted import scripted_expert
 from imitation.experts.standin import StandIn
 from imitation.experts.tabular import SoftOptimalExpert
+from imitation.experts.window import ExpertWindow
 from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
 
 Policy = Callable[[Any], Any]
@@ -70,3 +71,9 @@ def load_expert(spec: str, env: gym.Env, *, seed: int, speed: float = 1.0) -> Po
         action_space.seed(seed)
         return lambda observation: action_space.sample()
     raise ImitationError(f"--expert {spec!r}: expected one of {', '.join(EXPERT_SPECS)}")
+
+
+def close_expert(expert: Policy) -> None:
+    """Close a person's window; the other experts hold nothing to close."""
+    if isinstance(expert, ExpertWindow):
+        expert.close()

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import os
-from contextlib import closing, nullcontext
-from typing import Any, Protocol, runtime_checkable
+from contextlib import ExitStack
+from typing import Any
 
 from imitation.algorithms.bc import policy_options
 from imitation.algorithms.dagger import DAgger, DAggerConfig
@@ -13,17 +13,12 @@ from imitation.envs.pixels import PIXELS_KEY, PixelObservation, PixelRecipe, Sta
 from imitation.errors import ConfigError
 from imitation.evaluation.plots import plot_curve
 from imitation.evaluation.policy import EVAL_SEED, evaluate_policy
-from imitation.experts.load import load_expert, make_env_for_expert
+from imitation.experts.load import close_expert, load_expert, make_env_for_expert
 from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
 from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy, policy_tensors
 from imitation.seeding import seed_everything
-
-
-@runtime_checkable
-class SupportsClose(Protocol):
-    def close(self) -> None: ...
 
 
 def dagger_job(
@@ -95,12 +90,9 @@ def dagger_job(
         dagger=config_json(config),
         policy=policy.config.to_json(),
     )
-    window = expert if isinstance(expert, SupportsClose) else None  # a person's window
-    with (
-        closing(env),
-        closing(window) if window is not None else nullcontext(),
-        training_run(out, run_config, x_axis="round", resume=resume) as run,
-    ):
+    with ExitStack() as cleanup, training_run(out, run_config, x_axis="round", resume=resume) as run:
+        cleanup.callback(env.close)
+        cleanup.callback(close_expert, expert)  # a person's window
         learner = DAgger(
             env,
             expert,

@@ -12,7 +12,7 @@ from imitation.envs.action_noise import ActionNoise
 from imitation.envs.make import control_period
 from imitation.envs.pixels import PixelObservation, PixelRecipe, expert_on_state
 from imitation.errors import ConfigError, ImitationError
-from imitation.experts.load import load_expert, make_env_for_expert
+from imitation.experts.load import close_expert, load_expert, make_env_for_expert
 
 
 def record_job(
@@ -27,6 +27,7 @@ def record_job(
     frame_stack: int = 1,
     image_codec: str = "png",
     action_noise: float = 0.0,
+    speed: float = 1.0,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Record `episodes` episodes of `expert_spec` in `env_id` (episode i reset with seed
@@ -39,7 +40,8 @@ def record_job(
 
     With `action_noise` ε the env executes a random action with probability ε while the file
     stores the expert's action at every step (`ActionNoise`, DART): demos of the states next to
-    the expert's path, labelled."""
+    the expert's path, labelled. A person's window (`--expert keyboard|gamepad`) runs at `speed`
+    times real time and is closed at the end."""
     out = Path(out)
     if out.is_dir():
         raise ImitationError(f"--out {out}: is a directory; give a file name such as {out / 'demos.mcap'}")
@@ -52,8 +54,9 @@ def record_job(
     if frame_stack > 1 and pixels is None:
         raise ConfigError("frame_stack", "stacks rendered frames: give --pixels too", owner="record")
     env = make_env_for_expert(env_id, expert_spec, pixels=pixels is not None)
+    policy = None
     try:
-        policy = load_expert(expert_spec, env, seed=seed)
+        policy = load_expert(expert_spec, env, seed=seed, speed=speed)
         metadata: dict[str, Any] = {"expert": expert_spec, "seed": seed}
         if pixels is not None:
             env = PixelObservation(env, pixels)
@@ -88,6 +91,8 @@ def record_job(
             ) from None
     finally:
         env.close()
+        if policy is not None:
+            close_expert(policy)
     return {
         "out": str(out),
         "env_id": env_id,

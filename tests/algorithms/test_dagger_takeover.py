@@ -291,3 +291,15 @@ def test_train_bc_on_the_steps_a_person_drove(tmp_path: Path) -> None:
     assert 0 < person < DemoFile(driven).num_transitions
     assert metrics["train_transitions"] + metrics["validation_transitions"] == person
     assert_one_line_error(refused, f"{untouched}: no step of the training episodes was driven by a person")
+
+
+def test_a_round_in_which_the_expert_never_takes_over_keeps_the_learner_as_it_was(tmp_path: Path) -> None:
+    env = gym.make("CartPole-v1")
+    bc = BCConfig(epochs=5, patience=5, hidden_sizes=[8], seed=0, device="cpu")
+    policy = make_policy(env.observation_space, env.action_space, **policy_options(bc))
+    before = {name: tensor.clone() for name, tensor in policy.state_dict().items()}
+    config = DAggerConfig(rounds=1, episodes_per_round=2, mode="takeover", seed=0, bc=bc)
+    dagger = DAgger(env, StandIn("CartPole-v1", engage=1.0), policy, config, round_dir=tmp_path / "rounds", env_id="CartPole-v1")
+    (row,) = run(dagger)
+    assert row["expert_labels"] == 0 and row["intervention_rate"] == 0 and np.isnan(row["validation_loss"])
+    assert all(np.array_equal(before[name], tensor) for name, tensor in dagger.policy.state_dict().items())
