@@ -8,6 +8,7 @@ from typing import Any
 
 from imitation.algorithms.bc import policy_options
 from imitation.algorithms.dagger import DAgger, DAggerConfig
+from imitation.checkpoints import snapshot
 from imitation.data.dataset import DemoDataset
 from imitation.envs.pixels import PIXELS_KEY, PixelObservation, PixelRecipe, StackFrames, expert_on_state
 from imitation.errors import ConfigError
@@ -104,6 +105,8 @@ def dagger_job(
             evaluate=env_return,
             metadata=metadata,
         )
+        if not resume:  # a round can be stopped midway, the first one too: --resume then starts from here
+            run.save_checkpoint(*snapshot(*learner.state_dict()))
         run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
         run.save_weights(policy_tensors(learner.policy.cpu()))
         plot_curve(

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -206,8 +205,18 @@ def test_cli_takeover_dagger_with_the_standin_reaches_475_as_interventions_fall(
 
 # -- a kill or Ctrl-C in the middle of a round ----------------------------------------------------
 
-ROUND_ARGS = ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--rounds", "2", "--episodes-per-round", "60", "--epochs", "2",
-              "--hidden", "16", "--seed", "0", "--quiet", "--json"]
+EPISODES = 150  # round 2 lasts seconds: long enough to be stopped after its third episode
+ROUND_ARGS = ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--rounds", "2", "--episodes-per-round", str(EPISODES),
+              "--epochs", "2", "--hidden", "16", "--seed", "0", "--quiet", "--json"]
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory: pytest.TempPathFactory) -> list[Episode]:
+    """Round 2 of the run that nothing stopped."""
+    out = tmp_path_factory.mktemp("whole") / "run"
+    result = run_cli(*ROUND_ARGS, "--out", str(out), timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert result.returncode == 0, result.stderr[-3000:]
+    return DemoFile(out / "rounds" / "round-02.mcap").read_episodes()
 
 
 def start(*args: str) -> subprocess.Popen:
@@ -236,7 +245,9 @@ def stop_mid_round(process: subprocess.Popen, partial: Path, stop: str) -> None:
 
 
 @pytest.mark.parametrize("stop", ["kill", "ctrl-c"])
-def test_a_round_stopped_midway_keeps_its_finished_episodes_and_resume_completes_it_as_if_uninterrupted(tmp_path: Path, stop: str) -> None:
+def test_a_round_stopped_midway_keeps_its_finished_episodes_and_resume_completes_it_as_if_uninterrupted(
+    tmp_path: Path, stop: str, uninterrupted: list[Episode]
+) -> None:
     """kill -9 leaves round-02.mcap.partial, a double Ctrl-C closes round-02.mcap with the finished
     episodes; either way --resume keeps them (bit-exact, first in the round) and runs the rest of
     the round, its β-mixture draws included, as the uninterrupted run does."""
@@ -251,21 +262,17 @@ def test_a_round_stopped_midway_keeps_its_finished_episodes_and_resume_completes
         assert process.returncode == 130
         assert not (rounds / "round-02.mcap.partial").exists()
         kept = DemoFile(rounds / "round-02.mcap").read_episodes()
-    assert 3 <= len(kept) < 60
+    assert 3 <= len(kept) < EPISODES
     resumed = run_cli(*ROUND_ARGS, "--out", str(out), "--resume", timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     final = DemoFile(out / "rounds" / "round-02.mcap").read_episodes()
-    assert len(final) == 60 and not (out / "rounds" / "round-02.mcap.partial").exists()
+    assert len(final) == EPISODES and not (out / "rounds" / "round-02.mcap.partial").exists()
     for before, after in zip(kept, final):
         np.testing.assert_array_equal(before.observations, after.observations)
         np.testing.assert_array_equal(before.timestamps, after.timestamps)
-    uninterrupted = run_cli(*ROUND_ARGS, "--out", str(tmp_path / "whole"), timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
-    assert uninterrupted.returncode == 0, uninterrupted.stderr[-3000:]
-    whole = DemoFile(tmp_path / "whole" / "rounds" / "round-02.mcap").read_episodes()
-    for ours, theirs in zip(final, whole, strict=True):
+    for ours, theirs in zip(final, uninterrupted, strict=True):
         np.testing.assert_array_equal(ours.observations, theirs.observations)
         np.testing.assert_array_equal(ours.interventions.human, theirs.interventions.human)
-    shutil.rmtree(tmp_path / "whole")
 
 
 def test_train_bc_on_the_steps_a_person_drove(tmp_path: Path) -> None:
@@ -303,3 +310,18 @@ def test_a_round_in_which_the_expert_never_takes_over_keeps_the_learner_as_it_wa
     (row,) = run(dagger)
     assert row["expert_labels"] == 0 and row["intervention_rate"] == 0 and np.isnan(row["validation_loss"])
     assert all(np.array_equal(before[name], tensor) for name, tensor in dagger.policy.state_dict().items())
+
+
+def test_a_first_round_killed_midway_resumes_from_the_start_of_the_run_with_its_finished_episodes(tmp_path: Path) -> None:
+    """The run's first checkpoint is written before round 1, so --resume works from there too."""
+    out = tmp_path / "first"
+    args = [*ROUND_ARGS[:6], "--rounds", "1", "--episodes-per-round", "40", *ROUND_ARGS[10:], "--out", str(out)]
+    process = start(*args)
+    stop_mid_round(process, tmp_path / "first.partial" / "rounds" / "round-01.mcap.partial", "kill")
+    kept = DemoFile(tmp_path / "first.partial" / "rounds" / "round-01.mcap.partial", salvage=True).read_episodes()
+    resumed = run_cli(*args, "--resume", timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    final = DemoFile(out / "rounds" / "round-01.mcap").read_episodes()
+    assert 3 <= len(kept) < 40 == len(final)
+    for before, after in zip(kept, final):
+        np.testing.assert_array_equal(before.timestamps, after.timestamps)
