@@ -13,6 +13,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
+from imitation.data.mcap.format import DEFAULT_COMPRESSION
 from imitation.data.mcap.reader import DemoFile
 from imitation.data.mcap.writer import DemoWriter
 from imitation.errors import ImitationError
@@ -24,7 +25,7 @@ _TAIL_ONLY = ("truncated", "an incomplete episode after the last complete one")
 
 
 def recover_partial(
-    partial: str | os.PathLike, out: str | os.PathLike | None = None, *, compression: str = "zstd"
+    partial: str | os.PathLike, out: str | os.PathLike | None = None, *, compression: str = DEFAULT_COMPRESSION
 ) -> dict[str, Any]:
     """Write the complete episodes of `partial` to `out` (default: its name without
     `.partial`) and describe what was recovered."""

@@ -83,7 +83,9 @@ class ExpertWindow(ABC):
         self.pygame = load_pygame(expert)
         self.pygame.display.init()
         self.pygame.font.init()
-        self._fonts = [self.pygame.font.Font(None, size) for size in (30, 21, 19, 19)]  # pygame's bundled font
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # pygame's bundled font is found through the deprecated pkg_resources
+            self._fonts = [self.pygame.font.Font(None, size) for size in (30, 21, 19, 19)]
         self._clock = self.pygame.time.Clock()
         self._frame: Any = None  # the last env frame, scaled: redrawn while paused
         self._screen: Any = None  # created at the first frame, when its size is known

@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from imitation.data.mcap.format import DEFAULT_COMPRESSION
 from imitation.data.mcap.writer import DemoWriter
 from imitation.data.recorder import RecordEpisodes, run_episodes
 from imitation.envs.action_noise import ActionNoise
@@ -22,7 +23,7 @@ def record_job(
     *,
     episodes: int,
     seed: int = 0,
-    compression: str = "zstd",
+    compression: str = DEFAULT_COMPRESSION,
     pixels: PixelRecipe | None = None,
     frame_stack: int = 1,
     image_codec: str = "png",

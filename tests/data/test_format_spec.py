@@ -1,8 +1,8 @@
 """docs/FORMAT.md is enough to read our files: an independent reader, written from the spec alone.
 
 The reading side below uses only the generic `mcap` library (`make_reader`, `iter_metadata`,
-`iter_messages`), numpy, json, zlib and, for the salvage scan, struct and zstandard. Nothing from
-`imitation.data.mcap` or `imitation.data.spaces` is imported for reading: `DemoWriter` only
+`iter_messages`), numpy, json, zlib and, for the salvage scan, struct, zstandard and lz4. Nothing from
+`imitation.data.mcap` or `imitation.data.spaces` is imported for reading (lz4.frame decodes LZ4 chunks there): `DemoWriter` only
 produces the files under test, and the expected values are the arrays and gymnasium spaces the
 test itself built. Section numbers (§) refer to docs/FORMAT.md.
 """
@@ -19,6 +19,7 @@ from typing import Any, Iterator
 import gymnasium as gym
 import numpy as np
 import pytest
+import lz4.frame
 import zstandard
 from mcap.reader import make_reader
 
@@ -262,7 +263,10 @@ def salvage_spec_file(data: bytes) -> tuple[dict[str, str], list[ReadEpisode], s
                 compression, p = _string(body, 28)
                 (n,) = struct.unpack_from("<Q", body, p)
                 raw = body[p + 8 : p + 8 + n]
-                content = zstandard.ZstdDecompressor().decompress(raw, max_output_size=size) if compression == "zstd" else raw
+                if compression == "zstd":
+                    content = zstandard.ZstdDecompressor().decompress(raw, max_output_size=size)
+                else:
+                    content = lz4.frame.decompress(raw) if compression == "lz4" else raw
                 if len(content) != size or (crc and zlib.crc32(content) != crc):
                     raise SpecError("bad chunk")
                 q = 0
@@ -281,7 +285,7 @@ def salvage_spec_file(data: bytes) -> tuple[dict[str, str], list[ReadEpisode], s
                             episodes.append(done)
             elif opcode in (0x0F, 0x02):  # DataEnd, Footer
                 break
-    except (SpecError, KeyError, struct.error, zstandard.ZstdError) as error:
+    except (SpecError, KeyError, struct.error, zstandard.ZstdError, RuntimeError) as error:  # RuntimeError: lz4's
         if dataset is None or isinstance(error, SpecError) and "dataset" in str(error):
             raise
         damage = str(error)
@@ -544,7 +548,7 @@ def test_salvage_scan_of_a_killed_durable_writer(tmp_path: Path) -> None:
     assert damage == "truncated" and len(episodes) == 1
     _assert_episode_matches(episodes[0], case.episodes[0], 0)
 
-    # A flipped bit inside the second chunk's compressed data: CRC or zstd catches it.
+    # A flipped bit inside the second chunk's compressed data: CRC or the codec catches it.
     damaged = bytearray(snapshot)
     damaged[chunk_offsets[1] + 80] ^= 0x10
     _, episodes, damage = salvage_spec_file(bytes(damaged))
