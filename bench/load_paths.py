@@ -16,11 +16,12 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import resource
-import struct
 import sys
 import time
 from pathlib import Path
+from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
@@ -37,9 +38,6 @@ Tensors = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
 LEROBOT_COLUMNS = ["observation.state", "action", "next.reward", "next.done"]
 NPY_NAMES = ["observations", "actions", "rewards", "dones"]
 
-_OP_CHUNK, _OP_DATA_END = 0x06, 0x0F
-_RECORD_HEADER = struct.Struct("<BQ")
-_CHUNK_HEADER = struct.Struct("<QQQII")  # start time, end time, uncompressed size, crc, compression length
 
 
 def _load_ours(file: Path) -> Tensors:
@@ -53,8 +51,13 @@ def _load_ours(file: Path) -> Tensors:
 
 
 def load_ours(data: Path) -> Tensors:
-    """Our default file: zstd-compressed chunks."""
+    """Our default file: LZ4-compressed chunks."""
     return _load_ours(data / "ours.mcap")
+
+
+def load_ours_zstd(data: Path) -> Tensors:
+    """The same episodes written with `compression="zstd"`."""
+    return _load_ours(data / "ours-zstd.mcap")
 
 
 def load_ours_plain(data: Path) -> Tensors:
@@ -117,29 +120,49 @@ def load_npy(data: Path) -> Tensors:
     return tuple(torch.from_numpy(np.load(data / "npy" / f"{name}.npy")) for name in NPY_NAMES)  # type: ignore[return-value]
 
 
-def zstd_floor(data: Path) -> int:
-    """Read our MCAP file and zstd-decompress every chunk's payload; nothing else. Returns bytes out."""
+def _chunk_payloads(file: Path) -> list[tuple[int, int, int]]:
+    """(offset, length, uncompressed size) of every chunk's compressed payload, from the summary's
+    chunk index, as ours finds them. A Chunk record is opcode and length (9 bytes), start and end
+    time, uncompressed size (8 each), CRC (4), the compression name (4 + n) and the payload's length (8)."""
+    from mcap.reader import make_reader
+
+    with open(file, "rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    return [
+        (
+            index.chunk_start_offset + 9 + 28 + 4 + len(index.compression) + 8,
+            index.compressed_size,
+            index.uncompressed_size,
+        )
+        for index in summary.chunk_indexes
+    ]
+
+
+def floor(data: Path, codec: str) -> int:
+    """Read every chunk payload of our file with that codec and decompress it; nothing else.
+    As ours does: each chunk read by pread and decompressed on a pool of min(chunks, cores, 8)
+    threads (both codecs release the GIL). Returns the bytes decompressed."""
+    import lz4.frame
     import zstandard
 
-    buffer = memoryview((data / "ours.mcap").read_bytes())
-    decompressor = zstandard.ZstdDecompressor()
-    produced = 0
-    offset = 8  # past the magic
-    while True:
-        opcode, length = _RECORD_HEADER.unpack_from(buffer, offset)
-        body = offset + _RECORD_HEADER.size
-        if opcode == _OP_DATA_END:
-            return produced
-        if opcode == _OP_CHUNK:
-            _, _, size, _, name_length = _CHUNK_HEADER.unpack_from(buffer, body)
-            start = body + _CHUNK_HEADER.size + name_length + 8
-            (payload_length,) = struct.unpack_from("<Q", buffer, start - 8)
-            produced += len(decompressor.decompress(buffer[start : start + payload_length], max_output_size=size))
-        offset = body + length
+    file = data / ("ours.mcap" if codec == "lz4" else "ours-zstd.mcap")
+    chunks = _chunk_payloads(file)
+
+    def decompress(fd: int, chunk: tuple[int, int, int]) -> int:
+        offset, length, size = chunk
+        payload = os.pread(fd, length, offset)
+        if codec == "lz4":
+            return len(lz4.frame.decompress(payload))
+        return len(zstandard.ZstdDecompressor().decompress(payload, max_output_size=size))
+
+    with open(file, "rb") as stream, ThreadPoolExecutor(max_workers=min(len(chunks), os.cpu_count() or 1, 8) or 1) as pool:
+        return sum(pool.map(lambda chunk: decompress(stream.fileno(), chunk), chunks))
 
 
 FULL_PATHS: dict[str, Callable[[Path], Tensors]] = {
     "ours": load_ours,
+    "ours-zstd": load_ours_zstd,
     "ours-plain": load_ours_plain,
     "lerobot-hf-torch": load_lerobot_hf_torch,
     "lerobot-hf-numpy": load_lerobot_hf_numpy,
@@ -152,8 +175,10 @@ FULL_PATHS: dict[str, Callable[[Path], Tensors]] = {
 _LEROBOT_IMPORTS = ("lerobot.datasets.lerobot_dataset", "pyarrow.parquet")
 IMPORTS: dict[str, tuple[str, ...]] = {
     "ours": ("imitation.data.loader",),
+    "ours-zstd": ("imitation.data.loader",),
     "ours-plain": ("imitation.data.loader",),
-    "zstd-floor": ("zstandard",),
+    "lz4-floor": ("lz4.frame", "zstandard", "mcap.reader"),
+    "zstd-floor": ("lz4.frame", "zstandard", "mcap.reader"),
     **{name: _LEROBOT_IMPORTS for name in FULL_PATHS if name.startswith("lerobot")},
     "lerobot-item": _LEROBOT_IMPORTS,
 }
@@ -187,7 +212,7 @@ def matches_reference(data: Path, tensors: Tensors) -> bool:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("method", choices=[*FULL_PATHS, "lerobot-item", "zstd-floor"])
+    parser.add_argument("method", choices=[*FULL_PATHS, "lerobot-item", "lz4-floor", "zstd-floor"])
     parser.add_argument("data", type=Path)
     parser.add_argument("--sample", type=int, default=20_000, help="items read by lerobot-item")
     args = parser.parse_args()
@@ -214,8 +239,8 @@ def main() -> None:
         )
     else:
         start = clock()
-        if args.method == "zstd-floor":
-            result["decompressed_bytes"] = zstd_floor(args.data)
+        if args.method.endswith("-floor"):
+            result["decompressed_bytes"] = floor(args.data, args.method.removesuffix("-floor"))
         else:
             tensors = FULL_PATHS[args.method](args.data)
         end = clock()

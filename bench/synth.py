@@ -4,7 +4,8 @@ Run as a script (a subprocess of bench/load.py) to generate one data set:
 
     python bench/synth.py OUT_DIR --episodes 1000 --steps 1000 --seed 0
 
-It writes OUT_DIR/ours.mcap (DemoWriter), OUT_DIR/lerobot/ (a finalized LeRobotDataset v3.0),
+It writes our demo file once per chunk compression (DemoWriter: OUT_DIR/ours.mcap with LZ4, the
+default, ours-zstd.mcap and ours-plain.mcap), OUT_DIR/lerobot/ (a finalized LeRobotDataset v3.0),
 OUT_DIR/npy/*.npy (the raw transition arrays) and, last, OUT_DIR/manifest.json holding write
 times and on-disk sizes. bench/load.py treats a directory with a manifest as complete.
 """
@@ -72,7 +73,11 @@ def make_rollouts(episodes: int, steps: int, seed: int) -> Rollouts:
     return Rollouts(observations, actions, rewards)
 
 
-def write_ours(rollouts: Rollouts, path: Path, compression: str = "zstd") -> float:
+# Our file per chunk compression: the default (LZ4) under the plain name.
+OURS = {"ours": "lz4", "ours-zstd": "zstd", "ours-plain": "none"}
+
+
+def write_ours(rollouts: Rollouts, path: Path, compression: str) -> float:
     """Write with `write_episodes`; returns the seconds it took (Episode objects are views, built inside)."""
     import gymnasium as gym
 
@@ -172,14 +177,13 @@ def generate(out: Path, episodes: int, steps: int, seed: int) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     rollouts = make_rollouts(episodes, steps, seed)
     # A previous run killed half-way leaves partial outputs; LeRobot refuses an existing root.
-    for stale in (out / "ours.mcap", out / "ours-plain.mcap", out / "npy", out / "lerobot"):
+    for stale in (*(out / f"{name}.mcap" for name in OURS), out / "npy", out / "lerobot"):
         if stale.is_dir():
             shutil.rmtree(stale)
         else:
             stale.unlink(missing_ok=True)
     seconds = {
-        "ours": write_ours(rollouts, out / "ours.mcap"),
-        "ours-plain": write_ours(rollouts, out / "ours-plain.mcap", compression="none"),
+        **{name: write_ours(rollouts, out / f"{name}.mcap", compression) for name, compression in OURS.items()},
         "lerobot": write_lerobot(rollouts, out / "lerobot"),
         "npy": write_npy(rollouts, out / "npy"),
     }
@@ -189,9 +193,9 @@ def generate(out: Path, episodes: int, steps: int, seed: int) -> dict:
         "seed": seed,
         "transitions": episodes * steps,
         "write_seconds": seconds,
+        "compression": OURS,
         "bytes": {
-            "ours": tree_size(out / "ours.mcap"),
-            "ours-plain": tree_size(out / "ours-plain.mcap"),
+            **{name: tree_size(out / f"{name}.mcap") for name in OURS},
             "lerobot": tree_size(out / "lerobot"),
             "lerobot_data_parquet": tree_size(out / "lerobot" / "data"),
             "npy": tree_size(out / "npy"),
@@ -201,13 +205,19 @@ def generate(out: Path, episodes: int, steps: int, seed: int) -> dict:
     return manifest
 
 
-def add_plain(out: Path) -> dict:
-    """Add the uncompressed copy of our file to a data set generated before it existed (without
-    redoing LeRobot's slow recording), and record its write time and size in the manifest."""
+def update_ours(out: Path) -> dict:
+    """Rewrite those of our files that a data set generated earlier lacks or holds with another
+    compression (ours.mcap was zstd before LZ4 became the default), without redoing LeRobot's slow
+    recording; their write times and sizes go into the manifest."""
     manifest = json.loads((out / "manifest.json").read_text())
     rollouts = make_rollouts(manifest["episodes"], manifest["steps"], manifest["seed"])
-    manifest["write_seconds"]["ours-plain"] = write_ours(rollouts, out / "ours-plain.mcap", compression="none")
-    manifest["bytes"]["ours-plain"] = tree_size(out / "ours-plain.mcap")
+    held = manifest.get("compression", {"ours": "zstd", "ours-plain": "none"})
+    for name, compression in OURS.items():
+        if held.get(name) != compression or not (out / f"{name}.mcap").exists():
+            (out / f"{name}.mcap").unlink(missing_ok=True)
+            manifest["write_seconds"][name] = write_ours(rollouts, out / f"{name}.mcap", compression)
+            manifest["bytes"][name] = tree_size(out / f"{name}.mcap")
+    manifest["compression"] = OURS
     (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
     return manifest
 
@@ -218,12 +228,12 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, required=True)
     parser.add_argument("--steps", type=int, required=True)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--plain-only", action="store_true", help="only add ours-plain.mcap to an existing data set")
+    parser.add_argument("--ours-only", action="store_true", help="only bring our files of an existing data set up to date")
     args = parser.parse_args()
     if os.environ.get("HF_HUB_OFFLINE") != "1":
         sys.exit("synth.py: run it through bench/load.py, which keeps Hugging Face libraries offline")
-    if args.plain_only:
-        print(json.dumps(add_plain(args.out)))
+    if args.ours_only:
+        print(json.dumps(update_ours(args.out)))
     else:
         print(json.dumps(generate(args.out, args.episodes, args.steps, args.seed)))
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from io import BytesIO
 from typing import Any
 
+import lz4.frame
 import numpy as np
 import zstandard
 from mcap.data_stream import ReadDataStream
@@ -119,10 +120,8 @@ def decode_chunk(record: memoryview, out: memoryview | None = None) -> memoryvie
         except zstandard.ZstdError as error:
             raise Damage(f"zstd cannot decompress it ({error})") from None
     elif header.compression == "lz4":
-        import lz4.frame  # only files from other writers use lz4
-
         try:
-            content = lz4.frame.decompress(bytes(compressed))
+            content = lz4.frame.decompress(compressed)
         except RuntimeError as error:
             raise Damage(f"lz4 cannot decompress it ({error})") from None
     else:
