@@ -69,6 +69,13 @@ def intervention_rate(demo: DemoFile) -> dict[str, float] | None:
     return {"steps": steps, "human_steps": human_steps, "rate": human_steps / steps if steps else 0.0, "takeovers": takeovers}
 
 
+def _person_drove(rate: dict[str, float]) -> str:
+    return (
+        f"person drove {rate['human_steps']} of {rate['steps']} steps ({100 * rate['rate']:.1f} %), "
+        f"{rate['takeovers']} take-overs"
+    )
+
+
 def round_files(run_directory: str | os.PathLike) -> list[Path]:
     """A DAgger run directory's round files, in order (empty for any other directory)."""
     return sorted(Path(run_directory).glob("rounds/round-*.mcap"))
@@ -79,12 +86,7 @@ def format_rounds(summaries: list[dict[str, Any]]) -> str:
     lines = []
     for summary in summaries:
         rate = summary["interventions"]
-        drove = (
-            f"person drove {rate['human_steps']} of {rate['steps']} steps ({100 * rate['rate']:.1f} %), "
-            f"{rate['takeovers']} take-overs"
-            if rate
-            else "no intervention channels"
-        )
+        drove = _person_drove(rate) if rate else "no intervention channels"
         mean_return = summary["return"]["mean"] if summary["return"] else float("nan")
         lines.append(f"{Path(summary['file']).name}:  {summary['episodes']} episodes, return {mean_return:.1f};  {drove}")
     return "\n".join(lines)
@@ -113,10 +115,7 @@ def format_summary(summary: dict[str, Any]) -> str:
     ]
     if summary["interventions"]:
         rate = summary["interventions"]
-        lines.append(
-            f"interventions: a person drove {rate['human_steps']} of {rate['steps']} steps ({100 * rate['rate']:.1f} %), "
-            f"{rate['takeovers']} take-overs"
-        )
+        lines.append(f"interventions: a {_person_drove(rate)}")
     if summary["damage"]:
         lines.append(f"DAMAGED:       {summary['damage']}; salvaged {summary['salvaged']} complete episodes")
     return "\n".join(lines)

@@ -281,14 +281,14 @@ def _split(
     if validation_ids or not offline or config.validation_fraction == 0:
         train = chosen(train_ids, transitions_to_torch(load(train_ids)))
         validation = chosen(validation_ids, transitions_to_torch(load(validation_ids))) if validation_ids else None
-        if not len(train):
-            raise ImitationError(f"{dataset.files[0].path}: no step of the training episodes was driven by a person")
+        _check_some_training(dataset, len(train))
         return train, validation, {"train_episodes": train_ids, "validation_episodes": validation_ids}
     every = load()
     train_rows, validation_rows = split_episode_tails(every, validation_fraction=config.validation_fraction)
     if config.steps == "human":
         person = human_steps(dataset, range(len(dataset)))
         train_rows, validation_rows = train_rows[person[train_rows]], validation_rows[person[validation_rows]]
+        _check_some_training(dataset, len(train_rows))
     tensors = transitions_to_torch(every)
     validation = tensors.select(torch.from_numpy(validation_rows)) if len(validation_rows) else None
     return (
@@ -300,6 +300,12 @@ def _split(
             "validation_transitions": len(validation_rows),
         },
     )
+
+
+def _check_some_training(dataset: DemoDataset, transitions: int) -> None:
+    """Refuse training on nothing: what is left when `--steps human` finds no person's step."""
+    if not transitions:
+        raise ImitationError(f"{dataset.files[0].path}: no step of the training episodes was driven by a person")
 
 
 def _transitions(data: TransitionTensors | StreamingLoader) -> int:
