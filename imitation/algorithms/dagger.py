@@ -50,14 +50,20 @@ from typing import Any, Protocol, cast
 
 import gymnasium as gym
 import numpy as np
-import torch
 
 from imitation.algorithms.bc import BCConfig, BehaviouralCloning, fit
 from imitation.checkpoints import CheckpointData, checked_counter, prefixed, restoring, unprefixed
 from imitation.data.dataset import DemoDataset
-from imitation.data.loader import TransitionTensors, human_steps, load_transitions, split_episodes, transitions_to_torch
+from imitation.data.loader import (
+    TransitionTensors,
+    load_transitions,
+    select_human_steps,
+    split_episodes,
+    transitions_to_torch,
+)
 from imitation.data.mcap.reader import DemoFile
-from imitation.data.mcap.writer import DemoWriter, write_episodes
+from imitation.data.mcap.writer import DemoWriter
+from imitation.data.recover import PARTIAL_SUFFIX, recover_partial
 from imitation.data.types import Episode, Interventions, stack_samples
 from imitation.envs.make import control_period
 from imitation.envs.pixels import StackFrames, stack_frames
@@ -205,26 +211,16 @@ def collect_round(
 def finished_episodes(path: Path) -> list[Episode]:
     """The episodes an interrupted try of a round finished: those of `path` (closed on Ctrl-C)
     or of `path`.partial (left by a killed process), whichever holds more. A partial with more
-    becomes `path` first, so that nothing is lost if this run is killed too."""
-    partial = path.with_name(path.name + ".partial")
-    kept = DemoFile(path).read_episodes() if path.exists() else []
+    is recovered into `path` first; it begins with `path`'s episodes, so dropping `path` before
+    that loses nothing even if this run is killed too."""
+    partial = path.with_name(path.name + PARTIAL_SUFFIX)
     if partial.exists():
-        salvaged = DemoFile(partial, salvage=True)
-        if len(salvaged) > len(kept):
-            kept = salvaged.read_episodes()
-            write_episodes(
-                path,
-                kept,
-                env_id=salvaged.env_id,
-                observation_space=salvaged.observation_space,
-                action_space=salvaged.action_space,
-                dt=salvaged.dt,
-                source=salvaged.source,
-                metadata=salvaged.user_metadata,
-                temporary=path.with_name(path.name + ".recovering"),
-            )
-        partial.unlink()
-    return kept
+        if len(DemoFile(partial, salvage=True)) > (len(DemoFile(path)) if path.exists() else 0):
+            path.unlink(missing_ok=True)
+            recover_partial(partial, path)
+        else:
+            partial.unlink()
+    return DemoFile(path).read_episodes() if path.exists() else []
 
 
 class DAgger:
@@ -402,11 +398,10 @@ class DAgger:
 
         train = load(train_ids)
         validation = load(validation_ids) if validation_ids else None
-        if self.config.mode == "takeover" and self.config.label == "human":
-            train, validation = (
-                self._expert_steps(dataset, train_ids, train),
-                (self._expert_steps(dataset, validation_ids, validation) if validation is not None else None),
-            )
+        if self.config.mode == "takeover" and self.config.label == "human":  # the expert's steps; demos are all theirs
+            train = select_human_steps(train, dataset, train_ids, unrecorded=True)
+            if validation is not None:
+                validation = select_human_steps(validation, dataset, validation_ids, unrecorded=True)
             if validation is not None and len(validation) == 0:
                 validation = None
             if len(train) == 0:  # the expert has not taken over yet: nothing to learn from
@@ -414,12 +409,6 @@ class DAgger:
         cloning = BehaviouralCloning(self.policy, train, validation, bc)
         losses = [row["validation_loss"] for row in fit(cloning) if np.isfinite(row["validation_loss"])]
         return cloning.policy, min(losses) if losses else float("nan")
-
-    @staticmethod
-    def _expert_steps(dataset: DemoDataset, episodes: list[int], transitions: TransitionTensors) -> TransitionTensors:
-        """The transitions the expert drove (demos: all of them)."""
-        mask = human_steps(dataset, episodes, unrecorded=True)
-        return transitions.select(torch.from_numpy(np.flatnonzero(mask)))
 
     def state_dict(self) -> CheckpointData:
         """The learner, the mixture's generator, the label count and the finished rounds' files

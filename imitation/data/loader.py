@@ -203,6 +203,14 @@ def human_steps(dataset: DemoDataset, episodes: Sequence[int], *, unrecorded: bo
     return np.concatenate(masks) if masks else np.zeros(0, dtype=bool)
 
 
+def select_human_steps(
+    transitions: TransitionTensors, dataset: DemoDataset, episodes: Sequence[int], *, unrecorded: bool | None = None
+) -> TransitionTensors:
+    """Of `transitions` (episodes `episodes` as `load_transitions` gave them), those a person drove
+    (see `human_steps`)."""
+    return transitions.select(torch.from_numpy(np.flatnonzero(human_steps(dataset, episodes, unrecorded=unrecorded))))
+
+
 def _check_memory(dataset: DemoDataset, steps: int, episodes: int, *, next_observations: bool) -> None:
     """Refuse, before allocating, a load that cannot fit in the memory this machine has free:
     one line naming the size, instead of an out-of-memory kill or traceback midway."""

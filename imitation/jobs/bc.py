@@ -18,6 +18,7 @@ from imitation.data.loader import (
     TransitionTensors,
     human_steps,
     load_transitions,
+    select_human_steps,
     split_episode_tails,
     split_episodes,
     transitions_to_torch,
@@ -273,9 +274,7 @@ def _split(
 
     def chosen(episodes: list[int], transitions: TransitionTensors) -> TransitionTensors:
         """With `steps="human"`, the steps a person drove."""
-        if config.steps != "human":
-            return transitions
-        return transitions.select(torch.from_numpy(np.flatnonzero(human_steps(dataset, episodes))))
+        return select_human_steps(transitions, dataset, episodes) if config.steps == "human" else transitions
 
     train_ids, validation_ids = split_episodes(len(dataset), validation_fraction=config.validation_fraction, seed=config.seed)
     if validation_ids or not offline or config.validation_fraction == 0:

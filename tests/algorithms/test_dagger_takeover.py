@@ -18,7 +18,7 @@ from support import REPO, run_cli, run_cli_many
 from test_cli import assert_one_line_error, last_json
 
 from imitation.algorithms.bc import BCConfig, policy_options
-from imitation.algorithms.dagger import DAgger, DAggerConfig, run_episode
+from imitation.algorithms.dagger import DAgger, DAggerConfig, collect_round, run_episode
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import human_steps
 from imitation.data.mcap.reader import DemoFile, salvageable_episodes
@@ -325,3 +325,32 @@ def test_a_first_round_killed_midway_resumes_from_the_start_of_the_run_with_its_
     assert 3 <= len(kept) < 40 == len(final)
     for before, after in zip(kept, final):
         np.testing.assert_array_equal(before.timestamps, after.timestamps)
+
+
+def test_an_interrupted_round_resumes_from_whichever_of_its_file_and_partial_holds_more(tmp_path: Path) -> None:
+    """A run killed while a resumed round rewrote its kept episodes leaves both round-NN.mcap and
+    a partial that begins with the same episodes: the longer wins, the other goes."""
+    from imitation.algorithms.dagger import finished_episodes
+    from imitation.data.mcap.writer import DemoWriter
+
+    env = gym.make("CartPole-v1")
+    episodes = collect_round(env, None, cartpole, beta=1.0, episodes=3, seed=0, rng=np.random.default_rng(0), metadata={})
+    spaces = {"env_id": "CartPole-v1", "observation_space": env.observation_space, "action_space": env.action_space}
+    path, partial = tmp_path / "round-02.mcap", tmp_path / "round-02.mcap.partial"
+
+    def killed_writer(count: int) -> None:
+        writer = DemoWriter(tmp_path / "writing.mcap", flush_episodes=True, **spaces)
+        for episode in episodes[:count]:
+            writer.write(episode)
+        partial.write_bytes((tmp_path / "writing.mcap.partial").read_bytes())  # what a kill leaves
+        writer.abort()
+        (tmp_path / "writing.mcap.partial").unlink(missing_ok=True)
+
+    write_episodes(path, episodes[:2], **spaces)
+    killed_writer(3)
+    kept = finished_episodes(path)
+    assert len(kept) == 3 and len(DemoFile(path)) == 3 and not partial.exists()
+    killed_writer(1)
+    assert len(finished_episodes(path)) == 3 and not partial.exists()
+    for ours, original in zip(DemoFile(path).read_episodes(), episodes, strict=True):
+        np.testing.assert_array_equal(ours.observations, original.observations)
