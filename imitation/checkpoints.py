@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from imitation.errors import ImitationError
+from imitation.flat_adam import FlatAdam
 
 Tensors = dict[str, torch.Tensor]
 CheckpointData = tuple[Tensors, dict[str, Any]]
@@ -51,7 +52,7 @@ def unprefixed(prefix: str, tensors: Tensors) -> Tensors:
     return {name.removeprefix(prefix + "."): tensor for name, tensor in tensors.items() if name.startswith(prefix + ".")}
 
 
-def optimizer_checkpoint(optimizer: torch.optim.Optimizer, prefix: str) -> CheckpointData:
+def optimizer_checkpoint(optimizer: torch.optim.Optimizer | FlatAdam, prefix: str) -> CheckpointData:
     """An optimiser's state: per-parameter tensors (Adam's step, moments) as `prefix.i.name`,
     parameter groups as JSON."""
     state = optimizer.state_dict()
@@ -59,7 +60,9 @@ def optimizer_checkpoint(optimizer: torch.optim.Optimizer, prefix: str) -> Check
     return tensors, {"param_groups": state["param_groups"]}
 
 
-def restore_optimizer(optimizer: torch.optim.Optimizer, tensors: Tensors, state: dict[str, Any], prefix: str) -> None:
+def restore_optimizer(
+    optimizer: torch.optim.Optimizer | FlatAdam, tensors: Tensors, state: dict[str, Any], prefix: str
+) -> None:
     per_parameter: dict[int, dict[str, torch.Tensor]] = {}
     for key, value in tensors.items():
         if key.startswith(prefix + "."):

@@ -22,7 +22,7 @@ import copy
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -42,6 +42,7 @@ from imitation.checkpoints import (
 from imitation.data.loader import MinibatchLoader, TransitionTensors, resolve_device
 from imitation.data.stream import StreamingLoader
 from imitation.errors import ConfigError, ImitationError
+from imitation.flat_adam import FlatAdam
 from imitation.policies import ActorCritic
 
 LOSSES = ("nll", "mse")
@@ -238,7 +239,7 @@ class BehaviouralCloning:
         self.config = config
         self.total = config.epochs
         self.evaluate, self.evaluate_every = evaluate, evaluate_every
-        self.optimizer = torch.optim.Adam(policy.parameters(), lr=config.learning_rate)
+        self.optimizer = FlatAdam(policy.parameters(), lr=config.learning_rate)
         self.half = torch.float16 if device.type == "cuda" else torch.bfloat16
         self.scaler = torch.amp.GradScaler(device.type, enabled=config.mixed_precision and device.type == "cuda")
         self.epochs = 0
@@ -278,7 +279,7 @@ class BehaviouralCloning:
                 raise ImitationError(f"BC epoch {epoch}: the loss is {loss.item()} (diverged; try a lower learning rate)")
             self.optimizer.zero_grad(set_to_none=True)
             self.scaler.scale(loss).backward()
-            self.scaler.step(self.optimizer)
+            self.scaler.step(cast(torch.optim.Optimizer, self.optimizer))  # it reads only param_groups and step()
             self.scaler.update()
             fits.append(parts["fit"])
             self.samples += len(batch)

@@ -68,6 +68,7 @@ from imitation.envs.make import make_env
 from imitation.envs.pixels import PIXELS_KEY, PixelRecipe, StackFrames, make_pixel_env
 from imitation.envs.rollout import Rollout
 from imitation.errors import ConfigError, ImitationError
+from imitation.flat_adam import FlatAdam, clip_grad_norm
 from imitation.policies import ActorCritic, RunningMeanStd, batch_of_one, make_policy, tensor_tree
 from imitation.rewards import flat_batch, tree_index
 
@@ -342,7 +343,7 @@ def over_batch(
 
 def ppo_update(
     policy: ActorCritic,
-    optimizer: torch.optim.Optimizer,
+    optimizer: torch.optim.Optimizer | FlatAdam,
     batch: UpdateBatch,
     config: PPOConfig,
     beta: float,
@@ -398,7 +399,7 @@ def ppo_update(
 
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
-            torch.nn.utils.clip_grad_norm_(policy.parameters(), config.max_grad_norm, foreach=True)
+            clip_grad_norm(optimizer, config.max_grad_norm)
             optimizer.step()
 
             with torch.no_grad():
@@ -499,7 +500,7 @@ class PPO:
             cnn=config.cnn,
             pixels=config.pixels,
         ).to(device)
-        self.optimizer = torch.optim.Adam(self.policy.parameters(), lr=config.learning_rate, eps=1e-5)
+        self.optimizer = FlatAdam(self.policy.parameters(), lr=config.learning_rate, eps=1e-5)
         self.reward_scaler = RewardScaler(config.n_envs, config.gamma) if config.normalize_rewards else None
         self.rollout_size = config.n_steps * config.n_envs
         self.total = -(-config.total_steps // self.rollout_size)  # updates: at least total_steps
