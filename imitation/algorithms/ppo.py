@@ -23,6 +23,13 @@ envs, orthogonal init (in imitation.policies), Adam eps 1e-5, learning-rate anne
 minibatch advantage normalisation, optional value clipping, entropy bonus, global gradient
 clipping, optional KL early stop, running observation normalisation and reward scaling.
 
+`ppo_update` is the reference and takes any torch optimiser. The learner runs it with
+`FlatAdam` (imitation.flat_adam), whose step and gradient clip equal torch.optim.Adam's and
+`clip_grad_norm_`'s but act on one flat buffer, a few kernels per step instead of a few per
+parameter tensor. tests/algorithms/test_ppo_learner.py checks the learner's updates against
+`ppo_update` with torch.optim.Adam. The update is not compiled: torch.compile's first call
+costs more than a whole CartPole run saves (bench/RESULTS.md).
+
 Observations may be images or Dicts holding them (`--pixels`: the env's rendered frames,
 `imitation.envs.pixels`; `frame_stack` k: the last k frames of each image leaf). The policy then
 encodes each image leaf with a CNN (`imitation.policies`), which the update must train: the
@@ -64,6 +71,7 @@ from imitation.checkpoints import (
     unprefixed,
 )
 from imitation.data.loader import TensorTree, resolve_device
+from imitation.envs.cartpole_vector import VECTORISED_CARTPOLES, SameStepCartPole
 from imitation.envs.make import make_env
 from imitation.envs.pixels import PIXELS_KEY, PixelRecipe, StackFrames, make_pixel_env
 from imitation.envs.rollout import Rollout
@@ -242,8 +250,11 @@ def make_vector_env(
 ) -> gym.vector.VectorEnv:
     """n copies of env_id (observed as `make_observed_env` says) with same-step autoreset (the
     final observation comes in info["final_obs"], so truncated episodes can be bootstrapped from
-    their true last state), recording each episode's return of the environment's own reward."""
+    their true last state), recording each episode's return of the environment's own reward.
+    CartPole, which gymnasium vectorises, runs as one numpy env (`SameStepCartPole`)."""
     make_observed_env(env_id, pixels, frame_stack).close()  # fail here, with one line, on an unknown id or no images
+    if env_id in VECTORISED_CARTPOLES and pixels is None and frame_stack == 1 and not asynchronous:
+        return SameStepCartPole(env_id, n_envs)
 
     def factory() -> gym.Env:
         return gym.wrappers.RecordEpisodeStatistics(make_observed_env(env_id, pixels, frame_stack))
