@@ -8,8 +8,9 @@ shared/testdata/experts/expert_cartpole.npz, and report:
   (ours: `BehaviouralCloning(...)` and `fit` on it; theirs: `BC.train(n_epochs=...)`), policy and data building excluded, the
   median of --repeats fresh processes with one torch/OpenMP thread. Each process makes two
   identical calls, each with a fresh policy: "cold" is the first, which pays one-time lazy
-  initialisation (ours: about 1 s in the first `torch.optim.Adam(...)`, which theirs pays while
-  building the policy, outside its timed call), "warm" the second, steady-state training;
+  initialisation (theirs: torch.optim.Adam's first construction imports torch._dynamo, about
+  1 s, while it builds its policy, outside its timed call; ours uses imitation.flat_adam and no
+  torch.optim), "warm" the second, steady-state training;
 - the return each reaches: a separate run of --return-epochs epochs, then 10 deterministic
   CartPole-v1 episodes reset with seeds 0..9.
 

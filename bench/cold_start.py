@@ -1,7 +1,8 @@
 """Benchmark: where a fresh process's first BC training loses its time (bench/bc.py's "cold" row).
 
-In a fresh process, one torch thread: the import of torch; building `torch.optim.Adam` the first
-and the second time; the first and second `Adam.step()`; and, with a fresh policy each, building
+In a fresh process, one torch thread: the import of torch; building imitation's `FlatAdam` (what
+BC and PPO use) and then `torch.optim.Adam`, each the first and the second time, and their first
+and second steps; and, in another fresh process, with a fresh policy each, building
 `BehaviouralCloning` on bench/bc.py's CartPole data the first and the second time. Medians of
 --repeats fresh processes.
 
@@ -29,6 +30,18 @@ def worker() -> dict[str, float]:
 
     timings = {"import torch": time.perf_counter() - started}
     torch.set_num_threads(1)
+    sys.path.insert(0, str(BENCH.parent))
+    from imitation.flat_adam import FlatAdam
+
+    for attempt in ("first", "second"):
+        layer = torch.nn.Linear(4, 2)
+        started = time.perf_counter()
+        flat = FlatAdam(layer.parameters(), lr=1e-3)
+        timings[f"{attempt} FlatAdam(...)"] = time.perf_counter() - started
+        layer(torch.randn(8, 4)).sum().backward()
+        started = time.perf_counter()
+        flat.step()
+        timings[f"{attempt} FlatAdam.step()"] = time.perf_counter() - started
     for attempt in ("first", "second"):
         layer = torch.nn.Linear(4, 2)
         started = time.perf_counter()

@@ -28,7 +28,7 @@ clipping, optional KL early stop, running observation normalisation and reward s
 `clip_grad_norm_`'s but act on one flat buffer, a few kernels per step instead of a few per
 parameter tensor. tests/algorithms/test_ppo_learner.py checks the learner's updates against
 `ppo_update` with torch.optim.Adam. The update is not compiled: torch.compile's first call
-costs more than a whole CartPole run saves (bench/RESULTS.md).
+costs more than a run shorter than about a million steps saves (bench/ppo_step.py).
 
 Observations may be images or Dicts holding them (`--pixels`: the env's rendered frames,
 `imitation.envs.pixels`; `frame_stack` k: the last k frames of each image leaf). The policy then
