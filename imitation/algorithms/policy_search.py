@@ -331,7 +331,7 @@ class PolicySearch:
         torch.manual_seed(config.seed)
         self.config = config
         self.name = NAMES[config.method]
-        envs = make_vector_env(config.env_id, config.n_envs)
+        envs = make_vector_env(config.env_id, config.n_envs, vectorised=False)
         assert isinstance(envs, gym.vector.SyncVectorEnv)  # resets copies one by one, each to its episode's seed
         self.envs = envs
         self.policy = require_flat_observations(

@@ -246,14 +246,21 @@ def make_observed_env(env_id: str, pixels: PixelRecipe | None = None, frame_stac
 
 
 def make_vector_env(
-    env_id: str, n_envs: int, *, asynchronous: bool = False, pixels: PixelRecipe | None = None, frame_stack: int = 1
+    env_id: str,
+    n_envs: int,
+    *,
+    asynchronous: bool = False,
+    pixels: PixelRecipe | None = None,
+    frame_stack: int = 1,
+    vectorised: bool = True,
 ) -> gym.vector.VectorEnv:
     """n copies of env_id (observed as `make_observed_env` says) with same-step autoreset (the
     final observation comes in info["final_obs"], so truncated episodes can be bootstrapped from
     their true last state), recording each episode's return of the environment's own reward.
-    CartPole, which gymnasium vectorises, runs as one numpy env (`SameStepCartPole`)."""
+    CartPole, which gymnasium vectorises, runs as one numpy env (`SameStepCartPole`) unless
+    `vectorised` is False (a caller that resets the copies one by one needs separate envs)."""
     make_observed_env(env_id, pixels, frame_stack).close()  # fail here, with one line, on an unknown id or no images
-    if env_id in VECTORISED_CARTPOLES and pixels is None and frame_stack == 1 and not asynchronous:
+    if vectorised and env_id in VECTORISED_CARTPOLES and pixels is None and frame_stack == 1 and not asynchronous:
         return SameStepCartPole(env_id, n_envs)
 
     def factory() -> gym.Env:

@@ -71,7 +71,12 @@ def test_ppo_gets_it_for_cartpole_with_the_single_envs_spaces() -> None:
     assert envs.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
     assert envs.single_observation_space == single.observation_space and envs.single_action_space == single.action_space
     envs.close()
-    for others in (make_vector_env("CartPole-v1", 2, asynchronous=True), make_vector_env("Pendulum-v1", 2)):
+    separate = (
+        make_vector_env("CartPole-v1", 2, asynchronous=True),
+        make_vector_env("CartPole-v1", 2, vectorised=False),
+        make_vector_env("Pendulum-v1", 2),
+    )
+    for others in separate:
         assert not isinstance(others, SameStepCartPole)
         others.close()
     with pytest.raises(ValueError, match="Pendulum-v1 is not one of"):
