@@ -106,8 +106,7 @@ class _Column:
 
     def _put(self, target: np.ndarray, data: memoryview) -> None:
         if target.dtype == self.field.dtype:
-            # numpy's copy, unlike a memoryview's, releases the GIL: the decoding threads place blocks in parallel
-            np.copyto(target.reshape(-1).view(np.uint8), np.frombuffer(data, dtype=np.uint8))
+            memoryview(target.reshape(-1).view(np.uint8))[:] = data
         else:
             target[...] = np.frombuffer(data, dtype=self.field.dtype).reshape(target.shape)
 
