@@ -69,8 +69,6 @@ def test_making_halfcheetah_leaves_no_mujoco_log_and_prints_nothing(tmp_path) ->
     # gymnasium's HalfCheetah model uses an attribute MuJoCo deprecates; MuJoCo would print that and
     # append it to MUJOCO_LOG.TXT in the working directory, the user's folder.
     code = "import imitation.envs; from imitation.envs.make import make_env; make_env('imitation/HalfCheetahFixedHorizon-v0').reset(seed=0)"
-    completed = subprocess.run(
-        [sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(REPO))
-    )
+    completed = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(REPO)))
     assert completed.returncode == 0 and "deprecated" not in completed.stderr
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()

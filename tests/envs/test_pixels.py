@@ -52,9 +52,7 @@ def test_recorded_pixels_reads_the_recipe_and_stack_record_wrote() -> None:
     assert recorded_pixels(recorded, "d.mcap") == (PixelRecipe(36, 36, grayscale=True), 2)
     assert recorded_pixels(recorded, "d.mcap", frame_stack=4) == (PixelRecipe(36, 36, grayscale=True), 4)
     damaged = {"pixels": {"size": [36, 36], "frame_stack": 99}}
-    assert recorded_pixels(damaged, "d.mcap", frame_stack=1) == (PixelRecipe(36, 36), 1), (
-        "a given stack overrides a damaged one"
-    )
+    assert recorded_pixels(damaged, "d.mcap", frame_stack=1) == (PixelRecipe(36, 36), 1), "a given stack overrides a damaged one"
     with pytest.raises(ImitationError, match=r"^d.mcap: user metadata 'pixels': frame_stack must be in \[1, 64\], got 99$"):
         recorded_pixels(damaged, "d.mcap")
     with pytest.raises(ImitationError, match=r"^d.mcap: user metadata 'pixels': a pixel recipe is"):

@@ -24,12 +24,7 @@ from imitation.envs.tabular_planning import (
 from imitation.errors import ConfigError, ImitationError
 from imitation.experts.load import load_expert
 
-TABULAR_IDS = [
-    "imitation/GridWorld8x8-v0",
-    "imitation/GridWorld8x8Slippery-v0",
-    "imitation/CliffWorld-v0",
-    "imitation/RandomMDP-v0",
-]
+TABULAR_IDS = ["imitation/GridWorld8x8-v0", "imitation/GridWorld8x8Slippery-v0", "imitation/CliffWorld-v0", "imitation/RandomMDP-v0"]
 
 
 @pytest.mark.parametrize("env_id", TABULAR_IDS)
@@ -83,9 +78,7 @@ def test_random_mdp_is_reproducible_and_sparse() -> None:
 def test_malformed_mdp_and_non_tabular_env_are_refused() -> None:
     good = gridworld()
     with pytest.raises(ImitationError, match="sum to 1"):
-        TabularMDP(
-            transition=good.transition * 0.5, initial=good.initial, features=good.features, reward=good.reward, horizon=30
-        )
+        TabularMDP(transition=good.transition * 0.5, initial=good.initial, features=good.features, reward=good.reward, horizon=30)
     with pytest.raises(ImitationError, match="not a tabular MDP"):
         tabular_mdp_of(gym.make("CartPole-v1"), where="--method mce")
 
@@ -105,15 +98,12 @@ def test_soft_optimal_returns_by_hand() -> None:
     returns = soft_optimal_returns(mdp, np.array([0.0, 2.0]), discount=0.5)
     sigmoid = lambda x: 1 / (1 + np.exp(-x))  # noqa: E731
     learned, expert = 2 + sigmoid(1.0), 2 + sigmoid(0.5)
-    assert returns == pytest.approx(
-        {
-            "learned_policy_return": learned,
-            "expert_return": expert,
-            "random_return": 2.5,
-            "normalized_return": (learned - 2.5) / (expert - 2.5),
-        },
-        rel=1e-12,
-    )
+    assert returns == pytest.approx({
+        "learned_policy_return": learned,
+        "expert_return": expert,
+        "random_return": 2.5,
+        "normalized_return": (learned - 2.5) / (expert - 2.5),
+    }, rel=1e-12)
     # The policies behind them: soft-optimal for the reward and discount given, the MDP's by default.
     assert soft_optimal_policy(mdp, np.array([0.0, 2.0]), discount=0.5)[0, 0, 1] == pytest.approx(sigmoid(1.0))
     assert soft_optimal_policy(mdp)[0, 0, 1] == pytest.approx(sigmoid(1.0))
@@ -134,15 +124,12 @@ def _ring(n_states: int, n_actions: int, width: int) -> np.ndarray:
     return transition
 
 
-@pytest.mark.parametrize(
-    ("n_states", "width", "kind"),
-    [
-        (256, 3, DenseDynamics),  # up to 256 states: dense
-        (257, 3, SparseDynamics),
-        (264, 33, SparseDynamics),  # 33 successors = 264 // 8: still sparse
-        (264, 34, DenseDynamics),  # more than an eighth of the states: dense
-    ],
-)
+@pytest.mark.parametrize(("n_states", "width", "kind"), [
+    (256, 3, DenseDynamics),  # up to 256 states: dense
+    (257, 3, SparseDynamics),
+    (264, 33, SparseDynamics),  # 33 successors = 264 // 8: still sparse
+    (264, 34, DenseDynamics),  # more than an eighth of the states: dense
+])
 def test_dynamics_are_sparse_only_for_many_states_with_few_successors(n_states: int, width: int, kind: type) -> None:
     """Either way P is the same: Σ_{s'} P v and Σ_{s, a} m P agree with the dense products; the
     sparse form keeps just the `width` successors of each (s, a)."""

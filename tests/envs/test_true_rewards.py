@@ -10,10 +10,7 @@ from imitation.envs.make import make_env
 from imitation.envs.true_rewards import true_reward
 
 
-@pytest.mark.parametrize(
-    "env_id",
-    ["Pendulum-v1", "imitation/CartPoleFixedHorizon-v0", "CartPole-v1", "MountainCar-v0", "imitation/GridWorld8x8Slippery-v0"],
-)
+@pytest.mark.parametrize("env_id", ["Pendulum-v1", "imitation/CartPoleFixedHorizon-v0", "CartPole-v1", "MountainCar-v0", "imitation/GridWorld8x8Slippery-v0"])
 def test_true_reward_matches_the_env_step(env_id: str) -> None:
     env = make_env(env_id)
     reward = true_reward(env_id, env)
@@ -31,9 +28,7 @@ def test_true_reward_matches_the_env_step(env_id: str) -> None:
         observation = next_observation
         if terminated or truncated:
             observation, _ = env.reset()
-    np.testing.assert_allclose(
-        reward(np.array(observations), np.array(actions), np.array(next_observations)), rewards, rtol=1e-5, atol=1e-5
-    )
+    np.testing.assert_allclose(reward(np.array(observations), np.array(actions), np.array(next_observations)), rewards, rtol=1e-5, atol=1e-5)
     if env_id == "imitation/CartPoleFixedHorizon-v0":
         assert 0 < np.mean(rewards) < 1, "the rollout should both balance and fail"
 
