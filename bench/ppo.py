@@ -7,7 +7,7 @@ For each environment, with rl-baselines3-zoo's tuned hyperparameters on both sid
   env-steps/s over the whole fixed-length run (100k steps CartPole, 200k Pendulum);
 - our time per env step split into env stepping, rollout inference and updates (the PPO learner's own
   timers), each beside its floor: stepping the same vector env with random actions, no-grad
-  forward passes of the same actor and critic, and a bare forward/backward/Adam loop of the same
+  forward passes of the same actor and critic, and a bare forward/backward/FlatAdam loop of the same
   count and minibatch size.
 
 Every training run and the floors run in a fresh process (bench/ppo_worker.py), one at a time,
