@@ -271,13 +271,13 @@ def floor_update(spec: dict[str, Any], gradient_steps: int) -> float:
     the optimiser ours runs (imitation.flat_adam's FlatAdam)."""
     import torch
 
+    from imitation.flat_adam import FlatAdam
+
     zoo = spec["zoo"]
     obs_size, actor_outputs, continuous = _network_shapes(spec["env_id"])
     actor, critic = _mlp(torch, obs_size, actor_outputs), _mlp(torch, obs_size, 1)
     log_std = torch.nn.Parameter(torch.zeros(actor_outputs))
     parameters = [*actor.parameters(), *critic.parameters()] + ([log_std] if continuous else [])
-    from imitation.flat_adam import FlatAdam
-
     optimizer = FlatAdam(parameters, lr=1e-4, eps=1e-5)
     rollout_size = zoo["n_envs"] * zoo["n_steps"]
     observations = torch.randn(rollout_size, obs_size)
