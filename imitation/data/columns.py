@@ -22,7 +22,6 @@ import bisect
 import contextlib
 import math
 import mmap
-import os
 import struct
 import threading
 from collections import defaultdict
@@ -209,8 +208,8 @@ def _fill_file(
             codec_of[channel_id] = f.codec
     t_starts = [facts.t_start_ns for facts in file.episodes]
 
-    def fill_chunk(fd: int, chunk: ChunkRef) -> list[tuple[str, int, int, int]]:
-        record = memoryview(os.pread(fd, chunk.length, chunk.offset))
+    def fill_chunk(chunk: ChunkRef) -> list[tuple[str, int, int, int]]:
+        record = memoryview(source.read(chunk.offset, chunk.length))
         content = decode_chunk(record, buffers.get(chunk_header(record).uncompressed_size))
         placed: list[tuple[str, int, int, int]] = []
         for channel_id, log_time, data in chunk_records(content, lambda channel: None):
@@ -233,10 +232,10 @@ def _fill_file(
 
     buffers = _ContentBuffers()
     with (
-        open(file.path, "rb") as handle,
-        ThreadPoolExecutor(max_workers=min(len(plan.chunks), os.cpu_count() or 1, 8) or 1) as pool,
+        file.byte_source() as source,
+        ThreadPoolExecutor(max_workers=min(len(plan.chunks), source.parallel_reads, 8) or 1) as pool,
     ):
-        return list(pool.map(lambda chunk: fill_chunk(handle.fileno(), chunk), plan.chunks))
+        return list(pool.map(fill_chunk, plan.chunks))
 
 
 def _tiles(pieces: list[tuple[int, int]], expected: int) -> bool:

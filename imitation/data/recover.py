@@ -15,6 +15,7 @@ from typing import Any
 
 from imitation.data.mcap.format import DEFAULT_COMPRESSION
 from imitation.data.mcap.reader import DemoFile
+from imitation.data.mcap.source import refuse_url
 from imitation.data.mcap.writer import DemoWriter
 from imitation.errors import ImitationError
 from imitation.output import OutputLock
@@ -29,6 +30,9 @@ def recover_partial(
 ) -> dict[str, Any]:
     """Write the complete episodes of `partial` to `out` (default: its name without
     `.partial`) and describe what was recovered."""
+    for given in (partial, out):  # it writes `out` and removes `partial`
+        if given is not None:
+            refuse_url(given)
     partial = Path(partial)
     if out is None:
         if not partial.name.endswith(PARTIAL_SUFFIX) or partial.name == PARTIAL_SUFFIX:

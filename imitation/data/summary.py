@@ -14,6 +14,7 @@ import numpy as np
 from imitation.data.convert.endings import describe_end_flags
 from imitation.data.mcap.format import HUMAN_FIELD
 from imitation.data.mcap.reader import DemoFile
+from imitation.data.mcap.source import is_url
 from imitation.data.spaces import describe_space, space_from_json, space_to_json
 
 
@@ -27,13 +28,16 @@ def _stats(values: list[float]) -> dict[str, float] | None:
 
 def summarize(path: str | os.PathLike) -> dict[str, Any]:
     """Open `path`, checking every chunk, and describe it. A damaged file is described by its
-    salvageable episodes, with `damage` saying what is wrong (None for a sound file)."""
-    demo = DemoFile(path, salvage=True, verify=True)
+    salvageable episodes, with `damage` saying what is wrong (None for a sound file).
+
+    A URL is described from its summary alone, its chunks not fetched (nor checked): only a
+    damaged summary makes the whole object be read, to salvage it."""
+    demo = DemoFile(path, salvage=True, verify=not is_url(path))
     returns = [facts.episode_return for facts in demo.episodes]
     lengths = [float(facts.length) for facts in demo.episodes]
     return {
         "file": str(demo.path),
-        "size_bytes": os.path.getsize(demo.path),
+        "size_bytes": demo.size,
         "format_version": demo.format_version,
         "env_id": demo.env_id or None,  # JSON null, as in run directories, for demos with no env
         "episodes": len(demo),

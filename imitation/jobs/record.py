@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from imitation.data.mcap.format import DEFAULT_COMPRESSION
+from imitation.data.mcap.source import refuse_url
 from imitation.data.mcap.writer import DemoWriter
 from imitation.data.recorder import RecordEpisodes, run_episodes
 from imitation.envs.action_noise import ActionNoise
@@ -43,6 +44,7 @@ def record_job(
     stores the expert's action at every step (`ActionNoise`, DART): demos of the states next to
     the expert's path, labelled. A person's window (`--expert keyboard|gamepad`) runs at `speed`
     times real time and is closed at the end."""
+    refuse_url(out)
     out = Path(out)
     if out.is_dir():
         raise ImitationError(f"--out {out}: is a directory; give a file name such as {out / 'demos.mcap'}")

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from imitation import __version__
+from imitation.data.mcap.source import is_url
 
 CREATOR = f"imitation-mcap {__version__}"
 
@@ -56,5 +57,5 @@ class RunConfig:
         return RunConfig(**given | {"kind": str(data.get("kind", "unknown")), "env_id": data.get("env_id")})
 
     def existing_demos(self) -> list[str]:
-        """The demo files it names that are still there."""
-        return [str(path) for path in self.demos or [] if Path(path).is_file()]
+        """The demo files it names that are still there (URLs are kept unchecked)."""
+        return [str(path) for path in self.demos or [] if is_url(path) or Path(path).is_file()]

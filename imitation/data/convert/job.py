@@ -9,6 +9,7 @@ from typing import Any
 from imitation.data.convert.bags import MCAP_MAGIC, ROS1_MAGIC
 from imitation.data.convert.converted import fit_to_env, write_converted
 from imitation.data.convert.endings import settle_ends
+from imitation.data.mcap.source import refuse_url
 from imitation.errors import ImitationError
 
 SOURCES = ("ros2", "ros1", "lerobot", "npz", "array")
@@ -67,6 +68,7 @@ def convert(
     progress: bool = True,
 ) -> dict[str, Any]:
     """Convert `path` into demo file `out`; returns what `imitation convert --json` prints."""
+    refuse_url(out)
     kind = _source_kind(path, source)
     if kind == "npz" and layout_path is not None and source is None:
         kind = "array"  # an npz member described by a layout

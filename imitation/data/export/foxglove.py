@@ -24,6 +24,7 @@ from tqdm import tqdm
 from imitation import __version__
 from imitation.data.mcap.format import to_json_text
 from imitation.data.mcap.reader import DemoFile
+from imitation.data.mcap.source import refuse_url
 from imitation.data.spaces import space_to_json
 from imitation.data.types import Tree
 from imitation.errors import ImitationError
@@ -75,11 +76,12 @@ def _value(tree: Tree, row: int) -> Any:
 
 def export_foxglove(demo_path: str | os.PathLike, out: str | os.PathLike, *, progress: bool = True) -> dict[str, Any]:
     """Write `out` (atomically: `<out>.partial` renamed when complete); returns counts."""
+    refuse_url(out)
     demo = DemoFile(demo_path)
     out = Path(out)
     if out.is_dir():
         raise ImitationError(f"{out}: is a directory; give a file name such as {out / 'steps.mcap'}")
-    if out.resolve() == demo.path.resolve():
+    if isinstance(demo.path, Path) and out.resolve() == demo.path.resolve():
         raise ImitationError(f"{out}: is the demo file itself; choose another name")
     check_target(out)
     partial = out.with_name(out.name + ".partial")

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import bisect
 import json
-import mmap
 import os
 import struct
 import zlib
@@ -63,6 +62,7 @@ from imitation.data.mcap.records import (
     iter_records,
     iter_records_with_offsets,
 )
+from imitation.data.mcap.source import ByteSource, ReadCounter, is_url, open_source
 from imitation.data.spaces import space_from_json
 from imitation.data.types import Episode, Interventions, Tree, stack_samples, tree_from_leaves
 from imitation.errors import DemoFileError, ImitationError
@@ -226,18 +226,19 @@ class DemoFile:
     A damaged or unfinished file (truncated, killed writer, flipped bits) raises DemoFileError
     naming the file and the damage, unless `salvage=True`: then every complete episode before
     the damage is readable and `f.damage` describes what was lost.
+
+    `path` may be a URL that fsspec reads (http(s)://, s3://, gs://, memory://, ...): opening
+    reads only the footer, the summary and the two metadata records it points at, and each
+    episode read fetches only its chunks, by range requests (`bytes_read`, `requests` count them).
     """
 
     def __init__(self, path: str | os.PathLike, *, salvage: bool = False, verify: bool = False) -> None:
-        self.path = Path(path)
-        try:
-            self._size = self.path.stat().st_size
-            # Not a `with` here: only open()'s OSError is mapped to "cannot open"; `with stream:` below closes it.
-            stream = open(self.path, "rb")  # noqa: SIM115
-        except OSError as error:
-            raise DemoFileError(f"{self.path}: cannot open: {error.strerror or error}") from error
-        with stream:
-            if self._size < len(MAGIC) or stream.read(len(MAGIC)) != MAGIC:
+        # A URL stays as given: Path() would turn "http://host" into "http:/host".
+        self.path: Path | str = os.fspath(path) if is_url(path) else Path(path)
+        self._counter = ReadCounter()
+        with open_source(self.path, self._counter) as stream:
+            self.size = stream.size
+            if self.size < len(MAGIC) or stream.read(0, len(MAGIC)) != MAGIC:
                 raise DemoFileError(f"{self.path}: not an MCAP file (it does not start with the MCAP magic bytes)")
             index: _Index | None = None
             summary_damage: str | None = None
@@ -312,8 +313,8 @@ class DemoFile:
                 f"{self.path}: {over_limit('uncompressed bytes of one chunk', uncompressed_size, 'chunk_bytes')}"
             )
         self._expanded += uncompressed_size
-        if self._expanded > max(FREE_EXPANSION_BYTES, LIMITS.expansion_ratio * self._size):
-            what = f"uncompressed bytes of its chunks (the file has {self._size})"
+        if self._expanded > max(FREE_EXPANSION_BYTES, LIMITS.expansion_ratio * self.size):
+            what = f"uncompressed bytes of its chunks (the file has {self.size})"
             raise DemoFileError(f"{self.path}: {over_limit(what, self._expanded, 'expansion_ratio')}")
 
     # -- public API ---------------------------------------------------------------------------
@@ -332,7 +333,22 @@ class DemoFile:
         described = json.dumps(self._index.dataset, sort_keys=True) + to_json_text(
             [facts.to_json() for facts in self.episodes]
         )
-        return f"{self._size}-{zlib.crc32(described.encode()):08x}-{self._summary_crc:08x}"
+        return f"{self.size}-{zlib.crc32(described.encode()):08x}-{self._summary_crc:08x}"
+
+    @property
+    def bytes_read(self) -> int:
+        """Bytes read from the file or fetched from its URL since it was opened, opening included."""
+        return self._counter.bytes
+
+    @property
+    def requests(self) -> int:
+        """Reads made (range requests, for a URL) since the file was opened, opening included."""
+        return self._counter.requests
+
+    def byte_source(self) -> ByteSource:
+        """A reading session of the file's bytes by offset (close it, or use it in `with`); its
+        reads count toward `bytes_read` and `requests`."""
+        return open_source(self.path, self._counter, self.size)
 
     @property
     def channels(self) -> list[str]:
@@ -400,8 +416,8 @@ class DemoFile:
             buffers = ChunkBuffers(chunks) if bulk else None
         except Damage as error:
             raise DemoFileError(f"{self.path}: {error}") from None
-        with open(self.path, "rb") as stream:
-            for chunk, decoded in decode_chunks(stream.fileno(), chunks, buffers):
+        with self.byte_source() as stream:
+            for chunk, decoded in decode_chunks(stream, chunks, buffers):
                 yield from self._assemble(chunk, decoded, assembler, keep)
 
     def _assemble(
@@ -471,24 +487,22 @@ class DemoFile:
         if not (end_flags is None or isinstance(end_flags, dict)):
             raise DemoFileError(f"{self.path}: dataset metadata has bad end_flags (not a JSON object: {str(end_flags)[:100]})")
 
-    def _read_summary(self, stream: Any) -> _Index:
+    def _read_summary(self, stream: ByteSource) -> _Index:
         """The fast path: footer → summary (channels, chunk index, metadata index) → 2 records."""
         self._summary_crc = 0
         self._expanded = 0
-        if self._size < len(MAGIC) * 2 + _FOOTER_LENGTH:
+        if self.size < len(MAGIC) * 2 + _FOOTER_LENGTH:
             raise Damage("file too short to hold an MCAP footer")
-        stream.seek(self._size - len(MAGIC) - _FOOTER_LENGTH)
-        tail = stream.read(_FOOTER_LENGTH + len(MAGIC))
+        tail = stream.read(self.size - len(MAGIC) - _FOOTER_LENGTH, _FOOTER_LENGTH + len(MAGIC))
         if tail[-len(MAGIC) :] != MAGIC or tail[0] != OP_FOOTER:
             raise Damage("no MCAP footer: the file was truncated or its writer did not finish")
         footer = Footer.read(ReadDataStream(BytesIO(tail[9 : -len(MAGIC)])))
         if footer.summary_start == 0:
             raise Damage("the file has no summary section")
-        footer_start = self._size - len(MAGIC) - _FOOTER_LENGTH
+        footer_start = self.size - len(MAGIC) - _FOOTER_LENGTH
         if not len(MAGIC) <= footer.summary_start <= footer_start:
             raise Damage("footer points outside the file")
-        stream.seek(footer.summary_start)
-        summary = stream.read(footer_start - footer.summary_start)
+        summary = stream.read(footer.summary_start, footer_start - footer.summary_start)
         self._summary_crc = footer.summary_crc
         if footer.summary_crc != 0:
             expected = zlib.crc32(tail[: 9 + 16], zlib.crc32(summary))
@@ -533,9 +547,8 @@ class DemoFile:
         chunks.sort(key=lambda c: (c.start_time, c.offset))
         return _Index(dataset, channels, chunks, episodes)
 
-    def _read_metadata(self, stream: Any, offset: int, length: int) -> dict[str, str]:
-        stream.seek(offset)
-        record = stream.read(length)
+    def _read_metadata(self, stream: ByteSource, offset: int, length: int) -> dict[str, str]:
+        record = stream.read(offset, length)
         if len(record) != length or length < 9 or record[0] != OP_METADATA:
             raise Damage(f"metadata index points at a non-metadata record (byte {offset})")
         try:
@@ -543,10 +556,10 @@ class DemoFile:
         except Exception as error:
             raise Damage(f"unreadable metadata record at byte {offset}: {error}") from None
 
-    def _scan(self, stream: Any) -> _Index:
+    def _scan(self, stream: ByteSource) -> _Index:
         """Salvage: read the data section record by record, keeping every complete episode."""
         self._expanded = 0
-        data = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
+        data = memoryview(stream.whole())
         dataset: dict[str, str] = {}
         channels: dict[int, Field | None] = {}
         chunks: list[ChunkRef] = []

@@ -4,7 +4,6 @@ raises `Damage`, which the reader reports or salvages around."""
 
 from __future__ import annotations
 
-import os
 import struct
 import zlib
 from collections import deque
@@ -12,7 +11,7 @@ from collections.abc import Buffer, Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from io import BytesIO
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import lz4.frame
 import numpy as np
@@ -21,6 +20,9 @@ from mcap.data_stream import ReadDataStream
 from mcap.records import Channel, Schema
 
 from imitation.limits import LIMITS
+
+if TYPE_CHECKING:
+    from imitation.data.mcap.source import ByteSource
 
 # The opcodes of the MCAP records read here (https://mcap.dev/spec).
 OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x02, 0x03, 0x04, 0x05, 0x06
@@ -169,31 +171,33 @@ class ChunkBuffers:
         return self._slices[chunk.offset]
 
 
-def _read_chunk(fd: int, chunk: ChunkRef, buffers: ChunkBuffers | None) -> memoryview | bytes:
+def _read_chunk(source: ByteSource, chunk: ChunkRef, buffers: ChunkBuffers | None) -> memoryview | bytes:
     # pread into our own buffer, not mmap: measured here, faulting in a mapped file's pages
     # varied 4x between runs.
     if buffers is None:
-        record: memoryview | bytes = os.pread(fd, chunk.length, chunk.offset)
+        record: memoryview | bytes = source.read(chunk.offset, chunk.length)
         out = None
     else:
         record, out = buffers[chunk]
-        if os.preadv(fd, [record], chunk.offset) != chunk.length:
+        if source.readinto(record, chunk.offset) != chunk.length:
             raise Damage("chunk is truncated")
     if len(record) != chunk.length:
         raise Damage("chunk is truncated")
     return decode_chunk(memoryview(record), out)
 
 
-def decode_chunks(fd: int, chunks: Sequence[ChunkRef], buffers: ChunkBuffers | None) -> Iterator[tuple[ChunkRef, Future]]:
+def decode_chunks(
+    source: ByteSource, chunks: Sequence[ChunkRef], buffers: ChunkBuffers | None
+) -> Iterator[tuple[ChunkRef, Future]]:
     """Read and decode chunks on a small thread pool (reading, decompression and CRC-32 release
     the GIL), a bounded window ahead of the consumer, in order.
 
     A chunk that cannot be decoded raises Damage from its future's result()."""
-    threads = min(len(chunks), os.cpu_count() or 1, 8)
+    threads = min(len(chunks), source.parallel_reads, 8)
     window: deque[tuple[ChunkRef, Future]] = deque()
     with ThreadPoolExecutor(max_workers=threads) as pool:
         for chunk in chunks:
-            window.append((chunk, pool.submit(_read_chunk, fd, chunk, buffers)))
+            window.append((chunk, pool.submit(_read_chunk, source, chunk, buffers)))
             if len(window) > 2 * threads:
                 yield window.popleft()
         while window:

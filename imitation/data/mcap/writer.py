@@ -46,6 +46,7 @@ from imitation.data.mcap.format import (
 )
 from imitation.data.mcap.images import CODECS, DEFAULT_JPEG_QUALITY, IMAGE_ENCODING, encode_frames, schema_data, schema_name
 from imitation.data.mcap.reader import salvageable_episodes
+from imitation.data.mcap.source import refuse_url
 from imitation.data.spaces import space_to_json
 from imitation.data.types import Episode, Interventions, Tree, check_fits_space, first_nonfinite, tree_leaves
 from imitation.errors import ImitationError
@@ -132,6 +133,7 @@ class DemoWriter:
         image_codec: str | None = "png",
         jpeg_quality: int = DEFAULT_JPEG_QUALITY,
     ) -> None:
+        refuse_url(path)
         self.path = Path(path)
         self._finite_only = finite_only
         self.partial_path = Path(temporary) if temporary is not None else self.path.with_name(self.path.name + ".partial")
