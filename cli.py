@@ -285,6 +285,8 @@ def cmd_train_bc(args: argparse.Namespace) -> int:
     result = bc_job(
         args.demos, args.env, BCConfig(**_fields(args, "BCConfig")), args.out, progress=not args.quiet, resume=args.resume
     )
+    if "run" not in result:  # a torchrun process other than rank 0, which reports the run
+        return 0
     _print_warnings(result["warnings"])
     if args.json:
         _print_json(result)

@@ -85,6 +85,11 @@ class FlatAdam:
                 continue
             parameter.grad = view
 
+    def flat_gradient(self) -> torch.Tensor:
+        """g as the one flat tensor the step reads (changed in place, the step sees the change)."""
+        self._gather_gradients()
+        return self.grad
+
     def zero_grad(self, set_to_none: bool = True) -> None:
         """Zero the flat gradient (the views stay in place whatever `set_to_none` says)."""
         del set_to_none

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol, cast
 
@@ -53,6 +54,8 @@ from imitation.limits import LIMITS, over_limit
 from imitation.runs import read_run
 
 ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
+# (rows, mean, std) of one process's rows → (mean, std) of every process's (data-parallel training).
+MomentsMerge = Callable[[int, torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 _SCALAR_SHAPE = torch.Size()  # the default sample_shape of Distribution.sample (immutable)
 
 
@@ -540,18 +543,22 @@ class ActorCritic(nn.Module):
                 # The newest frame of each stack: every stored frame counted once.
                 statistics.update(self._frames(observations, leaf)[:, -1])
 
-    def fit_action_normalizer(self, actions: torch.Tensor, observations: Any) -> None:
+    def fit_action_normalizer(self, actions: torch.Tensor, observations: Any, *, merge: MomentsMerge | None = None) -> None:
         """Standardise the Gaussian head's units by the mean and std per dimension of what it
         predicts (a dimension that never moves keeps scale 1): these actions, or with
-        `previous_action` their changes a_t − a_{t-1}. Nothing to do without `normalize_actions`."""
+        `previous_action` their changes a_t − a_{t-1}. Nothing to do without `normalize_actions`.
+        `merge(count, mean, std)` turns these rows' moments into those of all the rows, where
+        other processes hold the rest (data-parallel training)."""
         if not (self.is_continuous and self.config.normalize_actions):
             return
         with torch.no_grad():
             flat = actions.reshape(actions.shape[0], -1).double()
             if self.config.previous_action:
                 flat = flat - observations.reshape(observations.shape[0], -1)[:, self.previous_columns].double()
-            std = flat.std(0, unbiased=False)
-            self.action_mean.copy_(flat.mean(0))
+            mean, std = flat.mean(0), flat.std(0, unbiased=False)
+            if merge is not None:
+                mean, std = merge(len(flat), mean, std)
+            self.action_mean.copy_(mean)
             self.action_scale.copy_(torch.where(std > 1e-6, std, torch.ones_like(std)))
 
     # -- the policy -------------------------------------------------------------------------------

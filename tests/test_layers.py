@@ -27,6 +27,7 @@ PREFIXES = {
     "imitation.evaluation": "evaluation",
     "imitation.jobs": "jobs",
     "cli": "cli",
+    "imitation.__main__": "cli",  # the entry point: `python -m imitation` runs the command line
 }
 
 
@@ -57,7 +58,11 @@ def imported(tree: ast.AST, module: str) -> list[tuple[int, str]]:
                 target = node.module or ""
             found.append((node.lineno, target))
             # `from imitation import jobs` imports the subpackage itself
-            found += [(node.lineno, f"{target}.{alias.name}") for alias in node.names if layer(f"{target}.{alias.name}") != layer(target)]
+            found += [
+                (node.lineno, f"{target}.{alias.name}")
+                for alias in node.names
+                if layer(f"{target}.{alias.name}") != layer(target)
+            ]
     return found
 
 

@@ -14,15 +14,27 @@ Whole episodes are held out for validation (neighbouring steps are nearly identi
 step-level split would flatter the model); training stops after `patience` epochs without a new
 best validation loss and the best weights are kept. Observations are normalised with statistics
 fitted once on the training demos and saved with the policy.
+
+Data-parallel (`parallel`: W processes under torchrun, each holding a disjoint share D_r of the
+transitions): process r draws minibatches B_r of batch_size / W rows from D_r, and every step
+applies the averaged gradient
+
+    g = (1/W) Σ_r ∇_θ L(θ; B_r)
+
+which, the B_r being equal in size, is the gradient of the loss on their union: the single-process
+step on a minibatch of batch_size rows. Every process takes the steps one process would take on all
+the data; the normalisers' statistics, the training and validation losses are those of all the
+data, pooled across the processes.
 """
 
 from __future__ import annotations
 
 import copy
+import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import Any, Protocol, cast
 
 import numpy as np
 import torch
@@ -43,7 +55,7 @@ from imitation.data.loader import MinibatchLoader, TransitionTensors, resolve_de
 from imitation.data.stream import StreamingLoader
 from imitation.errors import ConfigError, ImitationError
 from imitation.flat_adam import FlatAdam
-from imitation.policies import ActorCritic
+from imitation.policies import ActorCritic, RunningMeanStd
 
 LOSSES = ("nll", "mse")
 STEPS = ("all", "human")
@@ -129,6 +141,36 @@ class BCConfig:
                 "learning_rate", f"must be a positive number below 1e30, got {self.learning_rate}", owner="BCConfig"
             )
 
+    def validate_data_parallel(self, processes: int) -> None:
+        """Refuse what a data-parallel run of `processes` processes cannot do."""
+        if self.batch_size >= 1 and self.batch_size % processes:
+            raise ConfigError(
+                "batch_size",
+                f"must be a multiple of the {processes} torchrun processes (each takes batch_size / {processes} rows "
+                f"a step), got {self.batch_size}",
+                owner="BCConfig",
+            )
+        if self.stream_memory is not None:
+            raise ConfigError(
+                "stream_memory",
+                "streams no data under torchrun (each process loads its share of the demos into memory); leave it unset",
+                owner="BCConfig",
+            )
+
+
+class DataParallel(Protocol):
+    """The processes of a data-parallel run, as a learner uses them (`imitation.jobs.distributed`
+    implements it). Every process must make the same calls in the same order."""
+
+    rank: int
+    world_size: int
+
+    def all_sum(self, tensor: torch.Tensor) -> None: ...  # in place: the sum over the processes
+
+    def broadcast(self, tensor: torch.Tensor) -> None: ...  # in place: rank 0's values
+
+    def all_gather(self, tensor: torch.Tensor) -> torch.Tensor: ...  # every process's, stacked by rank
+
 
 def default_threads(policy: ActorCritic) -> int:
     """Every core this process may use for a policy with a CNN, else one."""
@@ -160,6 +202,12 @@ def bc_loss(policy: ActorCritic, batch: TransitionTensors, config: BCConfig) -> 
 
 
 def _mean_loss(policy: ActorCritic, data: TransitionTensors | StreamingLoader, config: BCConfig) -> float:
+    total, count = _loss_sum(policy, data, config)
+    return float(total / count)
+
+
+def _loss_sum(policy: ActorCritic, data: TransitionTensors | StreamingLoader, config: BCConfig) -> tuple[float, int]:
+    """The fit's sum over `data`, and its rows."""
     streamed = isinstance(data, StreamingLoader)
     batches = data if isinstance(data, StreamingLoader) else MinibatchLoader(data, batch_size=4096, shuffle=False)
     count = data.transitions if isinstance(data, StreamingLoader) else len(data)
@@ -168,7 +216,54 @@ def _mean_loss(policy: ActorCritic, data: TransitionTensors | StreamingLoader, c
         policy.eval()
         losses = [bc_loss(policy, batch.to(device) if streamed else batch, config)[1]["fit"] * len(batch) for batch in batches]
         policy.train()
-        return float(np.sum(losses) / count)
+        return np.sum(losses), count
+
+
+def _merged_moments(
+    parallel: DataParallel, count: torch.Tensor, mean: torch.Tensor, var: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Every process's (count, mean, variance) pooled (Chan et al.):
+    n = Σ n_r, μ = Σ n_r μ_r / n, σ² = Σ n_r (σ_r² + (μ_r − μ)²) / n."""
+    total = count.double().clone()
+    parallel.all_sum(total)
+    pooled_mean = mean.double() * count
+    parallel.all_sum(pooled_mean)
+    pooled_mean /= total
+    spread = count * (var.double() + (mean.double() - pooled_mean) ** 2)
+    parallel.all_sum(spread)
+    return total, pooled_mean, spread / total
+
+
+def _merge_statistics(statistics: RunningMeanStd, parallel: DataParallel) -> None:
+    """A normaliser fitted to this process's share, refitted to all the processes' data. Each
+    share's statistics started from the prior count ε, which the pooled count holds once."""
+    count, mean, var = _merged_moments(parallel, statistics.count, statistics.mean, statistics.var)
+    statistics.mean.copy_(mean)
+    statistics.var.copy_(var)
+    statistics.count.copy_(count - (parallel.world_size - 1) * statistics.epsilon)
+
+
+def _moments_merge(parallel: DataParallel) -> Callable[[int, torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]:
+    """`ActorCritic.fit_action_normalizer`'s merge across the processes of `parallel`."""
+
+    def merge(rows: int, mean: torch.Tensor, std: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        count = torch.tensor(float(rows), dtype=torch.float64, device=mean.device)
+        _, pooled_mean, var = _merged_moments(parallel, count, mean, std**2)
+        return pooled_mean, var.sqrt()
+
+    return merge
+
+
+def _rank_loader(train: TransitionTensors, config: BCConfig, parallel: DataParallel) -> MinibatchLoader:
+    """This process's minibatches: batch_size / W rows each, as many per epoch as one process
+    would take on all the data, shuffled by a generator of this rank's own."""
+    rows = torch.tensor(len(train), dtype=torch.float64)
+    parallel.all_sum(rows)
+    total = int(rows)
+    passes = max(1, -(-config.epoch_samples // total))
+    steps = math.ceil(passes * total / config.batch_size)
+    seed = int(np.random.SeedSequence([config.seed, parallel.rank]).generate_state(1)[0])
+    return MinibatchLoader(train, batch_size=config.batch_size // parallel.world_size, seed=seed, steps=steps)
 
 
 def _fit_normalizers(policy: ActorCritic, stream: StreamingLoader, device: torch.device) -> None:
@@ -195,7 +290,11 @@ class BehaviouralCloning:
 
     `train` and `validation` may be streams (`BCConfig.stream_memory`): batches are then decoded
     as they are needed, and the normalisers fitted in one extra ordered pass when the policy has
-    any. Policies of the previous action take in-memory data only."""
+    any. Policies of the previous action take in-memory data only.
+
+    With `parallel`, `train` and `validation` are this process's shares of in-memory data and
+    the learner one of W data-parallel replicas (the module docstring): every process must run
+    it the same way, step for step; `evaluate` is for rank 0 alone."""
 
     name = "BC"
     unit = "epoch"
@@ -209,8 +308,12 @@ class BehaviouralCloning:
         *,
         evaluate: Callable[[ActorCritic], float] | None = None,
         evaluate_every: int = 5,
+        parallel: DataParallel | None = None,
     ) -> None:
         config.validate(policy.is_continuous)
+        if parallel is not None:
+            config.validate_data_parallel(parallel.world_size)
+        self.parallel = parallel
         torch.set_num_threads(config.threads or default_threads(policy))
         torch.manual_seed(config.seed)
         device = resolve_device(config.device)
@@ -232,14 +335,22 @@ class BehaviouralCloning:
             self.train, self.validation = train.to(device), validation.to(device) if validation is not None else None
             policy.update_normalizer(self.train.observations)
             assert isinstance(self.train.actions, torch.Tensor)  # a policy takes no Dict actions
-            policy.fit_action_normalizer(self.train.actions, self.train.observations)
-            self.loader = MinibatchLoader(
-                self.train, batch_size=config.batch_size, seed=config.seed, min_samples=config.epoch_samples
-            )
+            if parallel is None:
+                policy.fit_action_normalizer(self.train.actions, self.train.observations)
+                self.loader = MinibatchLoader(
+                    self.train, batch_size=config.batch_size, seed=config.seed, min_samples=config.epoch_samples
+                )
+            else:
+                for statistics in policy.observation_normalizers:
+                    _merge_statistics(statistics, parallel)
+                policy.fit_action_normalizer(self.train.actions, self.train.observations, merge=_moments_merge(parallel))
+                self.loader = _rank_loader(self.train, config, parallel)
         self.config = config
         self.total = config.epochs
         self.evaluate, self.evaluate_every = evaluate, evaluate_every
         self.optimizer = FlatAdam(policy.parameters(), lr=config.learning_rate)
+        if parallel is not None:
+            parallel.broadcast(self.optimizer.flat)  # the replicas start from rank 0's weights
         self.half = torch.float16 if device.type == "cuda" else torch.bfloat16
         self.scaler = torch.amp.GradScaler(device.type, enabled=config.mixed_precision and device.type == "cuda")
         self.epochs = 0
@@ -279,23 +390,31 @@ class BehaviouralCloning:
                 raise ImitationError(f"BC epoch {epoch}: the loss is {loss.item()} (diverged; try a lower learning rate)")
             self.optimizer.zero_grad(set_to_none=True)
             self.scaler.scale(loss).backward()
+            if self.parallel is not None:
+                self._average_gradient(self.parallel)
             self.scaler.step(cast(torch.optim.Optimizer, self.optimizer))  # it reads only param_groups and step()
             self.scaler.update()
             fits.append(parts["fit"])
-            self.samples += len(batch)
+            self.samples += len(batch) * (self.parallel.world_size if self.parallel is not None else 1)
         validation = self.validation
-        validation_loss = (
-            _mean_loss(self.policy, validation, self.config) if validation is not None and len(validation) else float("nan")
-        )
+        if self.parallel is None:
+            train_loss = float(np.mean(fits))
+            validation_loss = (
+                _mean_loss(self.policy, validation, self.config)
+                if validation is not None and len(validation)
+                else float("nan")
+            )
+        else:
+            train_loss, validation_loss = self._pooled_losses(fits, self.parallel)
         # Without validation episodes, the training loss decides what "best" means.
-        criterion = validation_loss if np.isfinite(validation_loss) else float(np.mean(fits))
+        criterion = validation_loss if np.isfinite(validation_loss) else train_loss
         if criterion < self.best_loss:
             self.best_loss, self.best_epoch, self.best_state = criterion, epoch, copy.deepcopy(self.policy.state_dict())
         self.epochs = epoch
         self.stopped = epoch - self.best_epoch >= self.config.patience
         row = {
             "epoch": float(epoch),
-            "train_loss": float(np.mean(fits)),
+            "train_loss": train_loss,
             "validation_loss": validation_loss,
             "return": float("nan"),
             "samples_per_second": self.samples / self.clock.seconds,
@@ -308,6 +427,27 @@ class BehaviouralCloning:
             self.policy.load_state_dict(self.best_state)
             self.policy.eval()
         return row
+
+    def _average_gradient(self, parallel: DataParallel) -> None:
+        """g ← (1/W) Σ_r g_r in FlatAdam's one flat gradient buffer: a single all-reduce per step,
+        which is what DistributedDataParallel does with one bucket, without its per-parameter
+        hooks and its copies of the gradients into a bucket and back (the buffer already is one).
+        """
+        gradient = self.optimizer.flat_gradient()
+        parallel.all_sum(gradient)
+        gradient.div_(parallel.world_size)
+
+    def _pooled_losses(self, fits: list[float], parallel: DataParallel) -> tuple[float, float]:
+        """The epoch's mean training fit and the validation loss over every process's share (NaN
+        where no process holds validation data), in one all-reduce."""
+        validation = self.validation
+        held, rows = (
+            _loss_sum(self.policy, validation, self.config) if validation is not None and len(validation) else (0.0, 0)
+        )
+        sums = torch.tensor([float(np.sum(fits)), len(fits), held, rows], dtype=torch.float64)
+        parallel.all_sum(sums)
+        train, steps, held_sum, held_rows = sums.tolist()
+        return train / steps, held_sum / held_rows if held_rows else float("nan")
 
     def state_dict(self) -> CheckpointData:
         """Everything to continue at the next epoch as if never stopped: weights, the best
@@ -331,6 +471,13 @@ class BehaviouralCloning:
             "rng": rng_state,
             "scaler": self.scaler.state_dict(),
         }
+        if self.parallel is not None:
+            # Every process's place in its own data and random streams, so that each resumes where it was.
+            tensors |= {
+                "loader.generators": self.parallel.all_gather(self.loader.generator_state()),
+                "rng.torch.ranks": self.parallel.all_gather(torch.get_rng_state()),
+            }
+            state["world_size"] = self.parallel.world_size
         return tensors, state
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
@@ -344,6 +491,8 @@ class BehaviouralCloning:
             if state.get("scaler"):
                 self.scaler.load_state_dict(state["scaler"])
             self.loader.set_generator_state(tensors["loader.generator"])
+            if self.parallel is not None:
+                self._restore_ranks(tensors, state, self.parallel)
             self.best_loss = float("inf") if state["best_loss"] is None else float(state["best_loss"])
             self.best_epoch, self.samples, self.clock.before = (
                 int(state["best_epoch"]),
@@ -351,6 +500,17 @@ class BehaviouralCloning:
                 float(state["seconds"]),
             )
             self.epochs = checked_counter(int(state["epoch"]), "next epoch", 1, self.total + 1) - 1
+
+    def _restore_ranks(self, tensors: dict[str, torch.Tensor], state: dict[str, Any], parallel: DataParallel) -> None:
+        """This process's loader and torch generators from a data-parallel checkpoint."""
+        saved = int(state.get("world_size", 1))
+        if saved != parallel.world_size:
+            raise ImitationError(
+                f"--resume: the run was trained by {saved} process(es), not {parallel.world_size}; "
+                f"resume it with torchrun --nproc-per-node {saved}"
+            )
+        self.loader.set_generator_state(tensors["loader.generators"][parallel.rank].clone())
+        torch.set_rng_state(tensors["rng.torch.ranks"][parallel.rank].clone())
 
 
 def fit(learner: BehaviouralCloning) -> list[dict[str, float]]:

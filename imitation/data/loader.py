@@ -316,8 +316,10 @@ class MinibatchLoader:
     """Minibatches of transitions, reshuffled every epoch from a seeded generator.
 
     An epoch is one pass over the data, or as many passes (each in its own order) as it takes to
-    reach `min_samples` samples. Indexing happens on the tensors' device, so once the data is on a
-    GPU no batch crosses the bus.
+    reach `min_samples` samples; or, with `steps`, exactly that many full batches, from as many
+    passes as they take (the last one cut short): the processes of a data-parallel run must all
+    take the same number of steps on shares of different sizes. Indexing happens on the tensors'
+    device, so once the data is on a GPU no batch crosses the bus.
     """
 
     def __init__(
@@ -329,6 +331,7 @@ class MinibatchLoader:
         seed: int = 0,
         drop_last: bool = False,
         min_samples: int = 0,
+        steps: int | None = None,
     ) -> None:
         if batch_size < 1:
             raise ImitationError(f"batch size must be positive, got {batch_size}")
@@ -336,7 +339,9 @@ class MinibatchLoader:
         self.batch_size = batch_size
         self.shuffle = shuffle
         self.drop_last = drop_last
-        self.passes = max(1, -(-min_samples // max(1, len(data))))
+        self.steps = steps
+        wanted = min_samples if steps is None else steps * batch_size
+        self.passes = max(1, -(-wanted // max(1, len(data))))
         self._generator = torch.Generator(device="cpu").manual_seed(seed)
 
     def generator_state(self) -> torch.Tensor:
@@ -347,6 +352,8 @@ class MinibatchLoader:
         self._generator.set_state(state)
 
     def __len__(self) -> int:
+        if self.steps is not None:
+            return self.steps
         full, rest = divmod(self.passes * len(self.data), self.batch_size)
         return full if self.drop_last or rest == 0 else full + 1
 
@@ -358,6 +365,8 @@ class MinibatchLoader:
             )
         else:
             order = torch.arange(count, device=self.data.device).repeat(self.passes)
+        if self.steps is not None:
+            order = order[: self.steps * self.batch_size]
         for start in range(0, len(order), self.batch_size):
             index = order[start : start + self.batch_size]
             if self.drop_last and len(index) < self.batch_size:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import closing, nullcontext
 from typing import Any
 
@@ -13,16 +13,19 @@ import numpy as np
 import torch
 
 from imitation.algorithms.bc import BCConfig, BehaviouralCloning, policy_options
+from imitation.checkpoints import Tensors
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import (
     TransitionTensors,
     human_steps,
     load_transitions,
+    resolve_device,
     select_human_steps,
     split_episode_tails,
     split_episodes,
     transitions_to_torch,
 )
+from imitation.data.shards import Share, plan_shares
 from imitation.data.stream import StreamingLoader
 from imitation.data.types import Transitions
 from imitation.envs.make import make_env
@@ -32,6 +35,8 @@ from imitation.errors import ConfigError, ImitationError
 from imitation.evaluation.baselines import baseline_scores, policy_scores
 from imitation.evaluation.plots import plot_curve
 from imitation.evaluation.policy import EVAL_SEED, evaluate_policy
+from imitation.jobs.distributed import ProcessGroup, process_group, world_size
+from imitation.jobs.loop import Checkpointing
 from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
@@ -52,7 +57,31 @@ def bc_job(
 
     Without `env_id` it trains offline (recordings with no simulator behind them): the policy
     takes the demos' own spaces and the run reports the validation loss only, no returns.
-    `resume` continues the interrupted run in `out`.partial from its checkpoint."""
+    `resume` continues the interrupted run in `out`.partial from its checkpoint.
+
+    Under torchrun (WORLD_SIZE > 1) this is one of the processes of a data-parallel run: each
+    loads its share of the demos by chunks (`imitation.data.shards`), the same split held out
+    as by one process, and trains a replica (`BehaviouralCloning`'s `parallel`). Rank 0 writes
+    the run and returns its result; the others write nothing and return {"rank": rank}."""
+    processes = world_size()
+    if processes == 1:
+        return _bc_job(demos, env_id, config, out, progress=progress, resume=resume, parallel=None)
+    config.validate_data_parallel(processes)  # before the processes meet
+    with process_group(resolve_device(config.device)) as group:
+        return _bc_job(demos, env_id, config, out, progress=progress and group.rank == 0, resume=resume, parallel=group)
+
+
+def _bc_job(
+    demos: list[str],
+    env_id: str | None,
+    config: BCConfig,
+    out: str | os.PathLike,
+    *,
+    progress: bool,
+    resume: bool,
+    parallel: ProcessGroup | None,
+) -> dict[str, Any]:
+    """`bc_job` as one process, or as one of the data-parallel `parallel`."""
     seed_everything(config.seed)
     dataset = DemoDataset(demos)
     first = dataset.files[0]
@@ -76,12 +105,32 @@ def bc_job(
     validation: TransitionTensors | StreamingLoader | None
     if config.stream_memory is not None and config.steps == "human":
         raise ConfigError("steps", "human reads whole episodes; leave the streaming memory budget unset", owner="BCConfig")
+    plan: list[Share] = []
+
+    def share(counted: Sequence[int]) -> list[int]:
+        """This process's episodes, the transitions of the `counted` ones balanced across the processes."""
+        assert parallel is not None  # asked for only then
+        plan[:] = plan_shares(dataset, parallel.world_size, counted=counted)
+        return plan[parallel.rank].episodes
+
     if config.stream_memory is not None:
         train, validation, split = _streams(dataset, config, previous_action=previous_action, frames=frames, image_keys=keys)
     else:
         train, validation, split = _split(
-            dataset, config, offline=env is None, previous_action=previous_action, frames=frames, image_keys=keys
+            dataset,
+            config,
+            offline=env is None,
+            previous_action=previous_action,
+            frames=frames,
+            image_keys=keys,
+            share=share if parallel is not None else None,
         )
+    train_transitions = _transitions(train)
+    validation_transitions = _transitions(validation) if validation is not None else 0
+    if parallel is not None:
+        train_transitions, validation_transitions = _pooled_counts(parallel, train_transitions, validation_transitions)
+        if "train_transitions" in split:  # episode tails held out: the record counts every process's
+            split |= {"train_transitions": train_transitions, "validation_transitions": validation_transitions}
     observation_space = (
         previous_action_space(spaces.observation_space, spaces.action_space)
         if previous_action
@@ -100,7 +149,7 @@ def bc_job(
             observation_space,
             spaces.action_space,
             previous_action=previous_action,
-            **policy_options(config, _transitions(train)),
+            **policy_options(config, train_transitions),
             **pixel_options,
         )
     except ImitationError as error:
@@ -122,17 +171,31 @@ def bc_job(
         bc=config_json(config),
         policy=policy.config.to_json(),
         split=split,
+        world_size=parallel.world_size if parallel is not None else None,
     )
+    if parallel is not None and parallel.rank != 0:
+        with closing(env) if env is not None else nullcontext():
+            learner = BehaviouralCloning(policy, train, validation, config, parallel=parallel)
+            resumed = parallel.broadcast_checkpoint(None) if resume else None
+            run_learner(learner, checkpoints=Checkpointing(save=_written_by_rank_0, resume=resumed, agree=parallel.any))
+        return {"rank": parallel.rank}
     with (
         closing(env) if env is not None else nullcontext(),
         training_run(out, run_config, x_axis="epoch", resume=resume) as run,
     ):
-        learner = BehaviouralCloning(policy, train, validation, config, evaluate=env_return if env is not None else None)
-        run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
+        learner = BehaviouralCloning(
+            policy, train, validation, config, evaluate=env_return if env is not None else None, parallel=parallel
+        )
+        checkpoints = checkpointing(run)
+        if parallel is not None:
+            resumed = parallel.broadcast_checkpoint(checkpoints.resume) if resume else None
+            checkpoints = dataclasses.replace(checkpoints, resume=resumed, agree=parallel.any)
+        run_learner(learner, checkpoints=checkpoints, log=run.log, progress=progress)
         seconds = learner.clock.seconds  # training only, not the evaluation below
         run.save_weights(policy_tensors(learner.policy.cpu()))
         states = _states_alone(spaces.observation_space) if previous_action else _unchanged
-        yardstick = _yardstick(learner, train, validation, config, spaces.action_space, states)
+        # Data-parallel: rank 0 holds its share alone, so no scores on the held-out transitions.
+        yardstick = _yardstick(learner, train, validation, config, spaces.action_space, states, scored=parallel is None)
         title = f"BC on {env_id or dataset.env_id or 'offline demos'}"
         plot_curve(
             run.file("loss_curve.png"),
@@ -148,8 +211,9 @@ def bc_job(
             "env_id": env_id,
             "offline": env is None,
             "previous_action": previous_action,
-            "train_transitions": _transitions(train),
-            "validation_transitions": _transitions(validation) if validation is not None else 0,
+            "train_transitions": train_transitions,
+            "validation_transitions": validation_transitions,
+            "data_parallel": _plan_summary(plan) if parallel is not None else None,
             "epochs": len(run.history),
             "best_epoch": learner.best_epoch,
             "best_validation_loss": min((row["validation_loss"] for row in run.history), default=None),
@@ -173,12 +237,14 @@ def _yardstick(
     config: BCConfig,
     action_space: gym.Space,
     states: Callable[[TransitionTensors], TransitionTensors],
+    *,
+    scored: bool = True,
 ) -> dict[str, Any]:
     """How the run ended, and the policy beside the trivial baselines on the held-out transitions
     (`imitation.evaluation.baselines`, on the `states` alone where the policy saw x_t): scores, which
     baselines it beats (lower NLL and lower squared error or error rate), the baselines' values
-    of the plotted loss, and what a user must be told. Streamed data is not scored: the scores
-    take the held-out transitions in memory."""
+    of the plotted loss, and what a user must be told. Streamed data is not scored, nor data not
+    all `scored` here: the scores take all the held-out transitions in memory."""
     warnings = []
     if learner.stopped:
         stopped = f"no better validation loss for {config.patience} epochs (best at epoch {learner.best_epoch})"
@@ -189,7 +255,7 @@ def _yardstick(
                 f"BC stopped at its epoch limit ({config.epochs}) while the validation loss was still improving "
                 f"(best at epoch {learner.best_epoch}): more epochs would likely fit better"
             )
-    if validation is None or not len(validation) or isinstance(validation, StreamingLoader):
+    if not scored or validation is None or not len(validation) or isinstance(validation, StreamingLoader):
         return {"stopped": stopped, "validation": None, "baselines": {}, "beats": {}, "references": {}, "warnings": warnings}
     assert not isinstance(train, StreamingLoader)  # streamed validation goes with streamed training
     scores = policy_scores(learner.policy.cpu(), validation.to("cpu"))
@@ -258,12 +324,16 @@ def _split(
     previous_action: bool,
     frames: int = 1,
     image_keys: list[str] | None = None,
+    share: Callable[[Sequence[int]], list[int]] | None = None,
 ) -> tuple[TransitionTensors, TransitionTensors | None, dict[str, Any]]:
     """Training and validation transitions: whole episodes held out; offline, where the
     validation loss is all a run reports, each episode's last steps when there are too few
     episodes to spare one (a single long recording). With `previous_action` the observations are
     x_t, built before the split so that a held-out tail starts from the command before it; so are
-    stacks of `frames` frames of the `image_keys` leaves."""
+    stacks of `frames` frames of the `image_keys` leaves.
+
+    With `share` (a data-parallel process), the same split, of the episodes `share(counted)`
+    gives this process for the training episodes `counted`; the split's record stays whole."""
 
     def load(episodes: list[int] | None = None) -> Transitions:
         transitions = load_transitions(dataset, episodes=episodes, next_observations=False)
@@ -278,14 +348,18 @@ def _split(
 
     train_ids, validation_ids = split_episodes(len(dataset), validation_fraction=config.validation_fraction, seed=config.seed)
     if validation_ids or not offline or config.validation_fraction == 0:
-        train = chosen(train_ids, transitions_to_torch(load(train_ids)))
-        validation = chosen(validation_ids, transitions_to_torch(load(validation_ids))) if validation_ids else None
+        mine = set(share(train_ids)) if share is not None else None
+        train_own = train_ids if mine is None else [k for k in train_ids if k in mine]
+        validation_own = validation_ids if mine is None else [k for k in validation_ids if k in mine]
+        train = chosen(train_own, transitions_to_torch(load(train_own)))
+        validation = chosen(validation_own, transitions_to_torch(load(validation_own))) if validation_own else None
         _check_some_training(dataset, len(train))
         return train, validation, {"train_episodes": train_ids, "validation_episodes": validation_ids}
-    every = load()
+    own = share(range(len(dataset))) if share is not None else None
+    every = load(own)
     train_rows, validation_rows = split_episode_tails(every, validation_fraction=config.validation_fraction)
     if config.steps == "human":
-        person = human_steps(dataset, range(len(dataset)))
+        person = human_steps(dataset, range(len(dataset)) if own is None else own)
         train_rows, validation_rows = train_rows[person[train_rows]], validation_rows[person[validation_rows]]
         _check_some_training(dataset, len(train_rows))
     tensors = transitions_to_torch(every)
@@ -305,6 +379,29 @@ def _check_some_training(dataset: DemoDataset, transitions: int) -> None:
     """Refuse training on nothing: what is left when `--steps human` finds no person's step."""
     if not transitions:
         raise ImitationError(f"{dataset.files[0].path}: no step of the training episodes was driven by a person")
+
+
+def _pooled_counts(parallel: ProcessGroup, *counts: int) -> list[int]:
+    """Each of `counts` summed over the processes."""
+    pooled = torch.tensor(counts, dtype=torch.float64)
+    parallel.all_sum(pooled)
+    return [int(count) for count in pooled.tolist()]
+
+
+def _written_by_rank_0(tensors: Tensors, state: dict[str, Any]) -> None:
+    """A data-parallel process other than rank 0 saves nothing: rank 0's checkpoint holds every
+    process's place (`BehaviouralCloning.state_dict`)."""
+
+
+def _plan_summary(plan: list[Share]) -> dict[str, Any]:
+    """What metrics.json records of a data-parallel run's shares."""
+    return {
+        "world_size": len(plan),
+        "shares": [
+            {"episodes": len(share.episodes), "chunks": len(share.chunks), "train_transitions": share.transitions}
+            for share in plan
+        ],
+    }
 
 
 def _transitions(data: TransitionTensors | StreamingLoader) -> int:

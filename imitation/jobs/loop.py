@@ -62,11 +62,14 @@ class Learner(Protocol):
 @dataclass
 class Checkpointing:
     """`save(tensors, state)` every `every` steps (None: every tenth of the run) and when
-    interrupted; `resume`, when given, is the checkpoint to continue from."""
+    interrupted; `resume`, when given, is the checkpoint to continue from. `agree(requested)`,
+    for the processes of a data-parallel run, says whether any of them was asked to stop, so that
+    all stop after the same step."""
 
     save: Callable[[Tensors, dict[str, Any]], None]
     every: int | None = None
     resume: CheckpointData | None = None
+    agree: Callable[[bool], bool] | None = None
 
     def interval(self, total: int) -> int:
         return self.every if self.every is not None else max(1, total // 10)
@@ -122,7 +125,7 @@ def run(
             bar.update()
             if learner.done or checkpoints is None:
                 continue
-            interrupted = stop.requested
+            interrupted = stop.requested if checkpoints.agree is None else checkpoints.agree(stop.requested)
             if interrupted or learner.completed % checkpoints.interval(learner.total) == 0:
                 checkpoints.save(*snapshot(*learner.state_dict()))
             if interrupted:

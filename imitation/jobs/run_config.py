@@ -44,6 +44,7 @@ class RunConfig:
     reward: dict[str, Any] | None = None  # RewardConfig of the reward model the run holds
     policy: dict[str, Any] | None = None  # PolicyConfig of the policy the run holds
     split: dict[str, Any] | None = None  # bc: which episodes or steps were held out
+    world_size: int | None = None  # bc under torchrun: the data-parallel processes (None: one)
     run: str | None = None  # reward-evaluation: the run evaluated
     evaluation: dict[str, Any] | None = None  # reward-evaluation: its settings
 
