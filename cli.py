@@ -191,7 +191,9 @@ def cmd_train_ppo(args: argparse.Namespace) -> int:
         _fields(args, "PPOConfig") | pixels, reward_run=args.reward, resume=args.out if args.resume else None
     )
     config = ppo_config(args.env, learned_reward=args.reward is not None, **fields)
-    result = ppo_job(config, args.out, reward_run=args.reward, progress=not args.quiet, resume=args.resume)
+    result = ppo_job(
+        config, args.out, reward_run=args.reward, progress=not args.quiet, resume=args.resume, workers=_workers(args)
+    )
     if args.json:
         _print_json(result)
     else:
@@ -341,6 +343,7 @@ def cmd_train_dagger(args: argparse.Namespace) -> int:
         speed=args.speed,
         progress=not args.quiet,
         resume=args.resume,
+        workers=_workers(args),
     )
     if args.json:
         _print_json(result)
@@ -359,6 +362,8 @@ def cmd_train_dagger(args: argparse.Namespace) -> int:
 
 
 def cmd_train_irl(args: argparse.Namespace) -> int:
+    if args.workers is not None and args.method not in ("gcl", "gail", "airl"):
+        raise ImitationError(f"--workers: --method {args.method} has no PPO rollouts to spread; use it with gcl, airl or gail")
     if args.method == "gcl":
         return _train_gcl(args)
     if args.method in ("gail", "airl"):
@@ -404,6 +409,7 @@ def _train_gcl(args: argparse.Namespace) -> int:
         args.out,
         progress=not args.quiet,
         resume=args.resume,
+        workers=_workers(args),
     )
     if args.json:
         _print_json(result)
@@ -429,6 +435,7 @@ def _train_adversarial(args: argparse.Namespace) -> int:
         args.out,
         progress=not args.quiet,
         resume=args.resume,
+        workers=_workers(args),
     )
     if args.json:
         _print_json(result)
@@ -504,7 +511,7 @@ def cmd_eval_reward(args: argparse.Namespace) -> int:
     torch.set_num_threads(1)  # EPIC's many small reward calls; measured 2-10x faster than 2 threads on 2 busy cores
     config = RewardEvaluationConfig(**_fields(args, "RewardEvaluationConfig"))
     out = args.out or str(Path(args.run) / "eval-reward")
-    result = evaluate_reward(args.run, args.env, config, out, progress=not args.quiet)
+    result = evaluate_reward(args.run, args.env, config, out, progress=not args.quiet, workers=_workers(args))
     if args.json:
         _print_json(result)
         return 0
@@ -746,6 +753,36 @@ def _add_speed(parser: argparse.ArgumentParser) -> None:
         metavar="X",
         help="with --expert keyboard or gamepad: the window runs at X times real time, from 0.125 to 4 (default: 1)",
     )
+
+
+def _add_workers(parser: argparse.ArgumentParser, what: str) -> None:
+    """--workers, --ray-address and --cpus: `what` runs on Ray (the optional extra `ray`)."""
+    parser.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help=f"run {what} on N Ray workers (pip install 'imitation-mcap[ray]'; default: in this process, no Ray)",
+    )
+    parser.add_argument(
+        "--ray-address",
+        default="local",
+        metavar="ADDR|auto|local",
+        help="with --workers: the Ray cluster to use; 'local' starts one on this machine for the run (default: local)",
+    )
+    parser.add_argument(
+        "--cpus", type=int, metavar="C", help="with --workers and a local Ray: the CPUs it may use (default: every core)"
+    )
+
+
+def _workers(args: argparse.Namespace) -> Any:
+    """The `Workers` the flags of `_add_workers` ask for, or None to run in this process."""
+    from imitation.ray_engine import LOCAL, Workers
+
+    if args.workers is None:
+        if args.ray_address != LOCAL or args.cpus is not None:
+            raise ImitationError("--ray-address and --cpus go with --workers N")
+        return None
+    return Workers(args.workers, args.ray_address, args.cpus)
 
 
 def _add_resume(parser: argparse.ArgumentParser) -> None:
@@ -1037,6 +1074,7 @@ def build_parser() -> argparse.ArgumentParser:
     ppo.add_argument("--seed", type=int, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
     ppo.add_argument("--device", metavar="auto|cpu|cuda", help="where the networks run (default: auto)")
     ppo.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (default: 1, fastest for small networks)")
+    _add_workers(ppo, "the rollouts (the environment copies split between them)")
     _add_run_output(ppo)
     _add_resume(ppo)
     ppo.set_defaults(handler=cmd_train_ppo)
@@ -1246,6 +1284,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_image_training_options(dagger)
     dagger.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
     dagger.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
+    _add_workers(dagger, "each round's episodes, each worker writing its own shard of the round")
     _add_run_output(dagger)
     _add_resume(dagger)
     dagger.set_defaults(handler=cmd_train_dagger)
@@ -1341,6 +1380,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="apprenticeship on Box observations: episodes that estimate each policy's feature expectations (default: 10)",
     )
     irl.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
+    _add_workers(irl, "PPO's rollouts (gcl, airl, gail)")
     _add_run_output(irl)
     _add_resume(irl)
     irl.set_defaults(handler=cmd_train_irl)
@@ -1394,7 +1434,10 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="F.mcap",
         help="expert demos for the reference return and EPIC's coverage (default: those the reward was learned from)",
     )
-    reward.add_argument("--jobs", type=int, default=2, metavar="J", help="retrainings run side by side (default: 2)")
+    reward.add_argument(
+        "--jobs", type=int, default=2, metavar="J", help="retrainings run side by side in local processes (default: 2)"
+    )
+    _add_workers(reward, "the retrainings as Ray tasks (instead of --jobs local processes)")
     reward.add_argument(
         "--seed",
         type=int,
@@ -1424,6 +1467,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--json", action="store_true", help="print one JSON object")
     demo.add_argument("--quiet", action="store_true", help="no progress output")
     demo.set_defaults(handler=cmd_demo)
+
     return parser
 
 

@@ -19,8 +19,13 @@ OUT/results.jsonl, so an interrupted benchmark resumes where it stopped.
   over 10 noise-free episodes (recorded with seeds from 2000), R_random a uniform random policy's
   mean over 10 episodes (seeds 0-9).
 
+With `--workers N` our runs go to Ray as tasks, N at a time (`--ray-address`: a cluster whose
+nodes see this checkout and OUT at the same paths; "local" by default), each finished run recorded as
+it returns; the runs of PPO on a recovered reward go after the IRL runs whose rewards they reuse.
+
 Usage: python bench/mujoco_table.py [--envs HalfCheetah,Hopper] [--methods bc,dagger,gail,airl,airl-ppo,gcl-ppo]
        [--seeds 0,1,2] [--irl-steps N] [--retrain-steps N] [--peer] [--out bench/mujoco-runs]
+       [--workers N [--ray-address ADDR]]
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -184,6 +190,35 @@ def our_run(
     return float(result["eval"]["mean_return"]), seconds
 
 
+Cell = tuple[str, str, str, int]  # (env, method, env id, seed)
+
+
+def our_runs(
+    cells: list[Cell], experts: dict[str, str], demos: dict[str, Path], args: argparse.Namespace
+) -> Iterator[tuple[Cell, float, float]]:
+    """(cell, return, seconds) of each of our runs, as they finish: one after another, or as Ray
+    tasks (`--workers`), the reward-retraining runs after the IRL runs they reuse."""
+
+    def run(cell: Cell) -> tuple[float, float]:
+        env, method, env_id, seed = cell
+        return our_run(method, env_id, experts[env], demos[env], seed, args.out / env, args)
+
+    if args.workers is None:
+        for cell in cells:
+            yield (cell, *run(cell))
+        return
+    sys.path.insert(0, str(ROOT))
+    from imitation.ray_engine import RETRIES, ray_get, ray_session
+
+    with ray_session(args.ray_address, num_cpus=args.workers * args.threads) as ray:
+        task = ray.remote(num_cpus=args.threads, max_retries=RETRIES)(run)
+        for phase in (False, True):  # IRL and imitation runs, then PPO on the rewards they recovered
+            pending = {task.remote(cell): cell for cell in cells if cell[1].endswith("-ppo") == phase}
+            while pending:
+                [done], _ = ray.wait(list(pending))
+                yield (pending.pop(done), *ray_get(ray, done))
+
+
 def table(results: Results, envs: list[str], methods: list[str], scale: dict[str, tuple[float, float]]) -> str:
     """Markdown: per task and method, our mean normalised return with the seeds' figures and the
     mean wall time; the peer's measured mean and imitation's published aggregate beside it."""
@@ -228,6 +263,8 @@ def main() -> None:
     parser.add_argument("--peer", action="store_true", help="also run imitation 1.0.1's BC and GAIL on the same demos")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", type=Path, default=BENCH / "mujoco-runs")
+    parser.add_argument("--workers", type=int, metavar="N", help="run ours as Ray tasks, N at a time (default: one by one)")
+    parser.add_argument("--ray-address", default="local", metavar="ADDR|auto|local")
     args = parser.parse_args()
     envs, methods, seeds = args.envs.split(","), args.methods.split(","), [int(s) for s in args.seeds.split(",")]
     experts = dict(spec.split("=", 1) for spec in args.expert)
@@ -236,6 +273,8 @@ def main() -> None:
     peer = ensure_peer() if args.peer else (None, "not asked (--peer)")
     print(f"imitation 1.0.1: {peer[1]}", flush=True)
     scale: dict[str, tuple[float, float]] = {}
+    demo_files: dict[str, Path] = {}
+    cells: list[Cell] = []
     for env in envs:
         env_id = f"imitation/{env}FixedHorizon-v0"
         expert = experts.get(env) or zoo_expert(env)
@@ -261,14 +300,15 @@ def main() -> None:
             cli(*recording, "--episodes", "10", "--seed", "2000", "--out", str(clean), threads=args.threads)
         scale[env] = (random_return(env_id), demo_return(clean))
         print(f"{env}: random {scale[env][0]:.1f}, expert {scale[env][1]:.1f}, demos {demo_return(demos):.1f}", flush=True)
+        experts[env], demo_files[env] = expert, demos
+        cells += [(env, m, env_id, seed) for m in methods for seed in seeds if results.get("ours", env, m, seed) is None]
+    for (env, method, _, seed), returned, seconds in our_runs(cells, experts, demo_files, args):
+        results.add({"side": "ours", "env": env, "method": method, "seed": seed, "return": returned, "seconds": seconds})
+        print(f"{env} {method} seed {seed}: ours {returned:.1f} in {seconds:.0f} s", flush=True)
+    for env in scale:
+        demos = demo_files[env]
         for method in methods:
             for seed in seeds:
-                if results.get("ours", env, method, seed) is None:
-                    returned, seconds = our_run(method, env_id, expert, demos, seed, args.out / env, args)
-                    results.add(
-                        {"side": "ours", "env": env, "method": method, "seed": seed, "return": returned, "seconds": seconds}
-                    )
-                    print(f"{env} {method} seed {seed}: ours {returned:.1f} in {seconds:.0f} s", flush=True)
                 if peer[0] is not None and method in ("bc", "gail") and results.get("peer", env, method, seed) is None:
                     spec = {
                         "method": method, "env": env, "demos": str(export_npz(demos, args.out / f"{env}-demos.npz")),

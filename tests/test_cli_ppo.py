@@ -131,7 +131,7 @@ def test_a_pixel_rollout_keeps_frames_as_uint8_and_the_update_trains_the_cnn() -
         frames, state = rollout.observations["pixels"], rollout.observations["state"]
         assert frames.dtype == torch.uint8 and frames.shape == (8, 2, 2, 36, 36, 1) and frames.float().std() > 0
         assert rollout.next_observations["pixels"].dtype == torch.uint8 and state.dtype == torch.float32
-        assert learner._buffers.features is None, "an image policy keeps no fixed features: its CNN is trained"
+        assert learner.buffers.features is None, "an image policy keeps no fixed features: its CNN is trained"
         before = learner.policy.image_encoders[0].convolutions[0].weight.detach().clone()
         learner.update(rollout, rollout.env_rewards)
         assert not torch.equal(before, learner.policy.image_encoders[0].convolutions[0].weight)

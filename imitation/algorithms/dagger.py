@@ -223,6 +223,89 @@ def finished_episodes(path: Path) -> list[Episode]:
     return DemoFile(path).read_episodes() if path.exists() else []
 
 
+def round_writer(
+    path: Path, env: gym.Env, *, env_id: str, round_index: int, beta: float, metadata: dict[str, Any]
+) -> DemoWriter:
+    """A round's file (round-NN.mcap, or a worker's shard of it); each episode is flushed as it
+    ends, so a killed run keeps it. A StackFrames env's file holds single frames."""
+    return DemoWriter(
+        path,
+        env_id=env_id,
+        observation_space=env.env.observation_space if isinstance(env, StackFrames) else env.observation_space,
+        action_space=env.action_space,
+        dt=control_period(env),
+        source=f"dagger round {round_index}",
+        metadata={**metadata, "round": round_index, "beta": beta},
+        flush_episodes=True,
+    )
+
+
+def newest_frames(episode: Episode, env: gym.Env) -> Episode:
+    """The episode as a round file holds it: of each stack of frames (a StackFrames env), the newest."""
+    if not isinstance(env, StackFrames):
+        return episode
+    observations = episode.observations
+    if isinstance(observations, dict):
+        observations = {
+            key: cast(np.ndarray, value)[:, -1] if key in env.keys else value for key, value in observations.items()
+        }
+    else:
+        assert isinstance(observations, np.ndarray)
+        observations = observations[:, -1]
+    return dataclasses.replace(episode, observations=observations)
+
+
+def play_round(
+    env: gym.Env,
+    learner: Policy | None,
+    expert: Policy,
+    path: Path,
+    *,
+    env_id: str,
+    round_index: int,
+    beta: float,
+    mode: str,
+    seeds: Sequence[int],
+    rng: np.random.Generator,
+    metadata: dict[str, Any],
+    status: Callable[[int, list[Episode]], Callable[[int, bool, int], None] | None] | None = None,
+) -> list[Episode]:
+    """The episodes reset with `seeds`, played by the β-mixture (`run_episode`) into the file
+    `path`, continuing an interrupted try of it: the episodes that try finished are kept, and
+    the mixture's draws they took skipped, so the file ends as an uninterrupted try's would.
+    `status(episode number, finished)` gives the status callback of each episode's steps."""
+    episodes = finished_episodes(path)
+    if episodes and learner is not None and mode == "label":
+        rng.random(sum(len(episode) for episode in episodes))  # the draws they took, as if uninterrupted
+    with round_writer(path, env, env_id=env_id, round_index=round_index, beta=beta, metadata=metadata) as writer:
+        for episode in episodes:
+            writer.write(episode)
+        for i in range(len(episodes), len(seeds)):
+            episode = run_episode(
+                env,
+                learner,
+                expert,
+                mode=mode,
+                beta=beta,
+                seed=seeds[i],
+                rng=rng,
+                metadata={"round": round_index, "beta": beta},
+                status=status(i + 1, episodes) if status is not None else None,
+            )
+            episodes.append(newest_frames(episode, env))
+            writer.write(episodes[-1])
+    return episodes
+
+
+class RemoteRounds(Protocol):
+    """A round's episodes played elsewhere (Ray workers: `imitation.algorithms.ray_dagger`), each
+    worker writing its own shard; `collect` returns the shards' paths."""
+
+    def collect(self, policy: ActorCritic | None, round_index: int, beta: float, seeds: list[int]) -> list[Path]: ...
+
+    def close(self) -> None: ...
+
+
 class DAgger:
     """The learner: one round per step (roll out the β-mixture, write the round's labelled
     episodes to `round_dir`, retrain BC on the demos and every round so far)."""
@@ -242,14 +325,15 @@ class DAgger:
         demos: Sequence[str | os.PathLike] = (),
         evaluate: Callable[[ActorCritic], float] | None = None,
         metadata: dict[str, Any] | None = None,
+        remote: RemoteRounds | None = None,
     ) -> None:
         config.validate()
         self.env, self.expert, self.policy, self.config = env, expert, policy, config
+        self.remote = remote
         # A StackFrames env's observations are stacks; the round files hold their newest frames.
         self.stacked_keys = env.keys if isinstance(env, StackFrames) else []
         self.frames = env.frames if isinstance(env, StackFrames) else 1
-        self.file_space = env.env.observation_space if isinstance(env, StackFrames) else env.observation_space
-        self.metadata = metadata or {}
+        self.metadata = {**(metadata or {}), "mode": config.mode}
         self.env_id, self.demos, self.evaluate = env_id, list(demos), evaluate
         self.total = config.rounds
         self.rng = np.random.default_rng(config.seed)
@@ -283,29 +367,29 @@ class DAgger:
             self.learner = SingleObservationPolicy(self.policy, deterministic=True)  # the person corrects it from the start
         round_index = self.rounds + 1
         beta = beta_for_round(round_index, self.config)
-        path = self.round_dir / f"round-{round_index:02d}.mcap"
-        episodes = finished_episodes(path)  # of an interrupted try of this round
-        if episodes and self.learner is not None and self.config.mode == "label":
-            self.rng.random(sum(len(episode) for episode in episodes))  # the draws they took, as if uninterrupted
-        seed = self.config.seed * 100_000 + round_index * 1_000
-        with self._round_writer(path, round_index, beta) as writer:
-            for episode in episodes:
-                writer.write(episode)
-            for i in range(len(episodes), self.config.episodes_per_round):
-                episode = run_episode(
-                    self.env,
-                    self.learner,
-                    self.expert,
-                    mode=self.config.mode,
-                    beta=beta,
-                    seed=seed + i,
-                    rng=self.rng,
-                    metadata={"round": round_index, "beta": beta},
-                    status=self._status(round_index, i + 1, episodes),
-                )
-                episodes.append(self._newest_frames(episode))
-                writer.write(episodes[-1])
-        self.files.append(path)
+        first_seed = self.config.seed * 100_000 + round_index * 1_000
+        seeds = list(range(first_seed, first_seed + self.config.episodes_per_round))
+        if self.remote is not None:
+            shards = self.remote.collect(self.policy if self.learner is not None else None, round_index, beta, seeds)
+            episodes = [episode for shard in shards for episode in DemoFile(shard).read_episodes()]
+            self.files += shards
+        else:
+            path = self.round_dir / f"round-{round_index:02d}.mcap"
+            episodes = play_round(
+                self.env,
+                self.learner,
+                self.expert,
+                path,
+                env_id=self.env_id,
+                round_index=round_index,
+                beta=beta,
+                mode=self.config.mode,
+                seeds=seeds,
+                rng=self.rng,
+                metadata=self.metadata,
+                status=lambda number, finished: self._status(round_index, number, finished),
+            )
+            self.files.append(path)
         self.labels += int(sum(self._labels(episode).sum() for episode in episodes))
         self.policy, validation_loss = self._fit([*self.demos, *self.files])
         self.learner = SingleObservationPolicy(self.policy, deterministic=True)
@@ -321,19 +405,6 @@ class DAgger:
             "validation_loss": validation_loss,
             "return": self.evaluate(self.policy) if self.evaluate is not None else float("nan"),
         }
-
-    def _round_writer(self, path: Path, round_index: int, beta: float) -> DemoWriter:
-        """The round's file; each episode is flushed as it ends, so a killed run keeps it."""
-        return DemoWriter(
-            path,
-            env_id=self.env_id,
-            observation_space=self.file_space,
-            action_space=self.env.action_space,
-            dt=control_period(self.env),
-            source=f"dagger round {round_index}",
-            metadata={**self.metadata, "round": round_index, "beta": beta, "mode": self.config.mode},
-            flush_episodes=True,
-        )
 
     def _status(
         self, round_index: int, episode_number: int, finished: list[Episode]
@@ -365,21 +436,6 @@ class DAgger:
         if self.config.mode == "takeover" and self.config.label == "human":
             return self._human(episode)
         return np.ones(len(episode), dtype=bool)
-
-    def _newest_frames(self, episode: Episode) -> Episode:
-        """The episode as a round file holds it: of each stack of frames, the newest."""
-        if not self.stacked_keys:
-            return episode
-        observations = episode.observations
-        if isinstance(observations, dict):
-            observations = {
-                key: cast(np.ndarray, value)[:, -1] if key in self.stacked_keys else value
-                for key, value in observations.items()
-            }
-        else:
-            assert isinstance(observations, np.ndarray)
-            observations = observations[:, -1]
-        return dataclasses.replace(episode, observations=observations)
 
     def _fit(self, paths: Sequence[str | os.PathLike]) -> tuple[ActorCritic, float]:
         """BC on the aggregate dataset, warm-started from the current policy; the best validation loss."""

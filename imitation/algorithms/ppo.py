@@ -50,6 +50,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable
+from contextlib import closing
 from dataclasses import dataclass, field, fields
 from typing import Any, Protocol
 
@@ -439,6 +440,16 @@ class RolloutReward(Protocol):
     def relabel(self, rollout: Rollout) -> torch.Tensor: ...
 
 
+class RemoteRollouts(Protocol):
+    """Rollouts collected elsewhere (Ray actors: `imitation.algorithms.ray_rollouts`) into the
+    learner's rollout buffers (`rollout_storage`, `buffers`), and the envs' last observations into
+    its `observations`."""
+
+    def collect(self, learner: PPO) -> None: ...
+
+    def close(self) -> None: ...
+
+
 @dataclass
 class _Buffers:
     """What a rollout leaves for its update besides the `Rollout` itself: a flat policy's
@@ -490,7 +501,9 @@ class PPO:
     name = "PPO"
     unit = "update"
 
-    def __init__(self, config: PPOConfig, *, reward: RolloutReward | None = None) -> None:
+    def __init__(
+        self, config: PPOConfig, *, reward: RolloutReward | None = None, remote: RemoteRollouts | None = None
+    ) -> None:
         config.validate()
         # Measured on 2 cores: one thread runs these small MLPs ~10× faster than two, which
         # spend their time synchronising.
@@ -501,12 +514,20 @@ class PPO:
         self.reward = reward
         self.device = device = resolve_device(config.device)
         pixels = config.recipe
-        self.envs = make_vector_env(
-            config.env_id, config.n_envs, asynchronous=config.async_envs, pixels=pixels, frame_stack=config.frame_stack
-        )
+        self.remote = remote
+        # With remote rollouts the environments live with the workers; one copy here gives the spaces.
+        self.envs: gym.vector.VectorEnv | None = None
+        if remote is None:
+            self.envs = make_vector_env(
+                config.env_id, config.n_envs, asynchronous=config.async_envs, pixels=pixels, frame_stack=config.frame_stack
+            )
+            self.observation_space, self.action_space = self.envs.single_observation_space, self.envs.single_action_space
+        else:
+            with closing(make_observed_env(config.env_id, pixels, config.frame_stack)) as env:
+                self.observation_space, self.action_space = env.observation_space, env.action_space
         self.policy = make_policy(
-            self.envs.single_observation_space,
-            self.envs.single_action_space,
+            self.observation_space,
+            self.action_space,
             hidden_sizes=list(config.hidden_sizes),
             activation=config.activation,
             shared_trunk=config.shared_trunk,
@@ -531,12 +552,12 @@ class PPO:
         # Where the time goes (seconds, cumulative): stepping envs, the rollout's forward passes, updates.
         self.timers = {"env": 0.0, "inference": 0.0, "update": 0.0}
         self.clock = TrainingClock()
-        self._observations: np.ndarray | None = None  # reset at the first rollout, by the update it starts
-        self._rollout, self._buffers = self._allocate()
+        self.observations: Any = None  # the envs' current batch: reset at the first rollout, by the update it starts
+        self.rollout_storage, self.buffers = self._allocate()
 
     def _allocate(self) -> tuple[Rollout, _Buffers]:
         shape, device = (self.config.n_steps, self.config.n_envs), self.device
-        observation_space, action_shape = self.envs.single_observation_space, self.envs.single_action_space.shape
+        observation_space, action_shape = self.observation_space, self.action_space.shape
         assert action_shape is not None  # None only for non-array spaces (Graph, Text)
         features = None
         if self.policy.layout is None:
@@ -585,18 +606,24 @@ class PPO:
         """n_steps steps of every env with π_k, sampling a_t ~ π_k(·|s_t) and keeping log π_k(a_t|s_t),
         V(s_t) and π_k's parameters for the update. The returned tensors are refilled by the next
         rollout: copy what must outlive it."""
+        if self.remote is not None:
+            self.clock.start()
+            self.remote.collect(self)
+            self.global_step += self.rollout_size
+            return self.rollout_storage
         config, policy, device, timers = self.config, self.policy, self.device, self.timers
-        rollout, buffers = self._rollout, self._buffers
-        if self._observations is None:
-            self._observations, _ = self.envs.reset(seed=config.seed + self.updates * config.n_envs)
-            check_finite_step(config.env_id, -1, **observation_leaves("observation", self._observations))
+        rollout, buffers = self.rollout_storage, self.buffers
+        assert self.envs is not None  # local rollouts step the learner's own envs
+        if self.observations is None:
+            self.observations, _ = self.envs.reset(seed=config.seed + self.updates * config.n_envs)
+            check_finite_step(config.env_id, -1, **observation_leaves("observation", self.observations))
             if policy.layout is not None and self.updates == 0:
                 # An image policy's statistics start from the first frames (then grow once per rollout).
-                policy.update_normalizer(tensor_tree(self._observations, device))
+                policy.update_normalizer(tensor_tree(self.observations, device))
         self.clock.start()  # wall-clock time from here on, reward learning between updates included
         for t in range(config.n_steps):
             tick = time.perf_counter()
-            observation = tensor_tree(self._observations, device)
+            observation = tensor_tree(self.observations, device)
             store_observations(rollout.observations, t, observation)
             if policy.layout is None:
                 policy.update_normalizer(observation)
@@ -612,18 +639,18 @@ class PPO:
             rollout.env_actions[t] = torch.as_tensor(env_action, device=device).reshape(rollout.env_actions[t].shape)
             tock = time.perf_counter()
             timers["inference"] += tock - tick
-            self._observations, reward, terminated, truncated, info = self.envs.step(env_action)
+            self.observations, reward, terminated, truncated, info = self.envs.step(env_action)
             tick = time.perf_counter()
             timers["env"] += tick - tock
             env_step = self.global_step + t * config.n_envs
             check_finite_step(
-                config.env_id, env_step, **observation_leaves("observation", self._observations), reward=np.asarray(reward)
+                config.env_id, env_step, **observation_leaves("observation", self.observations), reward=np.asarray(reward)
             )
             self.recent_returns.extend(finished_episode_returns(info))
             rollout.env_rewards[t] = torch.as_tensor(reward, dtype=torch.float32, device=device)
             rollout.terminated[t] = torch.as_tensor(terminated, device=device)
             rollout.truncated[t] = torch.as_tensor(truncated, device=device)
-            store_observations(rollout.next_observations, t, tensor_tree(self._observations, device))
+            store_observations(rollout.next_observations, t, tensor_tree(self.observations, device))
             ended = np.flatnonzero(terminated | truncated)
             if ended.size:
                 # The episode's true final state (the env has already reset to a new one).
@@ -643,13 +670,13 @@ class PPO:
     def update(self, rollout: Rollout, rewards: torch.Tensor) -> dict[str, float]:
         """One update on the rollout just collected, optimising `rewards` (T, n_envs): GAE, then
         `ppo_update`'s epochs, then β's adaptation; the row of metrics to log."""
-        config, policy, buffers = self.config, self.policy, self._buffers
+        config, policy, buffers = self.config, self.policy, self.buffers
         started = time.perf_counter()
         if config.anneal_lr:
             self.optimizer.param_groups[0]["lr"] = (1.0 - self.updates / self.total) * config.learning_rate
         self._store_rewards(rewards, rollout)
         with torch.no_grad():
-            last_values = policy.value(policy.encode(tensor_tree(self._observations, self.device)))
+            last_values = policy.value(policy.encode(tensor_tree(self.observations, self.device)))
         terminated, truncated = rollout.terminated, rollout.truncated
         next_values = torch.where(truncated, buffers.truncated_values, torch.cat([buffers.values[1:], last_values[None]]))
         advantages, returns = compute_gae(
@@ -715,7 +742,7 @@ class PPO:
     def _store_rewards(self, rewards: torch.Tensor, rollout: Rollout) -> None:
         """The rewards optimised, scaled by the running return std when configured, into the
         update's buffer; their undiscounted episode returns into `recent_optimised_returns`."""
-        optimised = rewards.detach().to(device=self.device, dtype=torch.float32).reshape(self._buffers.rewards.shape)
+        optimised = rewards.detach().to(device=self.device, dtype=torch.float32).reshape(self.buffers.rewards.shape)
         self._check_learned_reward(optimised)
         dones = (rollout.terminated | rollout.truncated).cpu().numpy()
         for t, step_rewards in enumerate(optimised.cpu().numpy()):
@@ -724,7 +751,7 @@ class PPO:
                 self.recent_optimised_returns.append(float(self._optimised_return_accumulator[i]))
                 self._optimised_return_accumulator[i] = 0.0
             scaled = self.reward_scaler(step_rewards, dones[t]) if self.reward_scaler is not None else step_rewards
-            self._buffers.rewards[t] = torch.as_tensor(scaled, device=self.device)
+            self.buffers.rewards[t] = torch.as_tensor(scaled, device=self.device)
 
     def _check_learned_reward(self, rewards: torch.Tensor) -> None:
         """A learned reward gone NaN or infinite stops training naming the env step it entered at."""
@@ -739,7 +766,10 @@ class PPO:
         )
 
     def close(self) -> None:
-        self.envs.close()
+        if self.envs is not None:
+            self.envs.close()
+        if self.remote is not None:
+            self.remote.close()
 
     def state_dict(self) -> CheckpointData:
         """Everything to continue after this update: networks, Adam, the normalisers, β, the

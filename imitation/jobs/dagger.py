@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import functools
 import os
 from contextlib import ExitStack
 from typing import Any
 
+import gymnasium as gym
+
 from imitation.algorithms.bc import policy_options
-from imitation.algorithms.dagger import DAgger, DAggerConfig
+from imitation.algorithms.dagger import DAgger, DAggerConfig, Policy
+from imitation.algorithms.ray_dagger import RayRounds
 from imitation.checkpoints import snapshot
 from imitation.data.dataset import DemoDataset
 from imitation.envs.pixels import PIXELS_KEY, PixelObservation, PixelRecipe, StackFrames, expert_on_state
-from imitation.errors import ConfigError
+from imitation.errors import ConfigError, ImitationError
 from imitation.evaluation.plots import plot_curve
 from imitation.evaluation.policy import EVAL_SEED, evaluate_policy
 from imitation.experts.load import close_expert, load_expert, make_env_for_expert
@@ -19,6 +23,7 @@ from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
 from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy, policy_tensors
+from imitation.ray_engine import Workers
 from imitation.seeding import seed_everything
 
 
@@ -33,13 +38,15 @@ def dagger_job(
     speed: float = 1.0,
     progress: bool = True,
     resume: bool = False,
+    workers: Workers | None = None,
 ) -> dict[str, Any]:
     """DAgger with `expert_spec` into run directory `out`; each round's labelled rollouts are
     written to `out/rounds/round-NN.mcap`. `resume` continues the interrupted run in
     `out`.partial from its checkpoint, with the rounds it had finished.
 
     With `pixels` the learner sees rendered frames (stacks of `config.bc.frame_stack`) and the
-    expert the env's own observation beside them."""
+    expert the env's own observation beside them. With `workers`, each round's episodes are
+    played by that many Ray workers, each into its own shard (`imitation.algorithms.ray_dagger`)."""
     if config.bc.previous_action == "on":
         raise ConfigError(
             "previous_action",
@@ -52,20 +59,22 @@ def dagger_job(
     if frames > 1 and pixels is None:
         raise ConfigError("frame_stack", "stacks rendered frames: give --pixels too", owner="BCConfig")
     config.validate()
-    env = make_env_for_expert(env_id, expert_spec, pixels=pixels is not None)
-    expert = load_expert(expert_spec, env, seed=config.seed, speed=speed)
+    env, expert = env_and_expert(env_id, expert_spec, pixels, frames, seed=config.seed, speed=speed)
     if config.mode == "takeover" and not hasattr(expert, "engaged"):
         raise ConfigError(
             "mode",
             f"takeover needs an expert that takes the controls (standin, keyboard, gamepad), not {expert_spec}",
             owner="DAggerConfig",
         )
+    if workers is not None and (config.mode == "takeover" or hasattr(expert, "show_status")):
+        close_expert(expert)
+        raise ImitationError(
+            f"--workers: expert {expert_spec} drives at this machine (take-over or a person's window); "
+            "its rounds run in this process, without --workers"
+        )
     pixel_options: dict[str, Any] = {}
     metadata: dict[str, Any] = {}
     if pixels is not None:
-        pixel_env = PixelObservation(env, pixels)
-        expert = expert_on_state(expert, pixel_env)
-        env = StackFrames(pixel_env, frames) if frames > 1 else pixel_env
         pixel_options = {
             "frame_stack": frames,
             "observation_keys": config.bc.observation_keys or [PIXELS_KEY],
@@ -94,6 +103,20 @@ def dagger_job(
     with ExitStack() as cleanup, training_run(out, run_config, x_axis="round", resume=resume) as run:
         cleanup.callback(env.close)
         cleanup.callback(close_expert, expert)  # a person's window
+        remote = None
+        if workers is not None:
+            cleanup.enter_context(workers.session())
+            make = functools.partial(env_and_expert, env_id, expert_spec, pixels, frames, seed=config.seed)
+            remote = RayRounds(
+                workers.count,
+                make,
+                round_dir=run.file("rounds"),
+                env_id=env_id,
+                mode=config.mode,
+                seed=config.seed,
+                metadata=metadata,
+            )
+            cleanup.callback(remote.close)
         learner = DAgger(
             env,
             expert,
@@ -104,6 +127,7 @@ def dagger_job(
             demos=demos,
             evaluate=env_return,
             metadata=metadata,
+            remote=remote,
         )
         if not resume:  # a round can be stopped midway, the first one too: --resume then starts from here
             run.save_checkpoint(*snapshot(*learner.state_dict()))
@@ -142,3 +166,17 @@ def dagger_job(
         }
         run.finish(metrics)
     return {"run": str(run.path), "round_files": [str(run.path / "rounds" / p.name) for p in learner.files], **metrics}
+
+
+def env_and_expert(
+    env_id: str, expert_spec: str, pixels: PixelRecipe | None, frames: int, *, seed: int, speed: float = 1.0
+) -> tuple[gym.Env, Policy]:
+    """The env DAgger's learner acts in and the expert that labels it: with `pixels`, rendered
+    frames (stacks of `frames`) for the learner and the env's own observation for the expert.
+    A Ray worker builds its own pair with it."""
+    env = make_env_for_expert(env_id, expert_spec, pixels=pixels is not None)
+    expert = load_expert(expert_spec, env, seed=seed, speed=speed)
+    if pixels is None:
+        return env, expert
+    pixel_env = PixelObservation(env, pixels)
+    return (StackFrames(pixel_env, frames) if frames > 1 else pixel_env), expert_on_state(expert, pixel_env)

@@ -8,6 +8,7 @@ import dataclasses
 import os
 import sys
 import time
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import closing
 from dataclasses import dataclass
@@ -45,8 +46,9 @@ from imitation.jobs.presets import ppo_settings, preset
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.policies import SingleObservationPolicy, load_policy
 from imitation.progress import progress_bar
+from imitation.ray_engine import RETRIES, Workers, ray_get
 from imitation.rewards import RewardNet, load_reward
-from imitation.runs import RunWriter, read_run
+from imitation.runs import RunWriter, has_checkpoint, read_run
 
 ROLLOUT_EPISODES = 4  # per policy, for the coverage batch
 
@@ -72,10 +74,17 @@ class RewardEvaluationConfig:
 
 
 def evaluate_reward(
-    run: str | os.PathLike, env_id: str, config: RewardEvaluationConfig, out: str | os.PathLike, *, progress: bool = True
+    run: str | os.PathLike,
+    env_id: str,
+    config: RewardEvaluationConfig,
+    out: str | os.PathLike,
+    *,
+    progress: bool = True,
+    workers: Workers | None = None,
 ) -> dict[str, Any]:
     """Evaluate the reward model of run directory `run` on `env_id`; write the results
-    (metrics.json), plots and report.md to directory `out` (replaced only when complete)."""
+    (metrics.json), plots and report.md to directory `out` (replaced only when complete).
+    With `workers`, the PPO retrainings run as Ray tasks instead of local processes."""
     config.validate()
     model = load_reward(run)
     _check_flat_observations(model, run)
@@ -90,7 +99,9 @@ def evaluate_reward(
                     model, env.unwrapped.mdp, env_id, discount=discount, seed=config.seed, out=writer.partial
                 )
             else:
-                results = _evaluate_continuous(model, env, env_id, run, run_config, config, writer.partial, progress=progress)
+                results = _evaluate_continuous(
+                    model, env, env_id, run, run_config, config, writer.partial, progress=progress, workers=workers
+                )
             results = {"run": str(run), "env_id": env_id, **results}
             write_report(writer.partial / "report.md", reward_report(results), title=f"Reward evaluation: {run} on {env_id}")
             writer.finish(results)
@@ -119,6 +130,7 @@ def _evaluate_continuous(
     out: Path,
     *,
     progress: bool,
+    workers: Workers | None,
 ) -> dict[str, Any]:
     demo_paths = config.demos if config.demos is not None else run_config.demos or []
     if not demo_paths:
@@ -133,7 +145,7 @@ def _evaluate_continuous(
 
     rewards = with_controls(model, seed=config.seed)
     settings = ppo_settings(env_id, env.action_space, learned_reward=True)
-    retraining = _retrain(rewards, run, env_id, settings, config, out, progress=progress)
+    retraining = _retrain(rewards, run, env_id, settings, config, out, progress=progress, workers=workers)
     policy_rollouts = [_policy_transitions(out / path, env, seed=EVAL_SEED) for path in retraining.runs["learned"]]
     random_rollouts = collect_transitions(env, random_policy, episodes=ROLLOUT_EPISODES, seed=EVAL_SEED)
     rollouts = TransitionBatch(*(np.concatenate([part[i] for part in [random_rollouts, *policy_rollouts]]) for i in range(3)))
@@ -168,10 +180,12 @@ def _retrain(
     out: Path,
     *,
     progress: bool,
+    workers: Workers | None,
 ) -> Retraining:
     """PPO from scratch on each reward for `config.seeds` seeds, `config.jobs` at a time in fresh
-    processes, into `out`/retrain/NAME-seedS. The recovered reward is named by its run, so each
-    retrained run says which reward it optimised; the controls go as they are."""
+    processes (or as tasks on `workers`' Ray), into `out`/retrain/NAME-seedS. The recovered reward
+    is named by its run, so each retrained run says which reward it optimised; the controls go
+    as they are."""
     steps = preset(env_id).retrain_steps if config.retrain_steps is None else config.retrain_steps
     seeds = list(range(config.seed, config.seed + config.seeds))
     retraining = Retraining(
@@ -189,22 +203,19 @@ def _retrain(
         for seed in seeds:
             ppo_config = PPOConfig(env_id=env_id, total_steps=steps, seed=seed, device="cpu", **settings)
             jobs.append((name, ppo_config, out / "retrain" / f"{name}-seed{seed}", source))
-    workers = min(config.jobs, len(jobs))
-    retraining.estimated_seconds = _estimate_seconds(jobs[0][1], rewards["learned"], len(jobs), workers)
+    parallel = min(workers.count if workers else config.jobs, len(jobs))
+    retraining.estimated_seconds = _estimate_seconds(jobs[0][1], rewards["learned"], len(jobs), parallel)
     if progress:
+        where = f"on {parallel} Ray workers" if workers else f"{parallel} at a time"
         print(
             f"[eval reward] retraining PPO from scratch: {len(rewards)} rewards × {len(seeds)} seed(s) × {steps:,} steps, "
-            f"{workers} at a time; about {retraining.estimated_seconds / 60:.0f} min at the speed measured here",
+            f"{where}; about {retraining.estimated_seconds / 60:.0f} min at the speed measured here",
             file=sys.stderr,
             flush=True,
         )
     bar = progress_bar(total=len(jobs), desc="retrain", unit="run", enabled=progress)
-    with bar, ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-        futures = [
-            (name, pool.submit(_train_ppo_quietly, ppo_config, path, source)) for name, ppo_config, path, source in jobs
-        ]
-        for name, future in futures:
-            result = future.result()
+    with bar:
+        for (name, *_), result in zip(jobs, _run_trainings([job[1:] for job in jobs], workers, parallel)):
             retraining.returns[name].append(result["eval"]["mean_return"])
             retraining.runs[name].append(str(Path(result["run"]).relative_to(out)))
             bar.update()
@@ -229,10 +240,28 @@ def _estimate_seconds(config: PPOConfig, reward: RewardNet, runs: int, workers: 
     return per_step * config.total_steps * runs / parallel
 
 
+def _run_trainings(
+    trainings: list[tuple[PPOConfig, Path, dict[str, Any]]], workers: Workers | None, parallel: int
+) -> Iterator[dict[str, Any]]:
+    """The result of `_train_ppo_quietly` for each training, in order: `parallel` fresh local
+    processes at a time, or tasks on `workers`' Ray, each retried when its worker dies."""
+    if workers is None:
+        with ProcessPoolExecutor(max_workers=parallel, mp_context=get_context("spawn")) as pool:
+            futures = [pool.submit(_train_ppo_quietly, *training) for training in trainings]
+            yield from (future.result() for future in futures)
+        return
+    with workers.session() as ray:
+        task = ray.remote(num_cpus=1, max_retries=RETRIES)(_train_ppo_quietly)
+        pending = [task.remote(*training) for training in trainings]
+        yield from (ray_get(ray, reference) for reference in pending)
+
+
 def _train_ppo_quietly(config: PPOConfig, out: Path, source: dict[str, Any]) -> dict[str, Any]:
-    """One retraining in a worker process (one torch thread, no progress bar)."""
+    """One retraining in a worker process (one torch thread, no progress bar). A retry of a
+    training whose worker died continues from the checkpoint it left."""
     torch.set_num_threads(1)
-    return ppo_job(config, out, progress=False, **source)
+    resume = has_checkpoint(out.with_name(out.name + ".partial"))
+    return ppo_job(config, out, progress=False, resume=resume, **source)
 
 
 def _policy_transitions(run: Path, env: gym.Env, *, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

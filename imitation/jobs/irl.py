@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from collections.abc import Callable
-from contextlib import closing
+from contextlib import closing, nullcontext
 from dataclasses import dataclass
 from typing import Any
 
@@ -19,6 +19,7 @@ from imitation.algorithms.gail import GAILDiscriminator
 from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning
 from imitation.algorithms.maxent_irl import MaxEntIRL, MaxEntIRLConfig, all_state_rewards, demo_visitation
 from imitation.algorithms.ppo import PPO, PPOConfig, make_observed_env
+from imitation.algorithms.ray_rollouts import RayRollouts
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import TransitionTensors, check_episodes_finite, load_transitions, transitions_to_torch
 from imitation.data.types import Transitions
@@ -32,6 +33,7 @@ from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
 from imitation.policies import acting_env, make_acting_env, policy_tensors
+from imitation.ray_engine import Workers
 from imitation.rewards import RewardNet, make_reward_model, reward_tensors
 from imitation.seeding import seed_everything
 
@@ -127,6 +129,7 @@ def gcl_job(
     *,
     progress: bool = True,
     resume: bool = False,
+    workers: Workers | None = None,
 ) -> dict[str, Any]:
     """Guided cost learning on `demos` into run directory `out`: the reward model (for `train ppo
     --reward`) and the PPO policy trained alongside it (the maximum-entropy sampler, not meant
@@ -150,7 +153,7 @@ def gcl_job(
             loss="reward_loss",
         )
 
-    return _irl_with_ppo(demos, env_id, config.seed, ppo_config, out, make, progress=progress, resume=resume)
+    return _irl_with_ppo(demos, env_id, config.seed, ppo_config, out, make, progress=progress, resume=resume, workers=workers)
 
 
 def adversarial_job(
@@ -162,6 +165,7 @@ def adversarial_job(
     *,
     progress: bool = True,
     resume: bool = False,
+    workers: Workers | None = None,
 ) -> dict[str, Any]:
     """GAIL or AIRL (`config.method`) on `demos` into run directory `out`: the imitating PPO policy
     (for `eval policy`) and the reward (AIRL's g, or GAIL's −log(1 − D)) for `train ppo --reward`
@@ -193,7 +197,7 @@ def adversarial_job(
             loss="discriminator_loss",
         )
 
-    return _irl_with_ppo(demos, env_id, config.seed, ppo_config, out, make, progress=progress, resume=resume)
+    return _irl_with_ppo(demos, env_id, config.seed, ppo_config, out, make, progress=progress, resume=resume, workers=workers)
 
 
 @dataclass
@@ -218,6 +222,7 @@ def _irl_with_ppo(
     *,
     progress: bool,
     resume: bool,
+    workers: Workers | None,
 ) -> dict[str, Any]:
     """The run of an IRL method that learns alongside PPO: demos loaded (with their frames and
     stack when recorded with `record --pixels`), the method's learner run, the reward and PPO's
@@ -250,8 +255,9 @@ def _irl_with_ppo(
         reward=method.reward.config.to_json(),
     )
     title = f"{method.name.upper()} on {env_id}"
-    with training_run(out, run_config, resume=resume) as run:
-        ppo = PPO(ppo_config)
+    remote = RayRollouts(ppo_config.n_envs, workers.count) if workers else None
+    with training_run(out, run_config, resume=resume) as run, workers.session() if workers else nullcontext():
+        ppo = PPO(ppo_config, remote=remote)
         try:
             learner = method.learner(ppo, transitions)
             run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import json
 import os
-from contextlib import closing
+from contextlib import closing, nullcontext
 from pathlib import Path
 from typing import Any
 
 from imitation.algorithms.ppo import PPO, PPOConfig, make_observed_env
+from imitation.algorithms.ray_rollouts import RayRollouts
 from imitation.data.spaces import check_spaces_fit
 from imitation.envs.pixels import PixelRecipe
 from imitation.errors import ImitationError
@@ -16,6 +17,7 @@ from imitation.evaluation.plots import plot_curve
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import final_evaluation, save_policy, train_to_end, training_run
 from imitation.policies import acting_env, make_acting_env
+from imitation.ray_engine import Workers
 from imitation.rewards import RewardNet, load_reward
 from imitation.runs import read_run
 from imitation.seeding import seed_everything
@@ -30,11 +32,13 @@ def ppo_job(
     reward_source: str | None = None,
     progress: bool = True,
     resume: bool = False,
+    workers: Workers | None = None,
 ) -> dict[str, Any]:
     """Train PPO into run directory `out`; the metrics also written to metrics.json. It
     optimises the env's reward, or a learned one: the reward model of run directory
     `reward_run` (`train ppo --reward`), or `reward` itself (described by `reward_source`).
-    `resume` continues the interrupted run in `out`.partial from its checkpoint."""
+    `resume` continues the interrupted run in `out`.partial from its checkpoint. With
+    `workers`, the rollouts run on that many Ray actors (`imitation.algorithms.ray_rollouts`)."""
     config.validate()
     seed_everything(config.seed)
     demos = None
@@ -52,9 +56,11 @@ def ppo_job(
     run_config = RunConfig(
         kind="ppo", env_id=config.env_id, reward_run=reward_run, demos=demos, source=reward_source, ppo=config_json(config)
     )
-    with training_run(out, run_config, resume=resume) as run:
-        learner = PPO(config, reward=reward)
-        seconds = train_to_end(run, learner, progress=progress)
+    remote = RayRollouts(config.n_envs, workers.count) if workers else None
+    with training_run(out, run_config, resume=resume) as run, workers.session() if workers else nullcontext():
+        learner = PPO(config, reward=reward, remote=remote)
+        with closing(learner):
+            seconds = train_to_end(run, learner, progress=progress)
         save_policy(run, learner.policy, learner.reward_scaler.stats if learner.reward_scaler is not None else None)
         ys = ["return"] + (["optimised_return"] if reward is not None else [])
         plot_curve(
@@ -69,6 +75,7 @@ def ppo_job(
             "steps": learner.global_step,
             "seconds": seconds,
             "steps_per_second": learner.global_step / seconds,
+            "workers": workers.count if workers else None,
             "final_train_return": run.history[-1]["return"] if run.history else None,
             "eval": evaluation,
         }
