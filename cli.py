@@ -544,6 +544,69 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from imitation.jobs.sweep import sweep_job
+    from imitation.jobs.sweep_config import CommandLine, read_sweep_config
+
+    config = read_sweep_config(args.config, CommandLine(commands=_train_commands(), problem=_train_problem))
+    if args.cpus is not None and args.cpus < 1:
+        raise ImitationError(f"--cpus must be at least 1, got {args.cpus}")
+    out = args.out or str(Path("sweeps") / Path(args.config).stem)
+    result = sweep_job(config, out, _run_train, ray_address=args.ray_address, cpus=args.cpus)
+    if args.json:
+        _print_json({key: value for key, value in result.items() if key != "table"})
+        return 0
+    print(result["table"])
+    best = result["best"]
+    print(
+        f"swept {result['trials']} trials in {result['seconds']:.0f} s: {result['finished']} finished, "
+        f"{result['stopped_early']} stopped early, {result['failed']} failed; "
+        + (f"best {best['trial']} ({config.metric} {best[config.metric]:.4g}): {best['run']}" if best else "no trial finished")
+    )
+    return 0
+
+
+def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    return next(action.choices for action in parser._actions if isinstance(action, argparse._SubParsersAction))
+
+
+def _train_commands() -> dict[str, frozenset[str]]:
+    """Each `train` command with its flags, without dashes: what a sweep config may set."""
+    return {
+        f"train {name}": frozenset(
+            option[2:] for action in parser._actions for option in action.option_strings if option[:2] == "--"
+        )
+        for name, parser in _subcommands(_subcommands(build_parser())["train"]).items()
+    }
+
+
+def _train_problem(argv: list[str]) -> str | None:
+    """argparse's one-line objection to the command line `argv`, or None when it parses."""
+    import contextlib
+    import io
+
+    stderr = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(stderr):
+            build_parser().parse_args(argv)
+    except SystemExit:
+        lines = stderr.getvalue().strip().splitlines()
+        return lines[-1].split(": error: ", 1)[-1] if lines else "not a command line of imitation"
+    return None
+
+
+def _run_train(argv: list[str]) -> None:
+    """Run the `train` command line `argv` in this process, as a sweep's trial does: a failure is
+    raised as one line in the command line's words, not printed."""
+    args = build_parser().parse_args(argv)
+    args.command_key = f"{args.command} {args.algorithm}"
+    _apply_limits([])  # the sweep's --limit reached this worker through IMITATION_LIMITS
+    try:
+        args.handler(args)
+    except ConfigError as error:
+        raise ImitationError(_flag_message(error, args.command_key)) from None
+
+
 # Which flag sets which config field, per command (and config class): the one place the command
 # line's vocabulary meets the learners'. `_fields` builds configs from it, and a ConfigError that
 # names a field is reported with the flag the user typed.
@@ -1468,6 +1531,42 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--quiet", action="store_true", help="no progress output")
     demo.set_defaults(handler=cmd_demo)
 
+    sweep = commands.add_parser(
+        "sweep",
+        help="hyperparameter sweep over a train command's flags with Ray Tune (random or Optuna search, ASHA)",
+        description="Run a train command many times with flags drawn from a search space (random search or Optuna), "
+        "each trial in a Ray worker into its own run directory, stopping poor trials early with ASHA. Writes DIR/results.csv "
+        "and DIR/results.md (one row per trial: flags, metric, steps run, how it ended, run directory) and DIR/best, a copy "
+        "of the best finished trial's run directory. After Ctrl-C, the same command continues the sweep without running "
+        "its finished trials again. Needs the optional extra: pip install 'imitation-mcap[ray]'.",
+    )
+    sweep.add_argument(
+        "config",
+        metavar="CONFIG.yaml",
+        help="the sweep: train command, fixed flags (args), search space (space), metric, search, trials, scheduler "
+        "(docs/SCALING.md; an example: docs/sweeps/bc-cartpole.yaml)",
+    )
+    sweep.add_argument(
+        "--out",
+        metavar="DIR",
+        help="the sweep's folder; give the same one to continue an interrupted sweep (default: sweeps/ and the config's "
+        "name without .yaml)",
+    )
+    sweep.add_argument(
+        "--ray-address",
+        default="local",
+        metavar="ADDR",
+        help="local (a Ray started on this machine for the sweep), auto (the cluster this machine belongs to) or "
+        "HOST:PORT; on a cluster DIR must be on storage every node shares (default: local)",
+    )
+    sweep.add_argument(
+        "--cpus",
+        type=int,
+        metavar="C",
+        help="with a local Ray: the CPUs the trials share, each taking the config's cpus_per_trial (default: every core)",
+    )
+    sweep.add_argument("--json", action="store_true", help="print one JSON object with the results")
+    sweep.set_defaults(handler=cmd_sweep)
     return parser
 
 

@@ -10,7 +10,10 @@ intervals. `run` steps it until it is done and owns everything around the steps:
   current step, where a checkpoint is saved and `TrainingInterrupted` raised; a second Ctrl-C
   stops at once;
 - logging and progress: each step's row goes to `log` and to a progress bar on a terminal, or
-  to a line every 30 seconds when stderr is a log (`progress_bar`).
+  to a line every 30 seconds when stderr is a log (`progress_bar`);
+- observing: within `observe_rows(callback)`, each row also goes to `callback(learner, row)`, so
+  that a caller several jobs above the loop (a sweep's trial) sees the rows without every job
+  passing a callback down.
 
 A checkpoint is a pair (tensors, state): tensors go to a safetensors file, everything else to
 JSON (`imitation.checkpoints` has the helpers learners build theirs with); nothing is pickled.
@@ -20,7 +23,9 @@ from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -101,6 +106,33 @@ class StopAtBoundary:
             signal.signal(signal.SIGINT, self._previous)
 
 
+RowObserver = Callable[["Learner", Row], None]
+_observer: ContextVar[RowObserver | None] = ContextVar("row_observer", default=None)
+
+
+@contextmanager
+def observe_rows(callback: RowObserver) -> Iterator[None]:
+    """Within the block (in this thread or task), every row a `run` logs also goes to
+    `callback(learner, row)`, after `log` has it. Only the outermost `run` is observed: a learner
+    run inside another's step is part of that step."""
+    token = _observer.set(callback)
+    try:
+        yield
+    finally:
+        _observer.reset(token)
+
+
+@contextmanager
+def _outermost() -> Iterator[RowObserver | None]:
+    """The observer of this `run`, hidden from the runs inside it for the block."""
+    observer = _observer.get()
+    token = _observer.set(None)
+    try:
+        yield observer
+    finally:
+        _observer.reset(token)
+
+
 def run(
     learner: Learner,
     *,
@@ -115,12 +147,14 @@ def run(
         learner.load_state_dict(checkpoints.resume)
     rows: list[Row] = []
     bar = progress_bar(total=learner.total, initial=learner.completed, desc=learner.name, unit=learner.unit, enabled=progress)
-    with bar, StopAtBoundary(enabled=checkpoints is not None) as stop:
+    with bar, StopAtBoundary(enabled=checkpoints is not None) as stop, _outermost() as observer:
         while not learner.done:
             row = learner.step()
             rows.append(row)
             if log is not None:
                 log(row)
+            if observer is not None:
+                observer(learner, row)
             bar.set_postfix(learner.progress(row), refresh=False)
             bar.update()
             if learner.done or checkpoints is None:

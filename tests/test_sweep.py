@@ -1,0 +1,298 @@
+"""`imitation sweep` with Ray Tune (issue 23): the example sweep (BC's learning rate and width on
+CartPole, 8 trials, ASHA) finishes with its table and best run; Ctrl-C and the same command again
+continue it without running a finished trial twice; mistakes in the config are one line before
+Ray starts; and the training loop's row hook the trials report through."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import yaml
+from support import REPO, run_cli, run_cli_many
+from test_cli import assert_one_line_error, last_json
+
+import cli
+from imitation.errors import ImitationError
+from imitation.jobs.loop import observe_rows
+from imitation.jobs.loop import run as run_learner
+from imitation.jobs.sweep_config import CommandLine, read_sweep_config
+from imitation.jobs.sweep_results import run_result
+from imitation.runs import read_run
+
+EXAMPLE = REPO / "docs" / "sweeps" / "bc-cartpole.yaml"
+EPOCHS = yaml.safe_load(EXAMPLE.read_text())["args"]["epochs"]
+ENDED = re.compile(r"^\[sweep\] trial \d+/8 (\S+) ")
+needs_tune = pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="the optional extra ray is not installed")
+
+
+def sweep_argv(out: Path, *extra: str, config: Path = EXAMPLE) -> list[str]:
+    # Two CPUs: the machine's, which the trials share one each.
+    return ["sweep", str(config), "--out", str(out), "--cpus", "2", *extra]
+
+
+def table(out: Path) -> list[dict[str, str]]:
+    with open(out / "results.csv", newline="") as stream:
+        return list(csv.DictReader(stream))
+
+
+def ended(stderr: str) -> list[str]:
+    """The trials the sweep's progress lines say ended."""
+    return [match[1] for line in stderr.splitlines() if (match := ENDED.match(line))]
+
+
+@needs_tune
+def test_the_example_sweep_writes_its_table_and_copies_the_best_run(tmp_path: Path) -> None:
+    out = tmp_path / "sweep"
+    result = run_cli(*sweep_argv(out, "--json"), timeout=300)
+    summary = last_json(result)
+    # Ray's own reporting is quiet: stderr holds the sweep's line per trial and nothing else.
+    assert len(ended(result.stderr)) == 8 and len(result.stderr.strip().splitlines()) == 8, result.stderr
+    rows = table(out)
+    assert [row["trial"] for row in rows] == sorted(ended(result.stderr))
+    assert summary["trials"] == 8 and summary["finished"] + summary["stopped_early"] == 8 and summary["failed"] == 0
+    for row in rows:
+        assert row["status"] in ("finished", "stopped early") and float(row["validation_loss"]) > 0
+        assert 1 <= int(row["steps"]) <= EPOCHS and row["lr"] and row["hidden"] in ("8", "32,32", "128,128")
+        if row["status"] == "finished":
+            assert (out / row["run"] / "model.safetensors").is_file()
+        else:  # ASHA stopped it at a rung: no finished run directory
+            assert not row["run"] and int(row["steps"]) < EPOCHS
+    finished = [row for row in rows if row["status"] == "finished"]
+    best = min(finished, key=lambda row: float(row["validation_loss"]))
+    assert summary["best"]["trial"] == best["trial"]
+    config, weights = read_run(out / "best")  # a copy of the best run: loadable as any run directory
+    assert config["kind"] == "bc" and weights
+    assert (out / "best" / "model.safetensors").read_bytes() == (out / best["run"] / "model.safetensors").read_bytes()
+    value, _ = run_result(out / "best", command="train bc", metric="validation_loss", mode="min", scope="best")
+    assert value == pytest.approx(float(best["validation_loss"]))
+    assert f"{best['trial']} (best)" in (out / "results.md").read_text()
+
+
+@needs_tune
+def test_an_interrupted_sweep_continues_without_running_finished_trials_again(tmp_path: Path) -> None:
+    out = tmp_path / "sweep"
+    # Without ASHA every trial ends with a finished run directory, whose files must stay as they
+    # are; shorter trials, as the test only needs some to end before Ctrl-C and some after.
+    args = yaml.safe_load(EXAMPLE.read_text())["args"] | {"epochs": 4}
+    config = write_config(tmp_path, "no-asha", scheduler="none", args=args)
+    # Ctrl-C in a terminal: SIGINT to the whole process group, Ray's processes included.
+    process = subprocess.Popen(
+        [sys.executable, str(REPO / "cli.py"), *sweep_argv(out, config=config)],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    assert process.stderr is not None
+    lines = []
+    for line in process.stderr:
+        lines.append(line)
+        if len(ended("".join(lines))) == 2:
+            os.killpg(process.pid, signal.SIGINT)
+            break
+    _, rest = process.communicate(timeout=120)
+    first = ended("".join(lines) + rest)
+    assert process.returncode == 130, rest
+    assert "interrupted: the sweep stopped with" in rest and "run the same command again to continue it" in rest
+    # A trial may have finished its run directory just before Tune recorded it: the table counts
+    # it (from its run directory), and the rerun reports it without running it again.
+    assert len(first) <= sum(row["status"] != "not finished" for row in table(out)) < 8
+    kept = {
+        run: ((run / "metrics.json").stat().st_mtime_ns, (run / "model.safetensors").read_bytes())
+        for run in (out / "runs").iterdir()
+        if (run / "metrics.json").is_file()
+    }
+    assert len(kept) >= len(first)
+    # Trials stopped in the middle keep their run's last checkpoint, which the rerun continues from.
+    partials = [folder for folder in (out / "runs").glob("*.partial") if (folder / "checkpoint").is_dir()]
+    continued = [folder.with_name(folder.name.removesuffix(".partial")) for folder in partials]
+
+    second = run_cli(*sweep_argv(out, config=config), timeout=300)
+    assert second.returncode == 0, second.stderr
+    again = ended(second.stderr)
+    assert not set(first) & set(again) and len(first) + len(again) == 8
+    for run, (mtime, weights) in kept.items():
+        assert (run / "metrics.json").stat().st_mtime_ns == mtime and (run / "model.safetensors").read_bytes() == weights
+    rows = table(out)
+    assert len(rows) == 8 and all(row["status"] == "finished" for row in rows)
+    assert (out / "best" / "model.safetensors").is_file()
+    for run in continued:  # continued from its checkpoint: the second process added its own events
+        assert len(list((run / "tb").iterdir())) == 2
+
+
+@needs_tune
+def test_a_sweep_whose_every_trial_fails_says_why_in_one_line(tmp_path: Path) -> None:
+    args = yaml.safe_load(EXAMPLE.read_text())["args"] | {"epochs": 2}
+    config = write_config(tmp_path, "typo", args=args, trials=2, scheduler="none", metric="val_loss", mode="min")
+    result = run_cli(*sweep_argv(tmp_path / "sweep", config=config), timeout=300)
+    message = "train bc logs no column 'val_loss'; its rows have epoch, train_loss, validation_loss"
+    *progress, last = result.stderr.strip().splitlines()
+    assert (
+        result.returncode == 1 and last.startswith("error: every trial of the sweep failed, the first (") and message in last
+    )
+    assert len(progress) == 2 and all(line.startswith("[sweep] trial ") and f"failed: {message}" in line for line in progress)
+    rows = table(tmp_path / "sweep")
+    assert len(rows) == 2 and all(row["status"].startswith(f"error: {message}") for row in rows)
+
+
+def write_config(folder: Path, name: str, **changes: object) -> Path:
+    """The example with `changes` (None removes a key), as `name`.yaml."""
+    document = yaml.safe_load(EXAMPLE.read_text())
+    for key, value in changes.items():
+        if value is None:
+            document.pop(key)
+        else:
+            document[key] = value
+    path = folder / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(document))
+    return path
+
+
+def test_config_mistakes_are_one_line_naming_the_file_and_key_before_ray_starts(tmp_path: Path) -> None:
+    args = yaml.safe_load(EXAMPLE.read_text())["args"]
+    cases = {
+        "unknown-key": ({"trails": 8}, "unknown key 'trails' (did you mean 'trials'?)"),
+        "unknown-flag": ({"args": args | {"learning-rate": 0.1}}, "args.learning-rate: not a flag of this command"),
+        "swept-unknown-flag": ({"space": {"width": {"choice": ["8"]}}}, "space.width: not a flag of this command"),
+        "sweep-sets-it": ({"args": args | {"out": "x"}}, "args.out: set by the sweep"),
+        "bad-distribution": ({"space": {"lr": {"lognormal": [0.1, 1]}}}, "space.lr: a distribution: one of"),
+        "bad-range": ({"space": {"lr": {"loguniform": [0, 0.1]}}}, "space.lr: loguniform needs 0 < low, got 0.0"),
+        "empty-range": ({"space": {"lr": {"uniform": [0.1, 0.01]}}}, "space.lr: uniform needs low < high"),
+        "bad-value": ({"space": {"batch-size": {"choice": [64, "big"]}}}, "space.batch-size: 'big': argument --batch-size"),
+        "twice": ({"space": {"epochs": {"choice": [5, 10]}}}, "space.epochs: the flag is also in args"),
+        "bad-fixed": ({"args": args | {"epochs": "ten"}}, "fails: argument --epochs: invalid int value: 'ten'"),
+        "bad-command": ({"command": "train bcc"}, "command: 'train bcc' is not a train command (did you mean 'train bc'?)"),
+        "grid-optuna": ({"search": "optuna", "space": {"lr": {"grid": [0.1, 0.01]}}}, "space.lr: grid needs search: random"),
+        "no-mode": ({"metric": "train_loss", "mode": None}, "mode: missing: say whether a lower (min) or higher (max)"),
+        "bad-asha": ({"scheduler": {"asha": {"grace": 2}}}, "scheduler.asha.grace: unknown"),
+        "bad-trials": ({"trials": 0}, "trials: must be at least 1, got 0"),
+        "empty-space": ({"space": {}}, "space: give at least one flag to search over"),
+    }
+    paths = {name: write_config(tmp_path, name, **changes) for name, (changes, _) in cases.items()}
+    results = run_cli_many([["sweep", str(paths[name]), "--out", str(tmp_path / f"out-{name}")] for name in cases])
+    for (name, (_, fragment)), result in zip(cases.items(), results):
+        assert_one_line_error(result, f"error: {paths[name]}: ", fragment)
+        assert not (tmp_path / f"out-{name}").exists()
+
+
+@needs_tune
+def test_a_sweep_keeps_to_its_own_folder(tmp_path: Path) -> None:
+    listed = tmp_path / "list.yaml"
+    listed.write_text("- command\n")
+    stranger, other, torn = tmp_path / "stranger", tmp_path / "other", tmp_path / "torn"
+    stranger.mkdir()
+    (stranger / "notes.txt").write_text("mine")
+    other.mkdir()
+    settings = read_sweep_config(EXAMPLE, CommandLine(cli._train_commands(), cli._train_problem)).to_json()
+    (other / "sweep.json").write_text(json.dumps(settings | {"seed": 1}))
+    torn.mkdir()
+    (torn / "sweep.json").write_text("{")
+    results = run_cli_many(
+        [
+            ["sweep", str(listed), "--out", str(tmp_path / "out")],
+            ["sweep", str(EXAMPLE), "--out", str(stranger)],
+            ["sweep", str(EXAMPLE), "--out", str(other)],
+            ["sweep", str(EXAMPLE), "--out", str(torn)],
+        ]
+    )
+    assert_one_line_error(results[0], f"{listed}: a sweep config is a YAML mapping (command, args, space, ...), not a list")
+    assert_one_line_error(results[1], f"{stranger}: not empty and not a sweep's folder (no sweep.json)")
+    assert_one_line_error(results[2], f"{other}: holds a sweep with other settings (seed differs from {EXAMPLE}'s)")
+    assert_one_line_error(results[3], f"{torn / 'sweep.json'}: unreadable (")
+    assert (stranger / "notes.txt").read_text() == "mine" and sorted(path.name for path in other.iterdir()) == ["sweep.json"]
+
+
+def test_neither_help_nor_a_refused_config_imports_ray(tmp_path: Path) -> None:
+    bad = write_config(tmp_path, "bad", trails=8)
+    script = (
+        "import contextlib, io, sys, cli\n"
+        "with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):\n"
+        "    code = cli.main(['sweep', sys.argv[1], '--out', sys.argv[2]])\n"
+        "    try:\n        cli.main(['sweep', '--help'])\n    except SystemExit:\n        pass\n"
+        "print(code, any(name == 'ray' or name.startswith('ray.') for name in sys.modules))\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", script, str(bad), str(tmp_path / "out")], capture_output=True, text=True, cwd=REPO, timeout=60
+    )
+    assert result.stdout.split() == ["1", "False"], result.stderr
+
+
+@dataclass
+class Counter:
+    """A learner of `total` steps whose rows count them; `inner` runs inside each step."""
+
+    total: int
+    inner: Counter | None = None
+    name: str = "counter"
+    unit: str = "step"
+    steps: int = 0
+
+    @property
+    def completed(self) -> int:
+        return self.steps
+
+    @property
+    def done(self) -> bool:
+        return self.steps >= self.total
+
+    def position(self) -> str:
+        return f"step {self.steps}"
+
+    def progress(self, row: dict[str, float]) -> dict[str, str]:
+        return {}
+
+    def step(self) -> dict[str, float]:
+        if self.inner is not None:
+            self.inner.steps = 0
+            run_learner(self.inner)
+        self.steps += 1
+        return {"step": float(self.steps)}
+
+    def state_dict(self) -> tuple[dict, dict]:
+        return {}, {}
+
+    def load_state_dict(self, checkpoint: tuple[dict, dict]) -> None:
+        pass
+
+
+def test_observe_rows_sees_each_row_of_the_outermost_run_only() -> None:
+    seen: list[tuple[str, int, float]] = []
+    outer = Counter(total=3, inner=Counter(total=2, name="inner"))
+    with observe_rows(lambda learner, row: seen.append((learner.name, learner.completed, row["step"]))):
+        rows = run_learner(outer)
+    assert seen == [("counter", 1, 1.0), ("counter", 2, 2.0), ("counter", 3, 3.0)] and len(rows) == 3
+    run_learner(Counter(total=2))  # outside the block: nobody is told
+    assert len(seen) == 3
+
+
+@needs_tune
+def test_a_trial_fails_at_its_first_row_without_the_metric_and_reports_finite_figures() -> None:
+    from imitation.jobs.sweep_tune import STEPS, reporter
+
+    reports: list[dict[str, float]] = []
+    observe = reporter("validation_loss", "train bc", reports.append)
+    learner = Counter(total=1, steps=4)
+    observe(learner, {"validation_loss": float("nan"), "return": 1.0})  # no figure to judge: not reported
+    observe(learner, {"validation_loss": 0.5, "return": float("nan")})
+    assert reports == [{"validation_loss": 0.5, STEPS: 4}]
+    with pytest.raises(ImitationError, match=r"train bc logs no column 'validation_loss'; its rows have return"):
+        observe(learner, {"return": 1.0})
+
+
+def test_a_run_without_a_finite_metric_has_no_result(tmp_path: Path) -> None:
+    (tmp_path / "progress.csv").write_text("epoch,validation_loss,return\n1,0.5,nan\n2,0.4,nan\n")
+    assert run_result(tmp_path, command="train bc", metric="validation_loss", mode="min", scope="best") == (0.4, 2)
+    assert run_result(tmp_path, command="train bc", metric="validation_loss", mode="min", scope="last") == (0.4, 2)
+    with pytest.raises(ImitationError, match=r"train bc: no finite return in any of the 2 rows of "):
+        run_result(tmp_path, command="train bc", metric="return", mode="max", scope="last")
