@@ -2,10 +2,10 @@
 
 Worker w steps copies [first_w, first_w + count_w) of the n_envs: it holds its own vector env
 and a copy of π_k, and collects with exactly the code the single-process learner runs
-(`PPO.collect_rollout` of a PPO over its own copies). Once per update the learner puts π_k's
-weights in Ray's object store (one broadcast, which every worker reads), each worker loads them
-and collects n_steps steps, and the learner gathers the W segments along the env axis into its
-own rollout buffers; `PPO.update` then runs as it does locally.
+(`PPO.collect_rollout` of a PPO over its own copies). Once per update the learner sends π_k's
+weights to every worker (inside the call when small, else put once in Ray's object store, which
+every worker reads), each worker loads them and collects n_steps steps, and the learner gathers
+the W segments along the env axis into its own rollout buffers; `PPO.update` then runs as it does locally.
 
 Copy i is reset with seed `seed + i` at the first rollout, as in the single-process run, so the
 environments start from the same states; actions are sampled from each worker's own generator.
@@ -86,6 +86,12 @@ class RolloutWorker:
         self.learner.close()
 
 
+# Weights up to this size travel inside each worker's call, as Ray inlines small arguments: a put
+# would cost each worker a lookup of the object first (bench/RESULTS.md, issue 23). Larger ones
+# (CNNs) are put once.
+INLINE_BYTES = 100 * 1024
+
+
 def split_copies(n_envs: int, workers: int) -> list[tuple[int, int]]:
     """(first, count) of each worker's copies: n_envs split as evenly as possible."""
     if not 1 <= workers <= n_envs:
@@ -123,7 +129,9 @@ class RayRollouts:
         started = time.perf_counter()
         # As numpy arrays: Ray serialises them without copies, torch tensors through pickle, several
         # times slower to put and load (bench/RESULTS.md, issue 23).
-        weights = ray.put({name: tensor.detach().cpu().numpy() for name, tensor in learner.policy.state_dict().items()})
+        weights: Any = {name: tensor.detach().cpu().numpy() for name, tensor in learner.policy.state_dict().items()}
+        if sum(array.nbytes for array in weights.values()) > INLINE_BYTES:
+            weights = ray.put(weights)  # one copy in the object store, which every worker reads
         pending = [worker.collect.remote(weights) for worker in self.workers]
         broadcast = time.perf_counter()
         segments = ray_get(ray, pending)
