@@ -41,6 +41,11 @@ class Workers:
         return ray_session(self.address, num_cpus=self.cpus)
 
 
+def worker_session(workers: Workers | None) -> contextlib.AbstractContextManager[ModuleType | None]:
+    """`workers`' Ray session for the block, or nothing to connect to when the work stays in this process."""
+    return workers.session() if workers is not None else contextlib.nullcontext()
+
+
 def require_ray() -> ModuleType:
     """The `ray` module, or a one-line error saying how to install it."""
     try:

@@ -27,15 +27,14 @@ import numpy as np
 import torch
 
 from imitation.algorithms.ppo import PPO, PPOConfig
+from imitation.data.loader import tree_map
 from imitation.errors import ImitationError
 from imitation.ray_engine import RETRIES, ray_get, require_ray
 from imitation.rewards import flat_batch
 
 
-def _numpy_tree(tree: Any) -> Any:
-    if isinstance(tree, dict):
-        return {key: _numpy_tree(value) for key, value in tree.items()}
-    return tree.detach().cpu().numpy().copy()
+def _numpy(tensor: torch.Tensor) -> np.ndarray:
+    return tensor.detach().cpu().numpy()
 
 
 class RolloutWorker:
@@ -66,12 +65,14 @@ class RolloutWorker:
         self.learner.recent_returns.clear()
         rollout = self.learner.collect_rollout()
         buffers = self.learner.buffers
-        segment = {name: _numpy_tree(getattr(rollout, name)) for name in rollout.__dataclass_fields__}
+        # Views of the buffers, which the next collection refills: Ray serialises the return value
+        # when this call ends, before the actor takes its next call.
+        segment = {name: tree_map(_numpy, getattr(rollout, name)) for name in rollout.__dataclass_fields__}
         segment |= {
-            "features": None if buffers.features is None else _numpy_tree(buffers.features),
-            "values": _numpy_tree(buffers.values),
-            "truncated_values": _numpy_tree(buffers.truncated_values),
-            "parameters": _numpy_tree(buffers.parameters),
+            "features": tree_map(_numpy, buffers.features),
+            "values": _numpy(buffers.values),
+            "truncated_values": _numpy(buffers.truncated_values),
+            "parameters": _numpy(buffers.parameters),
             "last_observations": self.learner.observations,
             "returns": list(self.learner.recent_returns),
             "seconds_load": loaded - started,

@@ -68,6 +68,7 @@ def dagger_job(
         )
     if workers is not None and (config.mode == "takeover" or hasattr(expert, "show_status")):
         close_expert(expert)
+        env.close()
         raise ImitationError(
             f"--workers: expert {expert_spec} drives at this machine (take-over or a person's window); "
             "its rounds run in this process, without --workers"

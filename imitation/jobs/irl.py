@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from collections.abc import Callable
-from contextlib import closing, nullcontext
+from contextlib import closing
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,7 +33,7 @@ from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
 from imitation.policies import acting_env, make_acting_env, policy_tensors
-from imitation.ray_engine import Workers
+from imitation.ray_engine import Workers, worker_session
 from imitation.rewards import RewardNet, make_reward_model, reward_tensors
 from imitation.seeding import seed_everything
 
@@ -256,7 +256,7 @@ def _irl_with_ppo(
     )
     title = f"{method.name.upper()} on {env_id}"
     remote = RayRollouts(ppo_config.n_envs, workers.count) if workers else None
-    with training_run(out, run_config, resume=resume) as run, workers.session() if workers else nullcontext():
+    with training_run(out, run_config, resume=resume) as run, worker_session(workers):
         ppo = PPO(ppo_config, remote=remote)
         try:
             learner = method.learner(ppo, transitions)

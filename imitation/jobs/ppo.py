@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import os
-from contextlib import closing, nullcontext
+from contextlib import closing
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +17,7 @@ from imitation.evaluation.plots import plot_curve
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import final_evaluation, save_policy, train_to_end, training_run
 from imitation.policies import acting_env, make_acting_env
-from imitation.ray_engine import Workers
+from imitation.ray_engine import Workers, worker_session
 from imitation.rewards import RewardNet, load_reward
 from imitation.runs import read_run
 from imitation.seeding import seed_everything
@@ -57,7 +57,7 @@ def ppo_job(
         kind="ppo", env_id=config.env_id, reward_run=reward_run, demos=demos, source=reward_source, ppo=config_json(config)
     )
     remote = RayRollouts(config.n_envs, workers.count) if workers else None
-    with training_run(out, run_config, resume=resume) as run, workers.session() if workers else nullcontext():
+    with training_run(out, run_config, resume=resume) as run, worker_session(workers):
         learner = PPO(config, reward=reward, remote=remote)
         with closing(learner):
             seconds = train_to_end(run, learner, progress=progress)
