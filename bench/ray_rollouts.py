@@ -4,11 +4,12 @@ For each environment, a fixed-length PPO run (the env's preset, as `train ppo` r
 process, then on a local Ray with 1, 2 and 4 rollout workers. Ray is told it has as many CPUs as
 there are workers (`ray.init(num_cpus=N)`), so 4 workers on a 2-core machine is a simulation:
 the actors share the cores. Each run is a fresh process; Ray's start-up is excluded (the clock
-starts when the learner is built), its actors' start-up is not.
+starts when the learner is built), its actors' start-up is not: steps/s includes it.
 
 Printed per run: env-steps/s, the efficiency per worker (steps/s of N workers divided by N times
 the steps/s of one worker), and where the learner's time went: updates, waiting for the
-slowest worker's collection, and the cost of going through Ray:
+slowest worker's collection, the actors' start-up (once, before the first rollout), and the cost
+of going through Ray at every rollout:
 
 - broadcast: putting π_k's weights in the object store and submitting the collections, plus
   the slowest worker's loading of them;
@@ -71,6 +72,7 @@ def worker(env_id: str, workers: int) -> dict[str, float]:
             "broadcast": spent["broadcast"] + spent["worker_load"],
             "gather": max(0.0, spent["wait"] - spent["worker_collect"] - spent["worker_load"]) + spent["gather"],
             "collect": spent["worker_collect"],
+            "start": spent["start"],
         }
     return result
 
@@ -96,7 +98,7 @@ def main() -> None:
         print(f"\n{env_id}: {steps:,} steps, the preset's settings" + (f" but {settings}" if settings else ""))
         print(
             f"{'run':>10} {'steps/s':>8} {'eff/worker':>10} {'update s':>8} {'collect s':>9} {'bcast s':>7} {'gather s':>8} "
-            f"{'(b+g)/upd':>9} {'return':>7}"
+            f"{'start s':>7} {'(b+g)/upd':>9} {'return':>7}"
         )
         one = None
         for workers in (0, 1, 2, 4):
@@ -109,10 +111,11 @@ def main() -> None:
                 overhead = (result["broadcast"] + result["gather"]) / result["update"]
                 flag = "" if workers != 2 else (" ✓" if overhead <= OVERHEAD_TARGET else " ✗")
                 ray_part = (
-                    f"{result['collect']:>9.1f} {result['broadcast']:>7.2f} {result['gather']:>8.2f} {overhead:>8.0%}{flag:2}"
+                    f"{result['collect']:>9.1f} {result['broadcast']:>7.2f} {result['gather']:>8.2f} {result['start']:>7.2f} "
+                    f"{overhead:>8.0%}{flag:2}"
                 )
             else:
-                ray_part = f"{'-':>9} {'-':>7} {'-':>8} {'-':>9}"
+                ray_part = f"{'-':>9} {'-':>7} {'-':>8} {'-':>7} {'-':>9}"
             print(
                 f"{name:>10} {result['steps_per_second']:>8.0f} {efficiency:>10} {result['update']:>8.1f} {ray_part} "
                 f"{result['return']:>7.1f}",

@@ -110,18 +110,24 @@ class RayRollouts:
     """The learner's side: W `RolloutWorker` actors, one weight broadcast and one gather per rollout.
 
     `collect(learner)` fills `learner`'s rollout buffers in place, as `PPO.collect_rollout` does;
-    `seconds` accumulates where the time went (broadcast, waiting on the workers, gathering)."""
+    `seconds` accumulates where the time went (the actors' start-up, broadcast, waiting on the
+    workers, gathering)."""
 
     def __init__(self, n_envs: int, workers: int) -> None:
         self.shares = split_copies(n_envs, workers)
         self.ray = require_ray()
         self.workers: list[Any] = []
-        self.seconds = {"broadcast": 0.0, "wait": 0.0, "gather": 0.0, "worker_collect": 0.0, "worker_load": 0.0}
+        self.seconds = {"start": 0.0, "broadcast": 0.0, "wait": 0.0, "gather": 0.0, "worker_collect": 0.0, "worker_load": 0.0}
 
     def _start(self, config: PPOConfig, updates: int) -> None:
-        """The actors, started at the first rollout: a resumed learner has loaded its update count by then."""
+        """The actors, started at the first rollout (a resumed learner has loaded its update count by
+        then) and waited for, so that their start-up is counted once, as `seconds["start"]`, not in
+        the first rollout's gather."""
+        started = time.perf_counter()
         actor = self.ray.remote(num_cpus=1, max_restarts=RETRIES, max_task_retries=RETRIES)(RolloutWorker)
         self.workers = [actor.remote(config, first, count, updates) for first, count in self.shares]
+        ray_get(self.ray, [worker.__ray_ready__.remote() for worker in self.workers])
+        self.seconds["start"] = time.perf_counter() - started
 
     def collect(self, learner: PPO) -> None:
         ray = self.ray
