@@ -205,7 +205,7 @@ def test_cli_takeover_dagger_with_the_standin_reaches_475_as_interventions_fall(
 
 # -- a kill or Ctrl-C in the middle of a round ----------------------------------------------------
 
-EPISODES = 150  # round 2 lasts seconds: long enough to be stopped after its third episode
+EPISODES = 60  # round 2 lasts about 5 s (80 ms an episode): ample time to be stopped after its third episode
 ROUND_ARGS = ["train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", "--rounds", "2", "--episodes-per-round", str(EPISODES),
               "--epochs", "2", "--hidden", "16", "--seed", "0", "--quiet", "--json"]
 
