@@ -106,10 +106,10 @@ def test_dagger_on_two_workers_writes_two_shards_per_round_and_survives_a_killed
     polls: list[int] = []
 
     def kill_mid_round() -> None:
-        """Poll the partial shards of rounds 2 and 3 (the workers may take turns on a busy machine, so
-        one shard at a time). The writer is stopped before anything is decided, so the shard cannot be
-        finished between the look and the kill; a read racing the writer, or a shard already finished,
-        only means letting it go on and looking again."""
+        """Poll the partial shards of rounds 2 and 3, one at a time (on a busy machine one worker may
+        finish its shard before the other has written an episode). The writer is stopped before
+        anything is decided, so the shard cannot be finished between the look and the kill; a read
+        racing the writer, or a shard already finished, only means letting it go on and looking again."""
         deadline = time.monotonic() + 300
         while time.monotonic() < deadline and not killed:
             polls.append(1)
@@ -119,7 +119,10 @@ def test_dagger_on_two_workers_writes_two_shards_per_round_and_survives_a_killed
                     pid = _ray_worker_writing("RoundWorker", shard) if shard.exists() else None
                     if pid is None:
                         continue
-                    os.kill(pid, signal.SIGSTOP)
+                    try:
+                        os.kill(pid, signal.SIGSTOP)
+                    except ProcessLookupError:  # it went away since we found it
+                        continue
                     try:
                         snapshot = DemoFile(shard, salvage=True).read_episodes()
                     except Exception as error:  # noqa: BLE001 (renamed, or caught mid-write: look again)
