@@ -80,13 +80,14 @@ def test_ppo_on_two_workers_reaches_the_single_process_return(tmp_path: Path) ->
 def _ray_worker_writing(title: str, path: Path) -> int | None:
     """PID of this machine's Ray worker process whose title names `title` (Ray sets it to the actor's
     class) and which holds `path` open, if one does."""
+    target, prefix = str(path.resolve()), f"ray::{title}".encode()
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
             continue
         try:
-            if not (entry / "cmdline").read_bytes().startswith(f"ray::{title}".encode()):
+            if not (entry / "cmdline").read_bytes().startswith(prefix):
                 continue
-            if any(os.readlink(fd) == str(path.resolve()) for fd in (entry / "fd").iterdir()):
+            if any(os.readlink(fd) == target for fd in (entry / "fd").iterdir()):
                 return int(entry.name)
         except OSError:  # the process or its descriptor went away while we looked
             continue
