@@ -20,13 +20,16 @@ lint: venv
 	@$(PY) -m ruff check --quiet imitation cli.py
 	@$(PY) -m mypy
 
+# Two pytest workers (pytest-xdist), one per core of the 2-core CI machine: most tests spend their
+# time in subprocesses and imports, so the pair keeps both cores busy. TEST_WORKERS=0 runs in one process.
 # pytest exits 5 when it collects nothing; that is not a pass, but not a crash either: say so.
+TEST_WORKERS ?= 2
 test: venv lint
-	@$(PY) -m pytest -q; rc=$$?; \
+	@$(PY) -m pytest -q -n $(TEST_WORKERS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests"; exit 0; fi; exit $$rc
 
 test-all: venv
-	@$(PY) -m pytest -q -m "slow or not slow"
+	@$(PY) -m pytest -q -n $(TEST_WORKERS) -m "slow or not slow"
 
 # Peers (LeRobot, stable-baselines3, HumanCompatibleAI/imitation) are measured side by side, each peer in its own venv under bench/
 bench: venv
