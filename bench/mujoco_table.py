@@ -8,8 +8,10 @@ Every run is the command a user would type (`imitation record`, `train bc`, `tra
 OUT/results.jsonl, so an interrupted benchmark resumes where it stopped.
 
 - Experts: rl-baselines3-zoo's SAC agents for HalfCheetah-v3 and Hopper-v3 (../shared/testdata,
-  `--expert sb3:ZIP`), acting on v5, whose observations are laid out as v3's; the other tasks need an
-  expert given with `--expert ENV=SPEC` (a run directory of `train ppo`, or `sb3:ZIP`).
+  `--expert sb3:ZIP`), acting on v5, whose observations are laid out as v3's; an expert given with
+  `--expert ENV=SPEC` (a run directory of `train ppo`, or `sb3:ZIP`); or, with `--ppo-expert ENV`, one
+  trained here on the task's own reward (`train ppo --steps 1000000 --seed 0` into OUT/ENV-ppo-expert,
+  once). The zoo's Hopper falls after ~300 steps on v5 (bench/RESULTS.md), our PPO's hops on.
 - Demos: `--episodes` (default 25) expert episodes per task, recorded with seeds from 1000 and DART
   noise (`record --action-noise`, default 0.1: with that probability a step executes a random
   action while the file keeps the expert's), so that the demos show the states just off the expert's
@@ -24,7 +26,8 @@ nodes see this checkout and OUT at the same paths; "local" by default), each fin
 it returns; the runs of PPO on a recovered reward go after the IRL runs whose rewards they reuse.
 
 Usage: python bench/mujoco_table.py [--envs HalfCheetah,Hopper] [--methods bc,dagger,gail,airl,airl-ppo,gcl-ppo]
-       [--seeds 0,1,2] [--irl-steps N] [--retrain-steps N] [--peer] [--out bench/mujoco-runs]
+       [--seeds 0,1,2] [--irl-steps N] [--retrain-steps N] [--expert ENV=SPEC | --ppo-expert ENV]
+       [--peer] [--out bench/mujoco-runs]
        [--workers N [--ray-address ADDR]]
 """
 
@@ -57,6 +60,16 @@ PUBLISHED = {"bc": 0.93, "dagger": 0.995, "gail": 0.94, "airl": 0.79}
 def zoo_expert(env: str) -> str | None:
     path = ZOO / f"sac_{env}-v3" / f"{env}-v3.zip"
     return f"sb3:{path}" if path.exists() else None
+
+
+def ppo_expert(env_id: str, run: Path, args: argparse.Namespace) -> str:
+    """A run directory of `train ppo` on the task's reward, trained once (1M steps, seed 0)."""
+    if not run.exists():
+        result, seconds = cli(
+            "train", "ppo", "--env", env_id, "--steps", "1000000", "--seed", "0", "--out", str(run), threads=args.threads
+        )
+        print(f"{env_id}: PPO expert {result['eval']['mean_return']:.1f} in {seconds:.0f} s", flush=True)
+    return str(run)
 
 
 def cli(*args: str, threads: int) -> tuple[dict[str, Any], float]:
@@ -260,12 +273,16 @@ def main() -> None:
     parser.add_argument(
         "--expert", action="append", default=[], metavar="ENV=SPEC", help="an expert for a task without a zoo one"
     )
+    parser.add_argument(
+        "--ppo-expert", action="append", default=[], metavar="ENV", help="train the task's expert with our PPO (1M steps)"
+    )
     parser.add_argument("--peer", action="store_true", help="also run imitation 1.0.1's BC and GAIL on the same demos")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", type=Path, default=BENCH / "mujoco-runs")
     parser.add_argument("--workers", type=int, metavar="N", help="run ours as Ray tasks, N at a time (default: one by one)")
     parser.add_argument("--ray-address", default="local", metavar="ADDR|auto|local")
     args = parser.parse_args()
+    args.out = args.out.resolve()  # the peer runs in bench/, our runs in the checkout: one absolute path for both
     envs, methods, seeds = args.envs.split(","), args.methods.split(","), [int(s) for s in args.seeds.split(",")]
     experts = dict(spec.split("=", 1) for spec in args.expert)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -277,9 +294,11 @@ def main() -> None:
     cells: list[Cell] = []
     for env in envs:
         env_id = f"imitation/{env}FixedHorizon-v0"
-        expert = experts.get(env) or zoo_expert(env)
+        expert = experts.get(env) or (
+            ppo_expert(env_id, args.out / f"{env}-ppo-expert", args) if env in args.ppo_expert else zoo_expert(env)
+        )
         if expert is None:
-            print(f"{env}: no expert (give --expert {env}=SPEC); skipped", flush=True)
+            print(f"{env}: no expert (give --expert {env}=SPEC or --ppo-expert {env}); skipped", flush=True)
             continue
         demos, clean = args.out / f"{env}-demos.mcap", args.out / f"{env}-expert.mcap"
         recording = ["record", "--env", env_id, "--expert", expert]
