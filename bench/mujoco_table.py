@@ -301,6 +301,11 @@ def main() -> None:
             print(f"{env}: no expert (give --expert {env}=SPEC or --ppo-expert {env}); skipped", flush=True)
             continue
         demos, clean = args.out / f"{env}-demos.mcap", args.out / f"{env}-expert.mcap"
+        # The demos and every result in OUT belong to one expert: another one needs another --out.
+        recorded_by = args.out / f"{env}-expert.txt"
+        if recorded_by.exists() and recorded_by.read_text() != expert:
+            sys.exit(f"{args.out}: its {env} demos are {recorded_by.read_text()}'s, not {expert}'s; give another --out")
+        recorded_by.write_text(expert)
         recording = ["record", "--env", env_id, "--expert", expert]
         if not demos.exists():
             noise = ["--action-noise", str(args.action_noise)]
