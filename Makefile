@@ -22,8 +22,9 @@ lint: venv
 
 # Two pytest workers (pytest-xdist), one per core of the 2-core CI machine: most tests spend their
 # time in subprocesses and imports, so the pair keeps both cores busy. TEST_WORKERS=0 runs in one process.
-# pytest exits 5 when it collects nothing; that is not a pass, but not a crash either: say so.
 TEST_WORKERS ?= 2
+
+# pytest exits 5 when it collects nothing; that is not a pass, but not a crash either: say so.
 test: venv lint
 	@$(PY) -m pytest -q -n $(TEST_WORKERS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests"; exit 0; fi; exit $$rc

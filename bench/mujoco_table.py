@@ -62,14 +62,13 @@ def zoo_expert(env: str) -> str | None:
     return f"sb3:{path}" if path.exists() else None
 
 
-def ppo_expert(env_id: str, run: Path, args: argparse.Namespace) -> str:
-    """A run directory of `train ppo` on the task's reward, trained once (1M steps, seed 0)."""
+def train_ppo_expert(env_id: str, run: Path, args: argparse.Namespace) -> None:
+    """RUN, a run directory of `train ppo` on the task's reward, unless it exists (1M steps, seed 0)."""
     if not run.exists():
         result, seconds = cli(
             "train", "ppo", "--env", env_id, "--steps", "1000000", "--seed", "0", "--out", str(run), threads=args.threads
         )
         print(f"{env_id}: PPO expert {result['eval']['mean_return']:.1f} in {seconds:.0f} s", flush=True)
-    return str(run)
 
 
 def cli(*args: str, threads: int) -> tuple[dict[str, Any], float]:
@@ -294,18 +293,20 @@ def main() -> None:
     cells: list[Cell] = []
     for env in envs:
         env_id = f"imitation/{env}FixedHorizon-v0"
-        expert = experts.get(env) or (
-            ppo_expert(env_id, args.out / f"{env}-ppo-expert", args) if env in args.ppo_expert else zoo_expert(env)
-        )
+        ppo_run = args.out / f"{env}-ppo-expert"
+        expert = experts.get(env) or (str(ppo_run) if env in args.ppo_expert else zoo_expert(env))
         if expert is None:
             print(f"{env}: no expert (give --expert {env}=SPEC or --ppo-expert {env}); skipped", flush=True)
             continue
-        demos, clean = args.out / f"{env}-demos.mcap", args.out / f"{env}-expert.mcap"
-        # The demos and every result in OUT belong to one expert: another one needs another --out.
+        # The demos and every result in OUT belong to one expert: another one needs another --out
+        # (checked before an expert is trained for it).
         recorded_by = args.out / f"{env}-expert.txt"
         if recorded_by.exists() and recorded_by.read_text() != expert:
             sys.exit(f"{args.out}: its {env} demos are {recorded_by.read_text()}'s, not {expert}'s; give another --out")
+        if expert == str(ppo_run):
+            train_ppo_expert(env_id, ppo_run, args)
         recorded_by.write_text(expert)
+        demos, clean = args.out / f"{env}-demos.mcap", args.out / f"{env}-expert.mcap"
         recording = ["record", "--env", env_id, "--expert", expert]
         if not demos.exists():
             noise = ["--action-noise", str(args.action_noise)]
