@@ -45,6 +45,7 @@ def cmd_record(args: argparse.Namespace) -> int:
         frame_stack=args.frame_stack,
         image_codec=args.image_codec,
         action_noise=args.action_noise,
+        noise_bias=args.noise_bias,
         speed=args.speed,
         progress=not args.quiet,
     )
@@ -611,7 +612,8 @@ def _run_train(argv: list[str]) -> None:
 # line's vocabulary meets the learners'. `_fields` builds configs from it, and a ConfigError that
 # names a field is reported with the flag the user typed.
 FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
-    "record": {"record": {"episodes": "--episodes", "frame_stack": "--frame-stack", "action_noise": "--action-noise"}},
+    "record": {"record": {"episodes": "--episodes", "frame_stack": "--frame-stack", "action_noise": "--action-noise",
+               "noise_bias": "--noise-bias"}},
     "train ppo": {
         "PPOConfig": {
             "total_steps": "--steps",
@@ -1003,6 +1005,15 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="P",
         help="with probability P the env executes a random action while the file stores the expert's (DART): demos of "
         "the states just off the expert's path, labelled (default: 0)",
+    )
+    record.add_argument(
+        "--noise-bias",
+        type=_finite,
+        default=0.0,
+        metavar="B",
+        help="with --action-noise: a noisy step executes the episode's own random action (drawn at reset) with "
+        "probability B, else a uniform one; noise with a mean, so the demos show the expert fighting a steady push "
+        "(the drift a clone's own small bias causes) (default: 0)",
     )
     _add_speed(record)
     record.add_argument("--json", action="store_true", help="print one JSON object with the results")

@@ -29,6 +29,7 @@ def record_job(
     frame_stack: int = 1,
     image_codec: str = "png",
     action_noise: float = 0.0,
+    noise_bias: float = 0.0,
     speed: float = 1.0,
     progress: bool = True,
 ) -> dict[str, Any]:
@@ -42,7 +43,8 @@ def record_job(
 
     With `action_noise` ε the env executes a random action with probability ε while the file
     stores the expert's action at every step (`ActionNoise`, DART): demos of the states next to
-    the expert's path, labelled. A person's window (`--expert keyboard|gamepad`) runs at `speed`
+    the expert's path, labelled. With `noise_bias` β a noisy step executes the episode's own
+    random action with probability β: noise with a mean, which the expert is recorded fighting. A person's window (`--expert keyboard|gamepad`) runs at `speed`
     times real time and is closed at the end."""
     refuse_url(out)
     out = Path(out)
@@ -54,6 +56,10 @@ def record_job(
         raise ConfigError("frame_stack", f"must be in [1, 64], got {frame_stack}", owner="record")
     if not 0.0 <= action_noise <= 1.0:
         raise ConfigError("action_noise", f"must be a probability in [0, 1], got {action_noise}", owner="record")
+    if not 0.0 <= noise_bias <= 1.0:
+        raise ConfigError("noise_bias", f"must be a probability in [0, 1], got {noise_bias}", owner="record")
+    if noise_bias > 0 and action_noise == 0:
+        raise ConfigError("noise_bias", "biases the action noise: give --action-noise too", owner="record")
     if frame_stack > 1 and pixels is None:
         raise ConfigError("frame_stack", "stacks rendered frames: give --pixels too", owner="record")
     env = make_env_for_expert(env_id, expert_spec, pixels=pixels is not None)
@@ -70,6 +76,12 @@ def record_job(
             metadata["actions"] = (
                 f"the expert's labels; with probability {action_noise} the env executed a uniformly random action instead"
             )
+            if noise_bias > 0:
+                metadata["noise_bias"] = noise_bias
+                metadata["actions"] = (
+                    f"the expert's labels; with probability {action_noise} the env executed a random action instead: "
+                    f"with probability {noise_bias} the episode's own one, else a uniform one"
+                )
         writer = DemoWriter(
             out,
             env_id=env_id,
@@ -85,7 +97,7 @@ def record_job(
         )
         try:
             with writer:
-                acted = ActionNoise(env, action_noise, seed=seed) if action_noise > 0 else env
+                acted = ActionNoise(env, action_noise, seed=seed, bias=noise_bias) if action_noise > 0 else env
                 returns = run_episodes(RecordEpisodes(acted, writer), policy, episodes=episodes, seed=seed, progress=progress)
         except KeyboardInterrupt:
             kept = writer.episodes_written

@@ -195,6 +195,38 @@ def test_action_noise_executes_random_actions_and_keeps_the_label() -> None:
     assert 10 < sum(executed) < 40
 
 
+def test_biased_action_noise_pushes_one_way_per_episode() -> None:
+    """With bias 1 every noisy step of an episode executes that episode's one action: the cart is pushed
+    the same way throughout (the given action, 0, is never executed with ε = 1); episodes differ."""
+    env = ActionNoise(gym.make("CartPole-v1"), 1.0, seed=3, bias=1.0)
+    directions = []
+    for episode in range(8):
+        env.reset(seed=episode)
+        pushes = set()
+        for _ in range(5):
+            before = env.unwrapped.state.copy()
+            env.step(0)
+            pushes.add(bool(env.unwrapped.state[1] > before[1]))
+        assert len(pushes) == 1, f"episode {episode} pushed both ways"
+        directions.append(pushes.pop())
+    assert 0 < sum(directions) < 8
+
+
+def test_zero_bias_draws_the_same_noise_as_uniform_dart() -> None:
+    """Bias 0 must not change the random stream (recordings made before the option stay reproducible):
+    the executed pushes are those of ε-uniform noise drawn from the seed's two generators."""
+    env = ActionNoise(gym.make("CartPole-v1"), 0.5, seed=7, bias=0.0)
+    rng, space = np.random.default_rng(7), gym.spaces.Discrete(2)
+    space.seed(7)
+    for episode in range(3):
+        env.reset(seed=episode)
+        for _ in range(10):
+            expected = int(space.sample()) if rng.random() < 0.5 else 0
+            before = env.unwrapped.state.copy()
+            env.step(0)
+            assert int(env.unwrapped.state[1] > before[1]) == expected
+
+
 def test_record_train_and_eval_pixel_cartpole_through_the_cli(tmp_path) -> None:
     demos = tmp_path / "pixels.mcap"
     recorded = run_cli(
