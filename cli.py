@@ -612,8 +612,14 @@ def _run_train(argv: list[str]) -> None:
 # line's vocabulary meets the learners'. `_fields` builds configs from it, and a ConfigError that
 # names a field is reported with the flag the user typed.
 FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
-    "record": {"record": {"episodes": "--episodes", "frame_stack": "--frame-stack", "action_noise": "--action-noise",
-               "noise_bias": "--noise-bias"}},
+    "record": {
+        "record": {
+            "episodes": "--episodes",
+            "frame_stack": "--frame-stack",
+            "action_noise": "--action-noise",
+            "noise_bias": "--noise-bias",
+        }
+    },
     "train ppo": {
         "PPOConfig": {
             "total_steps": "--steps",

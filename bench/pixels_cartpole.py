@@ -5,14 +5,17 @@ of 3 seeds, trained on 2 CPU cores in ≤ 15 min, from scripted-expert demos of 
 frames with a frame stack ≥ 2; DAgger with the scripted expert reaching the same with fewer
 expert labels.
 
-For each seed: `record --pixels` (scripted expert, DART action noise: the env executes a random
-action with probability `--action-noise` while the file stores the expert's label), `train bc`
-on those demos, `train dagger --pixels` with the same frames, then `eval policy` of each on 20
-episodes. Normalised return = (R − R_random) / (R_expert − R_random) with R_expert = 500 (the
-scripted expert's return) and R_random CartPole's uniform-random return over the same 20 seeds.
-Wall times and expert labels are printed beside the returns.
+For each seed: `record --pixels` (scripted expert, DART action noise with a per-episode bias: the
+env executes a random action with probability `--action-noise`, that episode's own one with
+probability `--noise-bias`, while the file stores the expert's label), `train bc` on those demos;
+`train dagger --pixels` from the first `--dagger-demos` of the same episodes (one expert-driven
+round, β = 1, then the learner drives: `--beta-schedule exponential --beta-decay 0`); then `eval
+policy` of each on 20 episodes. Normalised return = (R − R_random) / (R_expert − R_random) with
+R_expert = 500 (the scripted expert's return) and R_random CartPole's uniform-random return over
+the same 20 seeds. Expert labels (demo steps plus DAgger's labelled steps) and wall times are
+printed beside the returns.
 
-Usage: python bench/pixels_cartpole.py [--seeds 0 1 2] [--episodes 20] [--bc-epochs 40] [--rounds 5]
+Usage: python bench/pixels_cartpole.py [--seeds 0 1 2] [--episodes 20] [--bc-epochs 30] [--dagger-demos 8] [--rounds 4]
 """
 
 from __future__ import annotations
@@ -63,9 +66,13 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=20, help="demo episodes per seed")
     parser.add_argument("--action-noise", type=float, default=0.3)
+    parser.add_argument("--noise-bias", type=float, default=0.5)
     parser.add_argument("--frame-stack", type=int, default=4)
-    parser.add_argument("--bc-epochs", type=int, default=40)
-    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--bc-epochs", type=int, default=30)
+    parser.add_argument("--dagger-demos", type=int, default=8, help="demo episodes DAgger starts from")
+    parser.add_argument("--rounds", type=int, default=4)
+    parser.add_argument("--episodes-per-round", type=int, default=3)
+    parser.add_argument("--dagger-epochs", type=int, default=15, help="BC epochs per DAgger round")
     parser.add_argument("--eval-episodes", type=int, default=20)
     args = parser.parse_args()
     baseline = random_return(args.eval_episodes)
@@ -74,25 +81,33 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="pixels-cartpole-") as folder:
         work = Path(folder)
         for seed in args.seeds:
-            demos = work / f"demos-{seed}.mcap"
+            demos, few = work / f"demos-{seed}.mcap", work / f"few-demos-{seed}.mcap"
+            noise = ["--action-noise", str(args.action_noise), "--noise-bias", str(args.noise_bias)]
             recorded, record_s = cli(
-                "record", "--env", "CartPole-v1", *PIXELS, "--frame-stack", str(args.frame_stack),
-                "--action-noise", str(args.action_noise), "--episodes", str(args.episodes), "--seed", str(1000 + 100 * seed),
-                "--out", str(demos), "--quiet",
+                "record", "--env", "CartPole-v1", *PIXELS, "--frame-stack", str(args.frame_stack), *noise,
+                "--episodes", str(args.episodes), "--seed", str(1000 + 100 * seed), "--out", str(demos), "--quiet",
+            )  # fmt: skip
+            # episode i is reset with seed S + i and the noise stream runs on, so these are the first episodes above
+            few_recorded, few_s = cli(
+                "record", "--env", "CartPole-v1", *PIXELS, "--frame-stack", str(args.frame_stack), *noise,
+                "--episodes", str(args.dagger_demos), "--seed", str(1000 + 100 * seed), "--out", str(few), "--quiet",
             )  # fmt: skip
             labels = int(round(recorded["mean_return"] * recorded["episodes"]))
+            few_labels = int(round(few_recorded["mean_return"] * few_recorded["episodes"]))
             _, bc_s = cli(
                 "train", "bc", "--demos", str(demos), "--env", "CartPole-v1", "--epochs", str(args.bc_epochs),
                 "--seed", str(seed), "--out", str(work / f"bc-{seed}"), "--quiet",
             )  # fmt: skip
             dagger, dagger_s = cli(
                 "train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", *PIXELS,
-                "--frame-stack", str(args.frame_stack), "--rounds", str(args.rounds), "--seed", str(seed),
+                "--frame-stack", str(args.frame_stack), "--demos", str(few), "--rounds", str(args.rounds),
+                "--episodes-per-round", str(args.episodes_per_round), "--beta-schedule", "exponential",
+                "--beta-decay", "0", "--epochs", str(args.dagger_epochs), "--seed", str(seed),
                 "--out", str(work / f"dagger-{seed}"), "--quiet",
             )  # fmt: skip
             for name, run, seconds, used in (
                 ("BC", work / f"bc-{seed}", record_s + bc_s, labels),
-                ("DAgger", work / f"dagger-{seed}", dagger_s, dagger["expert_labels"]),
+                ("DAgger", work / f"dagger-{seed}", few_s + dagger_s, few_labels + int(dagger["expert_labels"])),
             ):
                 evaluated, _ = cli("eval", "policy", str(run), "--env", "CartPole-v1", "--episodes", str(args.eval_episodes))
                 normalised = (evaluated["mean_return"] - baseline) / (EXPERT_RETURN - baseline)

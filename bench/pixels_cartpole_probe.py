@@ -28,7 +28,16 @@ variants (those from `--newest-diff` on, remedies aimed at copycat, not yet in b
   2020's conditional adversary against copycat);
 - `--label-window K`: train on soft labels, the fraction of "right" among the expert's labels
   K steps either side in the same episode (the expert's chatter near upright averaged out);
+- `--shift P`, `--shift-x P`: the random shift of the training frames (default 4), and a further
+  sideways one (the clone made blind to where the cart is);
+- `--crop T,L,H,W`: the recording's crop, for the rollouts;
+- `--dagger-rounds R`: after BC, R rounds of DAgger: `--round-episodes` of the clone's own episodes
+  labelled by the scripted expert on the recorded state, added to the training set, then
+  `--round-steps` more Adam steps;
 - `--threads N`: torch threads (default 1).
+
+Each evaluation episode prints the state it ended in, and the summary the clone's agreement with
+the expert's rule on its own states.
 
 The last line printed, `summary`, gives held-out accuracy, mean return and training seconds.
 
@@ -50,7 +59,17 @@ from imitation.encoders import random_shift
 from imitation.envs.pixels import PixelRecipe, StackFrames, frame_stack_index, make_pixel_env
 from imitation.policies import make_policy
 
-RECIPE = PixelRecipe.parse("84x84", grayscale=True, crop="150,216,168,168")
+CROP = "150,216,168,168"
+
+
+def shift_columns(frames: torch.Tensor, pad: int) -> torch.Tensor:
+    """Each sample of (batch, k, H, W, C) frames moved sideways by its own dx in {−pad, …, pad}, edges replicated."""
+    if pad <= 0:
+        return frames
+    batch, width = frames.shape[0], frames.shape[3]
+    dx = torch.randint(-pad, pad + 1, (batch,))
+    columns = (torch.arange(width)[None] + dx[:, None]).clamp(0, width - 1)
+    return torch.stack([sample[:, :, index] for sample, index in zip(frames, columns)])
 
 
 class ReverseGradient(torch.autograd.Function):
@@ -134,6 +153,14 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=1500)
     parser.add_argument("--episodes", type=int, default=8, help="evaluation episodes")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--shift", type=int, default=4, help="random shift of the training frames (pixels)")
+    parser.add_argument("--shift-x", type=int, default=0, help="a further horizontal shift of up to this many pixels")
+    parser.add_argument(
+        "--dagger-rounds", type=int, default=0, help="after BC: roll out, label with the expert, aggregate, train on"
+    )
+    parser.add_argument("--round-episodes", type=int, default=4)
+    parser.add_argument("--round-steps", type=int, default=500)
+    parser.add_argument("--crop", default=CROP, help="the recording's --crop, for the rollouts")
     args = parser.parse_args()
     torch.manual_seed(args.seed)
     torch.set_num_threads(args.threads)
@@ -233,39 +260,82 @@ def main() -> None:
             return float(nn.functional.cross_entropy(logits, labels[index])), float(accuracy)
 
     started = time.perf_counter()
-    for step in range(1, args.steps + 1):
-        batch = rng.choice(rows, 128)
-        logits, features = forward(random_shift(frames[batch], 4), args.history_dropout)
-        loss = (nn.functional.cross_entropy(logits, targets[batch], reduction="none") * weights[batch]).mean()
-        if args.adversary:
-            reversed_features = ReverseGradient.apply(features, args.adversary)
-            guess = adversary(torch.cat([reversed_features, nn.functional.one_hot(labels[batch], 2).float()], 1))
-            loss = loss + nn.functional.cross_entropy(guess, executed[batch])
-        if args.state_aux:
-            loss = loss + args.state_aux * ((auxiliary(features) - state[batch]) ** 2).mean()
-        optimiser.zero_grad()
-        loss.backward()
-        optimiser.step()
-        if step % 500 == 0:
-            nll, accuracy = held_out_fit()
-            seconds = time.perf_counter() - started
-            print(f"step {step}: held-out NLL {nll:.3f}, accuracy {accuracy:.3f} ({seconds:.0f} s)", flush=True)
-    train_seconds = time.perf_counter() - started
-    if args.steps % 500:
-        nll, accuracy = held_out_fit()
 
-    env = StackFrames(make_pixel_env("CartPole-v1", RECIPE), span)
-    returns = []
-    for episode in range(args.episodes):
-        observation, _ = env.reset(seed=5000 + episode)
-        total, done = 0.0, False
-        while not done:
-            with torch.no_grad():
-                action = int(forward(torch.as_tensor(observation["pixels"][:: args.stride][None]))[0].argmax())
-            observation, reward, terminated, truncated, _ = env.step(action)
-            total, done = total + float(reward), terminated or truncated
-        returns.append(total)
+    def train(steps: int) -> None:
+        for step in range(1, steps + 1):
+            batch = rng.choice(rows, 128)
+            logits, features = forward(
+                shift_columns(random_shift(frames[batch], args.shift), args.shift_x), args.history_dropout
+            )
+            loss = (nn.functional.cross_entropy(logits, targets[batch], reduction="none") * weights[batch]).mean()
+            if args.adversary:
+                reversed_features = ReverseGradient.apply(features, args.adversary)
+                guess = adversary(torch.cat([reversed_features, nn.functional.one_hot(labels[batch], 2).float()], 1))
+                loss = loss + nn.functional.cross_entropy(guess, executed[batch])
+            if args.state_aux:
+                loss = loss + args.state_aux * ((auxiliary(features) - state[batch]) ** 2).mean()
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            if step % 500 == 0:
+                nll, accuracy = held_out_fit()
+                seconds = time.perf_counter() - started
+                print(f"step {step}: held-out NLL {nll:.3f}, accuracy {accuracy:.3f} ({seconds:.0f} s)", flush=True)
+
+    env = StackFrames(make_pixel_env("CartPole-v1", PixelRecipe.parse("84x84", grayscale=True, crop=args.crop)), span)
+
+    def rollout(seeds: range, collect: bool) -> tuple[list[float], list[tuple[bool, bool, int]], list[np.ndarray], list[int]]:
+        """The clone's deterministic episodes; with `collect`, its frame stacks and the expert's labels."""
+        returns, agreement, visited, expert_labels = [], [], [], []
+        for episode_seed in seeds:
+            observation, _ = env.reset(seed=episode_seed)
+            total, done = 0.0, False
+            while not done:
+                stack = observation["pixels"][:: args.stride]
+                with torch.no_grad():
+                    action = int(forward(torch.as_tensor(stack[None]))[0].argmax())
+                state = np.asarray(env.unwrapped.state, dtype=np.float64)
+                score = float(np.array([1.0, 1.0, 10.0, 2.0]) @ state)
+                agreement.append((action == int(score > 0), abs(score) > 1.0, action))
+                if collect:
+                    visited.append(np.array(stack))
+                    expert_labels.append(int(score > 0))
+                observation, reward, terminated, truncated, _ = env.step(action)
+                total, done = total + float(reward), terminated or truncated
+            returns.append(total)
+            if not collect:
+                print(
+                    f"episode {episode_seed}: {total:.0f}, end state {np.round(np.asarray(env.unwrapped.state), 3).tolist()}"
+                )
+        return returns, agreement, visited, expert_labels
+
+    train(args.steps)
+    for round_ in range(args.dagger_rounds):
+        round_returns, _, visited, expert_labels = rollout(
+            range(9000 + 100 * round_, 9000 + 100 * round_ + args.round_episodes), True
+        )
+        new = torch.as_tensor(np.stack(visited))
+        first = len(frames)
+        frames = torch.cat([frames, new])
+        labels = torch.cat([labels, torch.as_tensor(expert_labels)])
+        targets = torch.cat([targets, nn.functional.one_hot(torch.as_tensor(expert_labels), 2).float()])
+        weights = torch.cat([weights, torch.ones(len(new))])
+        held_out = torch.cat([held_out, torch.zeros(len(new), dtype=torch.bool)])
+        rows = np.concatenate([rows, np.arange(first, len(frames))])
+        print(
+            f"DAgger round {round_ + 1}: the clone's returns {round_returns}, {len(new)} labels added ({len(rows)} in all)",
+            flush=True,
+        )
+        train(args.round_steps)
+    train_seconds = time.perf_counter() - started
+    nll, accuracy = held_out_fit()
+    returns, agreement, _, _ = rollout(range(5000, 5000 + args.episodes), False)
     print(f"returns {returns}: mean {np.mean(returns):.1f}")
+    agrees, decisive, actions = (np.array(column) for column in zip(*agreement))
+    print(
+        f"on its own states: agrees with the expert {agrees.mean():.3f}, where |score| > 1 {agrees[decisive].mean():.3f}"
+        f" ({decisive.mean():.3f} of steps); pushes right {actions.mean():.3f}"
+    )
     print(f"summary: accuracy {accuracy:.3f}, NLL {nll:.3f}, return {np.mean(returns):.1f}, train {train_seconds:.0f} s")
 
 
