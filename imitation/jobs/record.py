@@ -44,8 +44,9 @@ def record_job(
     With `action_noise` ε the env executes a random action with probability ε while the file
     stores the expert's action at every step (`ActionNoise`, DART): demos of the states next to
     the expert's path, labelled. With `noise_bias` β a noisy step executes the episode's own
-    random action with probability β: noise with a mean, which the expert is recorded fighting. A person's window (`--expert keyboard|gamepad`) runs at `speed`
-    times real time and is closed at the end."""
+    random action with probability β: noise with a mean, which the expert is recorded fighting.
+    A person's window (`--expert keyboard|gamepad`) runs at `speed` times real time and is closed
+    at the end."""
     refuse_url(out)
     out = Path(out)
     if out.is_dir():
