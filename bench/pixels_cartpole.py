@@ -15,7 +15,8 @@ R_expert = 500 (the scripted expert's return) and R_random CartPole's uniform-ra
 the same 20 seeds. Expert labels (demo steps plus DAgger's labelled steps) and wall times are
 printed beside the returns.
 
-Usage: python bench/pixels_cartpole.py [--seeds 0 1 2] [--episodes 20] [--bc-epochs 30] [--dagger-demos 8] [--rounds 4]
+Usage: python bench/pixels_cartpole.py [--seeds 0 1 2] [--methods bc,dagger] [--episodes 20] [--bc-epochs 30]
+       [--dagger-demos 8] [--rounds 4]
 """
 
 from __future__ import annotations
@@ -61,9 +62,35 @@ def random_return(episodes: int) -> float:
     return float(np.mean(returns))
 
 
+def record(out: Path, episodes: int, seed: int, args: argparse.Namespace) -> tuple[int, float]:
+    """Demos of the scripted expert (episode i reset with seed S + i, the noise stream running on, so
+    fewer episodes are the first ones of more); their expert labels and wall seconds."""
+    recorded, seconds = cli(
+        "record", "--env", "CartPole-v1", *PIXELS, "--frame-stack", str(args.frame_stack),
+        "--action-noise", str(args.action_noise), "--noise-bias", str(args.noise_bias),
+        "--episodes", str(episodes), "--seed", str(1000 + 100 * seed), "--out", str(out), "--quiet",
+    )  # fmt: skip
+    return int(round(recorded["mean_return"] * recorded["episodes"])), seconds
+
+
+def report(
+    name: str, run: Path, seed: int, seconds: float, labels: int, baseline: float, args: argparse.Namespace
+) -> tuple[str, int, float, float, int, float]:
+    """`eval policy` of a run, printed; its row (method, seed, return, normalised, labels, seconds)."""
+    evaluated, _ = cli("eval", "policy", str(run), "--env", "CartPole-v1", "--episodes", str(args.eval_episodes))
+    normalised = (evaluated["mean_return"] - baseline) / (EXPERT_RETURN - baseline)
+    print(
+        f"{name:6s} seed {seed}: return {evaluated['mean_return']:6.1f}  normalised {normalised:5.2f}  "
+        f"expert labels {labels:6d}  wall {seconds / 60:5.1f} min",
+        flush=True,
+    )
+    return name, seed, evaluated["mean_return"], normalised, labels, seconds
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--methods", type=lambda text: text.split(","), default=["bc", "dagger"], help="bc,dagger")
     parser.add_argument("--episodes", type=int, default=20, help="demo episodes per seed")
     parser.add_argument("--action-noise", type=float, default=0.3)
     parser.add_argument("--noise-bias", type=float, default=0.5)
@@ -82,42 +109,27 @@ def main() -> None:
         work = Path(folder)
         for seed in args.seeds:
             demos, few = work / f"demos-{seed}.mcap", work / f"few-demos-{seed}.mcap"
-            noise = ["--action-noise", str(args.action_noise), "--noise-bias", str(args.noise_bias)]
-            recorded, record_s = cli(
-                "record", "--env", "CartPole-v1", *PIXELS, "--frame-stack", str(args.frame_stack), *noise,
-                "--episodes", str(args.episodes), "--seed", str(1000 + 100 * seed), "--out", str(demos), "--quiet",
-            )  # fmt: skip
-            # episode i is reset with seed S + i and the noise stream runs on, so these are the first episodes above
-            few_recorded, few_s = cli(
-                "record", "--env", "CartPole-v1", *PIXELS, "--frame-stack", str(args.frame_stack), *noise,
-                "--episodes", str(args.dagger_demos), "--seed", str(1000 + 100 * seed), "--out", str(few), "--quiet",
-            )  # fmt: skip
-            labels = int(round(recorded["mean_return"] * recorded["episodes"]))
-            few_labels = int(round(few_recorded["mean_return"] * few_recorded["episodes"]))
-            _, bc_s = cli(
-                "train", "bc", "--demos", str(demos), "--env", "CartPole-v1", "--epochs", str(args.bc_epochs),
-                "--seed", str(seed), "--out", str(work / f"bc-{seed}"), "--quiet",
-            )  # fmt: skip
-            dagger, dagger_s = cli(
-                "train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", *PIXELS,
-                "--frame-stack", str(args.frame_stack), "--demos", str(few), "--rounds", str(args.rounds),
-                "--episodes-per-round", str(args.episodes_per_round), "--beta-schedule", "exponential",
-                "--beta-decay", "0", "--epochs", str(args.dagger_epochs), "--seed", str(seed),
-                "--out", str(work / f"dagger-{seed}"), "--quiet",
-            )  # fmt: skip
-            for name, run, seconds, used in (
-                ("BC", work / f"bc-{seed}", record_s + bc_s, labels),
-                ("DAgger", work / f"dagger-{seed}", few_s + dagger_s, few_labels + int(dagger["expert_labels"])),
-            ):
-                evaluated, _ = cli("eval", "policy", str(run), "--env", "CartPole-v1", "--episodes", str(args.eval_episodes))
-                normalised = (evaluated["mean_return"] - baseline) / (EXPERT_RETURN - baseline)
-                rows.append((name, seed, evaluated["mean_return"], normalised, used, seconds))
-                print(
-                    f"{name:6s} seed {seed}: return {evaluated['mean_return']:6.1f}  normalised {normalised:5.2f}  "
-                    f"expert labels {used:6d}  wall {seconds / 60:5.1f} min",
-                    flush=True,
-                )
+            if "bc" in args.methods:
+                labels, record_s = record(demos, args.episodes, seed, args)
+                _, bc_s = cli(
+                    "train", "bc", "--demos", str(demos), "--env", "CartPole-v1", "--epochs", str(args.bc_epochs),
+                    "--seed", str(seed), "--out", str(work / f"bc-{seed}"), "--quiet",
+                )  # fmt: skip
+                rows.append(report("BC", work / f"bc-{seed}", seed, record_s + bc_s, labels, baseline, args))
+            if "dagger" in args.methods:
+                few_labels, few_s = record(few, args.dagger_demos, seed, args)
+                dagger, dagger_s = cli(
+                    "train", "dagger", "--env", "CartPole-v1", "--expert", "scripted", *PIXELS,
+                    "--frame-stack", str(args.frame_stack), "--demos", str(few), "--rounds", str(args.rounds),
+                    "--episodes-per-round", str(args.episodes_per_round), "--beta-schedule", "exponential",
+                    "--beta-decay", "0", "--epochs", str(args.dagger_epochs), "--seed", str(seed),
+                    "--out", str(work / f"dagger-{seed}"), "--quiet",
+                )  # fmt: skip
+                used = few_labels + int(dagger["expert_labels"])
+                rows.append(report("DAgger", work / f"dagger-{seed}", seed, few_s + dagger_s, used, baseline, args))
     for name in ("BC", "DAgger"):
+        if name.lower() not in args.methods:
+            continue
         passed = sum(1 for row in rows if row[0] == name and row[3] >= 0.9)
         print(f"{name}: normalised ≥ 0.9 on {passed} of {len(args.seeds)} seeds (criterion: 2 of 3)")
 
