@@ -231,7 +231,8 @@ def test_record_train_and_eval_pixel_cartpole_through_the_cli(tmp_path) -> None:
     demos = tmp_path / "pixels.mcap"
     recorded = run_cli(
         "record", "--env", "CartPole-v1", "--pixels", "36x36", "--grayscale", "--crop", "100,150,250,300",
-        "--frame-stack", "2", "--episodes", "2", "--action-noise", "0.2", "--out", str(demos), "--quiet",
+        "--frame-stack", "2", "--episodes", "2", "--action-noise", "0.2", "--noise-bias", "0.5",
+        "--out", str(demos), "--quiet",
     )  # fmt: skip
     assert recorded.returncode == 0, recorded.stderr
     dataset = DemoDataset(demos)
@@ -240,6 +241,7 @@ def test_record_train_and_eval_pixel_cartpole_through_the_cli(tmp_path) -> None:
         "size": [36, 36], "grayscale": True, "crop": [100, 150, 250, 300], "frame_stack": 2,
     }  # fmt: skip
     assert dataset.files[0].user_metadata["action_noise"] == 0.2
+    assert dataset.files[0].user_metadata["noise_bias"] == 0.5
 
     run = tmp_path / "bc"
     trained = run_cli(
