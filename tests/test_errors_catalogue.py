@@ -567,7 +567,7 @@ CASE_LIST = [
     case("cli-8", lambda i: ["record", "--env", "CartPole-v1", "--action-noise", "2", "--out", i.path("c8.mcap")], expect="--action-noise must"),
     case("cli-8", lambda i: ["record", "--env", "CartPole-v1", "--action-noise", "0.2", "--noise-bias", "-1", "--out", i.path("c8b.mcap")],
          variant="bias", expect="--noise-bias must"),
-    case("cli-10", lambda i: ["record", "--env", "CartPole-v1", "--noise-bias", "0.5", "--out", i.path("c10.mcap")]),
+    case("cli-10", lambda i: ["record", "--env", "CartPole-v1", "--noise-bias", "0.5", "--out", i.path("c10.mcap")], expect="--noise-bias biases"),
     case("cli-4 demo-d13", lambda i: ["info", i.cut_at_record("cut-header.mcap", 4)]),
     case("env-1", lambda i: ["record", "--env", "NoSuchEnv-v0", "--out", i.path("n.mcap")]),
     case("env-3", lambda i: ["train", "irl", "--method", "mce", "--env", "CartPole-v1", "--demos", DATASETS / "CartPole-v1.mcap", "--out", i.root / "irl-cp"]),
