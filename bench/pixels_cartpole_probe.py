@@ -57,6 +57,7 @@ from torch import nn
 from imitation.data.loader import load_transitions
 from imitation.encoders import random_shift
 from imitation.envs.pixels import PixelRecipe, StackFrames, frame_stack_index, make_pixel_env
+from imitation.experts.scripted import _CARTPOLE_GAINS, cartpole
 from imitation.policies import make_policy
 
 CROP = "150,216,168,168"
@@ -295,11 +296,11 @@ def main() -> None:
                 with torch.no_grad():
                     action = int(forward(torch.as_tensor(stack[None]))[0].argmax())
                 state = np.asarray(env.unwrapped.state, dtype=np.float64)
-                score = float(np.array([1.0, 1.0, 10.0, 2.0]) @ state)
-                agreement.append((action == int(score > 0), abs(score) > 1.0, action))
+                label, score = cartpole(state), float(_CARTPOLE_GAINS @ state)
+                agreement.append((action == label, abs(score) > 1.0, action))
                 if collect:
                     visited.append(np.array(stack))
-                    expert_labels.append(int(score > 0))
+                    expert_labels.append(label)
                 observation, reward, terminated, truncated, _ = env.step(action)
                 total, done = total + float(reward), terminated or truncated
             returns.append(total)
