@@ -1337,7 +1337,13 @@ def build_parser() -> argparse.ArgumentParser:
         "actions the expert let pass as labels (all) (default: human)",
     )
     _add_speed(dagger)
-    dagger.add_argument("--demos", nargs="+", metavar="F.mcap", help="expert demos to start from (optional)")
+    dagger.add_argument(
+        "--demos",
+        nargs="+",
+        metavar="F.mcap",
+        help="expert demos to start from (optional; they stand for the expert-only first round, so round 1 runs at "
+        "the schedule's second β)",
+    )
     dagger.add_argument("--rounds", type=int, default=5, metavar="R", help="rounds (default: 5)")
     dagger.add_argument("--episodes-per-round", type=int, default=5, metavar="N", help="rollouts per round (default: 5)")
     dagger.add_argument(

@@ -1,14 +1,17 @@
 """DAgger, dataset aggregation (docs/THEORY.md §5.2; Ross, Gordon & Bagnell 2011).
 
-    D ← expert demos (optional);  π̂_1 ← BC(D)  (or, without demos, round 1 runs the expert: β_1 = 1)
+    D ← expert demos (optional);  π̂_1 ← BC(D)
     for i = 1 … R:
         π_i = β_i π* + (1 - β_i) π̂_i          at each step the expert acts with probability β_i
         run π_i; label every visited state s with the expert's action π*(s)  →  D_i
         D ← D ∪ D_i;  π̂_{i+1} ← BC(D)
 
-β schedules: linear β_i = max(0, 1 - (i-1)/R), exponential β_i = p^(i-1). The learner visits
-its own state distribution and the expert says what it should have done there, which is what
-removes BC's compounding error (the notes' O(εT²) → O(εT)).
+β schedules: linear β_i = max(0, 1 - (i-1)/R), exponential β_i = p^(i-1). Without demos round 1
+is the expert's alone (β_1 = 1) and its rollouts are the first expert data. Demos are that data
+already, so with them round i runs at β_{i+1}: round 1 lets π̂_1 drive instead of spending labels
+on the expert's own path a second time. The learner visits its own state distribution and the
+expert says what it should have done there, which is what removes BC's compounding error (the
+notes' O(εT²) → O(εT)).
 
 Take-over mode (HG-DAgger, Kelly et al. 2019; docs/THEORY.md §5.2), for an expert that can
 take the controls (a person, `imitation.experts.standin.StandIn`):
@@ -366,7 +369,7 @@ class DAgger:
         elif self.learner is None and self.config.mode == "takeover":
             self.learner = SingleObservationPolicy(self.policy, deterministic=True)  # the person corrects it from the start
         round_index = self.rounds + 1
-        beta = beta_for_round(round_index, self.config)
+        beta = beta_for_round(round_index + 1 if self.demos else round_index, self.config)
         first_seed = self.config.seed * 100_000 + round_index * 1_000
         seeds = list(range(first_seed, first_seed + self.config.episodes_per_round))
         if self.remote is not None:

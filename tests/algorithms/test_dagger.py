@@ -257,11 +257,12 @@ def test_dagger_checkpoints_next_round_must_lie_between_one_and_rounds_plus_one(
             coin_dagger(tmp_path / "rounds").load_state_dict((tensors, state | {"round": next_round}))
 
 
-def test_dagger_with_demos_clones_them_before_round_one_and_reads_no_final_observation(tmp_path) -> None:
-    """With demos, round 1 already has a learner (BC on the demos), so even at β = 1 the mixture
-    draws a number for each of its 50 steps and round 2's draws are the next 50. BC needs no
-    s': an episode's final observation is never read, so a damaged one (NaN, as a recording
-    may end) stops nothing."""
+def test_dagger_with_demos_clones_them_and_lets_the_clone_drive_from_round_one(tmp_path) -> None:
+    """The demos stand for the expert-only first round, so round i runs at β_{i+1} (linear, R = 2:
+    0.5, then 0): round 1's step t is the expert's exactly when the t-th draw is below 0.5, with
+    the learner cloned from the demos driving the rest, and round 2 is the learner's alone. BC
+    needs no s': an episode's final observation is never read, so a damaged one (NaN, as a
+    recording may end) stops nothing."""
     env = Coin()
     demos = collect_round(env, None, coin_expert, beta=1.0, episodes=4, seed=50, rng=np.random.default_rng(0), metadata={})
     for episode in demos:
@@ -276,6 +277,9 @@ def test_dagger_with_demos_clones_them_before_round_one_and_reads_no_final_obser
     )
     dagger = coin_dagger(tmp_path / "rounds", demos=[path])
     run(dagger)
-    round_two = DemoFile(tmp_path / "rounds" / "round-02.mcap").read_episodes()
-    expert_drove = np.random.default_rng(1).random(100)[50:].reshape(10, 5) < 0.5
-    assert [episode.metadata["expert_steps"] for episode in round_two] == expert_drove.sum(1).tolist()
+    rounds = [DemoFile(tmp_path / "rounds" / f"round-0{i}.mcap") for i in (1, 2)]
+    assert [file.user_metadata["beta"] for file in rounds] == [0.5, 0.0]
+    expert_drove = np.random.default_rng(1).random(50).reshape(10, 5) < 0.5
+    assert 0 < expert_drove.sum() < 50
+    assert [episode.metadata["expert_steps"] for episode in rounds[0].read_episodes()] == expert_drove.sum(1).tolist()
+    assert [episode.metadata["expert_steps"] for episode in rounds[1].read_episodes()] == [0] * 10
