@@ -8,12 +8,12 @@ expert labels.
 For each seed: `record --pixels` (scripted expert, DART action noise with a per-episode bias: the
 env executes a random action with probability `--action-noise`, that episode's own one with
 probability `--noise-bias`, while the file stores the expert's label), `train bc` on those demos;
-`train dagger --pixels` from the first `--dagger-demos` of the same episodes (one expert-driven
-round, β = 1, then the learner drives: `--beta-schedule exponential --beta-decay 0`); then `eval
-policy` of each on 20 episodes. Normalised return = (R − R_random) / (R_expert − R_random) with
-R_expert = 500 (the scripted expert's return) and R_random CartPole's uniform-random return over
-the same 20 seeds. Expert labels (demo steps plus DAgger's labelled steps) and wall times are
-printed beside the returns.
+`train dagger --pixels` from the first `--dagger-demos` of the same episodes (the demos stand for
+the expert-only round, so with `--beta-schedule exponential --beta-decay 0` the learner drives every
+round, β = 0); then `eval policy` of each on 20 episodes. Normalised return = (R − R_random) /
+(R_expert − R_random) with R_expert = 500 (the scripted expert's return) and R_random CartPole's
+uniform-random return over the same 20 seeds. Expert labels (demo steps plus DAgger's labelled
+steps) and wall times are printed beside the returns.
 
 Usage: python bench/pixels_cartpole.py [--seeds 0 1 2] [--methods bc,dagger] [--episodes 20] [--bc-epochs 30]
        [--dagger-demos 8] [--rounds 4]

@@ -35,3 +35,63 @@ def test_true_reward_matches_the_env_step(env_id: str) -> None:
 
 def test_envs_without_a_known_reward_get_none() -> None:
     assert true_reward("Acrobot-v1", make_env("Acrobot-v1")) is None
+
+
+SPEED_INDEX = {"HalfCheetah": 8, "Hopper": 5, "Walker2d": 8, "Swimmer": 3, "Ant": 13}
+
+
+@pytest.mark.parametrize("name", list(SPEED_INDEX))
+def test_mujoco_true_reward_is_exact_but_for_the_trapezoid_speed(name: str) -> None:
+    """Every term but the forward speed is the env's own (so reward − estimated speed equals the
+    step's reward − the env's speed), and the trapezoid speed tracks the env's (x' − x)/dt."""
+    env_id = f"imitation/{name}FixedHorizon-v0"
+    env = make_env(env_id)
+    reward = true_reward(env_id, env)
+    assert reward is not None
+    env.action_space.seed(0)
+    observation, _ = env.reset(seed=0)
+    observations, actions, next_observations, rewards, speeds = [], [], [], [], []
+    for _ in range(300):
+        action = env.action_space.sample()
+        next_observation, step_reward, _, _, info = env.step(action)
+        observations.append(observation)
+        actions.append(action)
+        next_observations.append(next_observation)
+        rewards.append(step_reward)
+        speeds.append(info["x_velocity"])
+        observation = next_observation
+    before, after = np.array(observations), np.array(next_observations)
+    estimate = 0.5 * (before[:, SPEED_INDEX[name]] + after[:, SPEED_INDEX[name]])
+    np.testing.assert_allclose(reward(before, np.array(actions), after) - estimate, np.array(rewards) - speeds, atol=1e-6)
+    assert np.corrcoef(estimate, speeds)[0, 1] > 0.95
+
+
+@pytest.mark.parametrize(
+    ("name", "z_index", "z_range", "angle_range"),
+    [("Hopper", 1, (0.5, 0.9), (-0.4, 0.4)), ("Walker2d", 1, (0.6, 2.2), (-1.5, 1.5)), ("Ant", 2, (0.1, 1.1), None)],
+)
+def test_mujoco_healthy_bonus_is_the_envs_own_on_poses_at_its_limits(name, z_index, z_range, angle_range) -> None:
+    """Poses set on either side of the height and angle limits: the reward's healthy bonus is 1
+    exactly when the env says it is healthy (a random rollout rarely reaches the height limits
+    with the torso upright)."""
+    env_id = f"imitation/{name}FixedHorizon-v0"
+    env = make_env(env_id)
+    reward = true_reward(env_id, env)
+    assert reward is not None
+    env.reset(seed=0)
+    model = env.unwrapped
+    rng = np.random.default_rng(0)
+    expected, bonus = [], []
+    for _ in range(200):
+        position = model.init_qpos.copy()
+        position[z_index] = rng.uniform(*z_range)
+        if angle_range is not None:
+            position[2] = rng.uniform(*angle_range)
+        model.set_state(position, model.init_qvel)
+        observation = model._get_obs()[None]
+        contact = 5e-4 * np.sum(observation[:, 27:] ** 2) if name == "Ant" else 0.0
+        still = np.zeros((1, *env.action_space.shape))
+        bonus.append(float(reward(observation, still, observation)[0] - observation[0, SPEED_INDEX[name]] + contact))
+        expected.append(float(model.is_healthy))
+    np.testing.assert_allclose(bonus, expected, atol=1e-9)
+    assert 0 < np.mean(expected) < 1
