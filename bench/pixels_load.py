@@ -151,11 +151,10 @@ def measure_lerobot(root: Path, workers: int) -> tuple[int, tuple[int, ...]]:
 
 def prefault(gib: float) -> None:
     """Touch `gib` GiB in a forked child that then exits, so the memory the run is about to take
-    is backed by the host again. This VM (Firecracker with free-page reporting) hands freed guest
-    memory back to its host, and touching it again is a host fault: 3 GB took 24-26 s on
-    2026-12-04 while reused memory filled at ~6 GB/s, so a run that loads more frames into memory
-    pays for the host's memory rather than for decoding. Neither side is spared by this: every
-    run, ours and LeRobot's, gets the same."""
+    is backed by the host again. A VM with free-page reporting (Firecracker's, here) hands freed
+    guest memory back to its host, and touching it again is a host fault, many times slower than
+    reusing memory (bench/RESULTS.md), so without this a run that holds more frames in memory pays
+    for the host's memory rather than for decoding. Every run, ours and LeRobot's, gets the same."""
     if gib <= 0:
         return
     child = os.fork()
