@@ -16,7 +16,9 @@ PSNR of the lossy ones (our JPEG, LeRobot's video) against them is measured.
 
 Each timed run is a fresh Python process (this script with --measure), timed from just before the
 dataset is opened until the last batch of 256 frames exists as a torch uint8 tensor, imports
-excluded; runs are interleaved across methods and the median of --repeats is reported.
+excluded; runs are interleaved across methods and the median of --repeats is reported. With
+--prefault-gib G each run first touches G GiB in a child process that exits (`prefault`), outside
+the clock, for VMs that hand freed memory back to their host.
 
 - ours: load_transitions(DemoDataset(file), next_observations=False) → transitions_to_torch →
   MinibatchLoader(batch_size=256, shuffle=True); a batch's observations are (256, H, W, C) uint8.
