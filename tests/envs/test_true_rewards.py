@@ -10,25 +10,32 @@ from imitation.envs.make import make_env
 from imitation.envs.true_rewards import true_reward
 
 
+def random_steps(env, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+    """s, a, s', r and info of `steps` uniformly random steps from reset(seed=0), reset again after an end."""
+    env.action_space.seed(0)
+    observations, actions, next_observations, rewards, infos = [], [], [], [], []
+    observation, _ = env.reset(seed=0)
+    for _ in range(steps):
+        action = env.action_space.sample()
+        next_observation, step_reward, terminated, truncated, info = env.step(action)
+        observations.append(observation)
+        actions.append(action)
+        next_observations.append(next_observation)
+        rewards.append(step_reward)
+        infos.append(info)
+        observation = next_observation
+        if terminated or truncated:
+            observation, _ = env.reset()
+    return np.array(observations), np.array(actions), np.array(next_observations), np.array(rewards), infos
+
+
 @pytest.mark.parametrize("env_id", ["Pendulum-v1", "imitation/CartPoleFixedHorizon-v0", "CartPole-v1", "MountainCar-v0", "imitation/GridWorld8x8Slippery-v0"])
 def test_true_reward_matches_the_env_step(env_id: str) -> None:
     env = make_env(env_id)
     reward = true_reward(env_id, env)
     assert reward is not None
-    env.action_space.seed(0)
-    observations, actions, next_observations, rewards = [], [], [], []
-    observation, _ = env.reset(seed=0)
-    for _ in range(300):
-        action = env.action_space.sample()
-        next_observation, step_reward, terminated, truncated, _ = env.step(action)
-        observations.append(observation)
-        actions.append(action)
-        next_observations.append(next_observation)
-        rewards.append(step_reward)
-        observation = next_observation
-        if terminated or truncated:
-            observation, _ = env.reset()
-    np.testing.assert_allclose(reward(np.array(observations), np.array(actions), np.array(next_observations)), rewards, rtol=1e-5, atol=1e-5)
+    observations, actions, next_observations, rewards, _ = random_steps(env, 300)
+    np.testing.assert_allclose(reward(observations, actions, next_observations), rewards, rtol=1e-5, atol=1e-5)
     if env_id == "imitation/CartPoleFixedHorizon-v0":
         assert 0 < np.mean(rewards) < 1, "the rollout should both balance and fail"
 
@@ -48,21 +55,10 @@ def test_mujoco_true_reward_is_exact_but_for_the_trapezoid_speed(name: str) -> N
     env = make_env(env_id)
     reward = true_reward(env_id, env)
     assert reward is not None
-    env.action_space.seed(0)
-    observation, _ = env.reset(seed=0)
-    observations, actions, next_observations, rewards, speeds = [], [], [], [], []
-    for _ in range(300):
-        action = env.action_space.sample()
-        next_observation, step_reward, _, _, info = env.step(action)
-        observations.append(observation)
-        actions.append(action)
-        next_observations.append(next_observation)
-        rewards.append(step_reward)
-        speeds.append(info["x_velocity"])
-        observation = next_observation
-    before, after = np.array(observations), np.array(next_observations)
+    before, actions, after, rewards, infos = random_steps(env, 300)
+    speeds = np.array([info["x_velocity"] for info in infos])
     estimate = 0.5 * (before[:, SPEED_INDEX[name]] + after[:, SPEED_INDEX[name]])
-    np.testing.assert_allclose(reward(before, np.array(actions), after) - estimate, np.array(rewards) - speeds, atol=1e-6)
+    np.testing.assert_allclose(reward(before, actions, after) - estimate, rewards - speeds, atol=1e-6)
     assert np.corrcoef(estimate, speeds)[0, 1] > 0.95
 
 
