@@ -166,6 +166,12 @@ def prefault(gib: float) -> None:
     os.waitpid(child, 0)
 
 
+def children_cpu_seconds() -> float:
+    """User and system CPU seconds of this process's waited-for children so far."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def measure(key: str, data: Path, prefault_gib: float) -> dict:
     """One run of `key` in this process; the JSON the parent reads."""
     import torch  # noqa: F401  (imported before the clock starts, like every library below)
@@ -180,7 +186,7 @@ def measure(key: str, data: Path, prefault_gib: float) -> dict:
         import imitation.data.loader  # noqa: F401
     method = next(m for m in METHODS if m.key == key)
     prefault(prefault_gib)
-    children_before = resource.getrusage(resource.RUSAGE_CHILDREN)  # the prefault child's CPU is not the run's
+    children_before = children_cpu_seconds()  # the prefault child's CPU is not the run's
     cpu_start = time.process_time()
     start = time.perf_counter()
     if key.startswith("lerobot"):
@@ -188,13 +194,10 @@ def measure(key: str, data: Path, prefault_gib: float) -> dict:
     else:
         frames, shape = measure_ours(data / method.stored)
     seconds = time.perf_counter() - start
-    children = resource.getrusage(resource.RUSAGE_CHILDREN)  # DataLoader workers, joined by now
+    children = children_cpu_seconds() - children_before  # DataLoader workers, joined by now
     return {
         "seconds": seconds,
-        "cpu_seconds": time.process_time()
-        - cpu_start
-        + (children.ru_utime - children_before.ru_utime)
-        + (children.ru_stime - children_before.ru_stime),
+        "cpu_seconds": time.process_time() - cpu_start + children,
         "frames": frames,
         "shape": list(shape),
         "max_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
