@@ -23,9 +23,14 @@ import torch
 from support import DATASETS, REPO, run_cli_many
 from test_cli import assert_one_line_error, last_json
 
+import imitation.jobs.dagger
+from imitation.algorithms.bc import BCConfig
+from imitation.algorithms.dagger import DAggerConfig
 from imitation.checkpoints import unprefixed
 from imitation.data.convert.npz import npz_to_episodes
 from imitation.data.mcap.reader import DemoFile
+from imitation.jobs.dagger import dagger_job
+from imitation.jobs.loop import TrainingInterrupted
 from imitation.policies import ActorCritic, PolicyConfig
 from imitation.rewards import RewardConfig, RewardNet, load_reward
 from imitation.runs import read_checkpoint
@@ -227,6 +232,31 @@ def test_ctrl_c_during_train_dagger_keeps_a_checkpoint_that_resume_finishes_with
         after = os.stat(out / "rounds" / name)
         assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns), name
     assert last_json(evaluation)["episodes"] == 2
+
+
+def test_ctrl_c_after_the_last_dagger_round_keeps_the_trained_checkpoint_and_resume_only_evaluates(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "dagger"
+    config = DAggerConfig(rounds=2, episodes_per_round=1, seed=0, bc=BCConfig(epochs=2, hidden_sizes=[16], seed=0, device="cpu"))
+    evaluation = imitation.jobs.dagger.final_evaluation
+
+    def ctrl_c(*_: object) -> None:  # what Python's default SIGINT handler does, in the final evaluation
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(imitation.jobs.dagger, "final_evaluation", ctrl_c)
+    with pytest.raises(TrainingInterrupted, match=r"stopped before the run was written; its last checkpoint is in .*dagger\.partial: run the same"):
+        dagger_job("CartPole-v1", "scripted", config, out, progress=False)
+    tensors, state = read_checkpoint(tmp_path / "dagger.partial")
+    assert state["trainer"]["round"] == 3 and len(state["history"]) == 2, "the checkpoint after the last round"
+    files = {name: os.stat(tmp_path / "dagger.partial" / "rounds" / name) for name in ("round-01.mcap", "round-02.mcap")}
+
+    monkeypatch.setattr(imitation.jobs.dagger, "final_evaluation", evaluation)
+    result = dagger_job("CartPole-v1", "scripted", config, out, progress=False, resume=True)
+    assert result["rounds"] == 2 and result["eval"]["episodes"] > 0
+    for name, before in files.items():  # nothing trained or recorded again
+        after = os.stat(out / "rounds" / name)
+        assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns), name
 
 
 def test_ctrl_c_during_train_irl_gcl_keeps_a_checkpoint_with_the_reward_learner_that_resume_finishes(tmp_path: Path) -> None:

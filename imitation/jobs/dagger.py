@@ -12,7 +12,6 @@ import gymnasium as gym
 from imitation.algorithms.bc import policy_options
 from imitation.algorithms.dagger import DAgger, DAggerConfig, Policy
 from imitation.algorithms.ray_dagger import RayRounds
-from imitation.checkpoints import snapshot
 from imitation.data.dataset import DemoDataset
 from imitation.envs.pixels import PIXELS_KEY, PixelObservation, PixelRecipe, StackFrames, expert_on_state
 from imitation.errors import ConfigError, ImitationError
@@ -130,9 +129,8 @@ def dagger_job(
             metadata=metadata,
             remote=remote,
         )
-        if not resume:  # a round can be stopped midway, the first one too: --resume then starts from here
-            run.save_checkpoint(*snapshot(*learner.state_dict()))
-        run_learner(learner, checkpoints=checkpointing(run), log=run.log, progress=progress)
+        # A round can be stopped midway, the first one too: --resume then starts from the checkpoint at the start.
+        run_learner(learner, checkpoints=checkpointing(run, at_start=True), log=run.log, progress=progress)
         run.save_weights(policy_tensors(learner.policy.cpu()))
         plot_curve(
             run.file("return_curve.png"),

@@ -5,7 +5,8 @@ intervals. `run` steps it until it is done and owns everything around the steps:
 
 - resuming: a checkpoint given in `Checkpointing.resume` is loaded into the learner first;
 - saving: every `Checkpointing.interval` steps (a tenth of the run by default) the learner's
-  `state_dict()` is handed to `Checkpointing.save` (the run directory writes it);
+  `state_dict()` is handed to `Checkpointing.save` (the run directory writes it), and after the
+  last step, so that a Ctrl-C in the job's work after training (a final evaluation) loses nothing;
 - Ctrl-C (and SIGTERM, which the CLI routes to the same handler) is deferred to the end of the
   current step, where a checkpoint is saved and `TrainingInterrupted` raised; a second Ctrl-C
   stops at once;
@@ -66,13 +67,16 @@ class Learner(Protocol):
 
 @dataclass
 class Checkpointing:
-    """`save(tensors, state)` every `every` steps (None: every tenth of the run) and when
-    interrupted; `resume`, when given, is the checkpoint to continue from. `agree(requested)`,
+    """`save(tensors, state)` every `every` steps (None: every tenth of the run), after the last
+    step, when interrupted, and with `at_start` before the first step of a run not resumed (for a
+    learner whose step can be stopped midway: a second Ctrl-C, SIGKILL); `resume`, when given, is
+    the checkpoint to continue from. `agree(requested)`,
     for the processes of a data-parallel run, says whether any of them was asked to stop, so that
     all stop after the same step."""
 
     save: Callable[[Tensors, dict[str, Any]], None]
     every: int | None = None
+    at_start: bool = False
     resume: CheckpointData | None = None
     agree: Callable[[bool], bool] | None = None
 
@@ -148,6 +152,8 @@ def run(
     rows: list[Row] = []
     bar = progress_bar(total=learner.total, initial=learner.completed, desc=learner.name, unit=learner.unit, enabled=progress)
     with bar, StopAtBoundary(enabled=checkpoints is not None) as stop, _outermost() as observer:
+        if checkpoints is not None and checkpoints.at_start and checkpoints.resume is None:
+            checkpoints.save(*snapshot(*learner.state_dict()))
         while not learner.done:
             row = learner.step()
             rows.append(row)
@@ -157,7 +163,10 @@ def run(
                 observer(learner, row)
             bar.set_postfix(learner.progress(row), refresh=False)
             bar.update()
-            if learner.done or checkpoints is None:
+            if checkpoints is None:
+                continue
+            if learner.done:  # the trained state, so that a Ctrl-C in what follows (an evaluation) loses nothing
+                checkpoints.save(*snapshot(*learner.state_dict()))
                 continue
             interrupted = stop.requested if checkpoints.agree is None else checkpoints.agree(stop.requested)
             if interrupted or learner.completed % checkpoints.interval(learner.total) == 0:

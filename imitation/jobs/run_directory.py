@@ -21,7 +21,7 @@ from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig
 from imitation.policies import ActorCritic, RunningMeanStd, SingleObservationPolicy, policy_tensors
 from imitation.rewards import RewardNet, reward_tensors
-from imitation.runs import RunWriter
+from imitation.runs import RunWriter, has_checkpoint
 
 # What may differ between an interrupted run and its --resume: where and how fast it runs.
 RESUME_IGNORE = (
@@ -52,11 +52,19 @@ def training_run(
             raise TrainingInterrupted(
                 f"{stopped}; its checkpoint is in {run.partial}: run the same command with --resume to continue"
             ) from None
+        except KeyboardInterrupt:  # outside the steps: before the first, after the last, or a second Ctrl-C
+            if not has_checkpoint(run.partial):
+                raise
+            raise TrainingInterrupted(
+                f"stopped before the run was written; its last checkpoint is in {run.partial}: run the same command "
+                "with --resume to continue"
+            ) from None
 
 
-def checkpointing(run: RunWriter) -> Checkpointing:
-    """Checkpoints into `run`, from the one it was reopened with."""
-    return Checkpointing(save=run.save_checkpoint, resume=run.resumed)
+def checkpointing(run: RunWriter, *, at_start: bool = False) -> Checkpointing:
+    """Checkpoints into `run`, from the one it was reopened with (and before the first step, with
+    `at_start`)."""
+    return Checkpointing(save=run.save_checkpoint, resume=run.resumed, at_start=at_start)
 
 
 class EnvLearner(Learner, Protocol):

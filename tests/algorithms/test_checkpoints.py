@@ -135,7 +135,7 @@ def test_ppo_resumes_to_the_requested_total() -> None:
     first = PPO(config)
     first_rows = run(first, checkpoints=Checkpointing(save=lambda tensors, state: saved.append((tensors, state)), every=3))
     first.close()
-    assert [state["update"] for _, state in saved] == [3, 6, 9], "every 3 of 10 updates, not after the last"
+    assert [state["update"] for _, state in saved] == [3, 6, 9, 10], "every 3 of 10 updates, and after the last"
     resumed = PPO(config)
     resumed_rows = run(resumed, checkpoints=Checkpointing(save=lambda *a: None, resume=saved[0]))
     resumed.close()
@@ -363,17 +363,22 @@ class FakeLearner:
 
 
 def test_the_loop_saves_every_interval_stops_on_ctrl_c_with_a_checkpoint_and_resumes_to_the_total() -> None:
-    # Every `every` steps, and not after the last one (10 is a multiple of 5).
+    # Every `every` steps, and after the last one (whatever the job does next can then be resumed).
     saved = []
     learner = FakeLearner(10)
     rows = run(learner, checkpoints=Checkpointing(save=lambda tensors, state: saved.append((tensors, state)), every=5))
     assert [row["tick"] for row in rows] == [float(i) for i in range(1, 11)]
-    assert [state["next"] for _, state in saved] == [6]
-    assert learner.events == [f"step {i}" for i in range(1, 6)] + ["save 5"] + [f"step {i}" for i in range(6, 11)]
+    assert [state["next"] for _, state in saved] == [6, 11]
+    assert learner.events == [f"step {i}" for i in range(1, 6)] + ["save 5"] + [f"step {i}" for i in range(6, 11)] + ["save 10"]
     # The default interval is a tenth of the run.
     saved.clear()
     run(FakeLearner(20), checkpoints=Checkpointing(save=lambda tensors, state: saved.append((tensors, state))))
-    assert [state["next"] for _, state in saved] == [3, 5, 7, 9, 11, 13, 15, 17, 19]
+    assert [state["next"] for _, state in saved] == [3, 5, 7, 9, 11, 13, 15, 17, 19, 21]
+    # `at_start`: one before the first step too, unless resumed.
+    saved.clear()
+    started = FakeLearner(3)
+    run(started, checkpoints=Checkpointing(save=lambda tensors, state: saved.append((tensors, state)), every=5, at_start=True))
+    assert [state["next"] for _, state in saved] == [1, 4] and started.events[0] == "save 0"
 
     # Ctrl-C during a step: the step finishes, a checkpoint is saved, and the message is "{name} stopped after {position}".
     saved.clear()
@@ -394,7 +399,11 @@ def test_the_loop_saves_every_interval_stops_on_ctrl_c_with_a_checkpoint_and_res
     rows = run(resumed, checkpoints=Checkpointing(save=lambda tensors, state: saved.append((tensors, state)), every=3, resume=(tensors, state)))
     assert resumed.events[0] == "load 4" and resumed.events[1] == "step 5"
     assert [row["tick"] for row in rows] == [float(i) for i in range(5, 11)] and resumed.completed == resumed.total
-    assert [state["next"] for _, state in saved] == [7, 10]
+    assert [state["next"] for _, state in saved] == [7, 10, 11]
+    resumed_at_start = FakeLearner(10)
+    saved.clear()
+    run(resumed_at_start, checkpoints=Checkpointing(save=lambda tensors, state: saved.append((tensors, state)), every=3, resume=(tensors, state), at_start=True))
+    assert resumed_at_start.events[:2] == ["load 4", "step 5"] and [state["next"] for _, state in saved] == [7, 10, 11]
 
     # Without checkpoints nothing is saved (the learner's state is never asked for).
     plain = FakeLearner(10)
