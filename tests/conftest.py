@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import signal
 import tempfile
 from pathlib import Path
@@ -11,7 +13,9 @@ import pytest
 from support import TESTDATA
 
 os.environ["HF_HUB_OFFLINE"] = "1"
-os.environ.setdefault("HF_HOME", tempfile.mkdtemp(prefix="imitation-tests-hf-"))
+if "HF_HOME" not in os.environ:  # a private one, removed when the run ends (its test processes inherit it)
+    os.environ["HF_HOME"] = tempfile.mkdtemp(prefix="imitation-tests-hf-")
+    atexit.register(shutil.rmtree, os.environ["HF_HOME"], ignore_errors=True)
 
 # A script's background job starts with SIGINT ignored, and its children would inherit that: the
 # Ctrl-C tests need it delivered, as in a terminal.
