@@ -860,8 +860,8 @@ def _add_resume(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--resume",
         action="store_true",
-        help="continue the interrupted run in RUN_DIR.partial from its last checkpoint (saved every tenth of the run and on "
-        "Ctrl-C), with the same settings, to the same total",
+        help="continue the interrupted run in RUN_DIR.partial from its last checkpoint (saved every tenth of the run, after "
+        "its last step and on Ctrl-C), with the same settings, to the same total",
     )
 
 
