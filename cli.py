@@ -365,6 +365,8 @@ def cmd_train_dagger(args: argparse.Namespace) -> int:
 def cmd_train_irl(args: argparse.Namespace) -> int:
     if args.workers is not None and args.method not in ("gcl", "gail", "airl"):
         raise ImitationError(f"--workers: --method {args.method} has no PPO rollouts to spread; use it with gcl, airl or gail")
+    if args.gail_reward is not None and args.method != "gail":
+        raise ImitationError(f"--gail-reward: chooses GAIL's reward, and --method {args.method} is not gail")
     if args.method == "gcl":
         return _train_gcl(args)
     if args.method in ("gail", "airl"):
@@ -730,6 +732,7 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "discriminator_steps": "--discriminator-steps",
             "policy_updates": "--policy-updates",
             "gradient_penalty": "--gradient-penalty",
+            "gail_reward": "--gail-reward",
             "seed": "--seed",
         },
         "PPOConfig": {"total_steps": "--steps", "seed": "--seed"},
@@ -1451,6 +1454,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=_finite,
         metavar="L",
         help="airl/gail: weight of E‖∇_x logit D‖² over the discriminator's inputs (default: 0)",
+    )
+    irl.add_argument(
+        "--gail-reward",
+        choices=["softplus", "logit"],
+        help="gail: the reward PPO optimises, softplus −log(1 − D) (Ho & Ermon) or logit log D − log(1 − D), which does not "
+        "flatten where the discriminator wins (default: softplus)",
     )
     irl.add_argument(
         "--steps",

@@ -48,6 +48,7 @@ from imitation.policies import ActorCritic
 from imitation.rewards import REWARD_INPUTS, RewardNet, flat_batch, tree_index
 
 METHODS = ("gail", "airl")
+GAIL_REWARDS = ("softplus", "logit")
 
 
 @dataclass(kw_only=True)
@@ -65,6 +66,8 @@ class AdversarialConfig:
     policy_updates: int = 1
     pool_rollouts: int = 1
     gradient_penalty: float = 0.0
+    # GAIL: PPO's reward, "softplus" −log(1 − D) or "logit" log D − log(1 − D) (`imitation.algorithms.gail`).
+    gail_reward: str = "softplus"
     # AIRL: α of PPO's reward f − α log π(a|s); 1 makes it log D − log(1 − D) exactly.
     policy_entropy: float = 1.0
     seed: int = 0
@@ -75,6 +78,10 @@ class AdversarialConfig:
         if self.inputs is not None and self.inputs not in REWARD_INPUTS:
             raise ConfigError(
                 "inputs", f"must be one of {', '.join(REWARD_INPUTS)}, got {self.inputs!r}", owner="AdversarialConfig"
+            )
+        if self.gail_reward not in GAIL_REWARDS:
+            raise ConfigError(
+                "gail_reward", f"must be one of {', '.join(GAIL_REWARDS)}, got {self.gail_reward!r}", owner="AdversarialConfig"
             )
         for name in ("batch_size", "discriminator_steps", "policy_updates", "pool_rollouts"):
             if getattr(self, name) < 1:

@@ -1,14 +1,18 @@
 """Generative adversarial imitation learning (Ho & Ermon 2016; docs/THEORY.md §8.5).
 
 The discriminator is a free classifier of (s, a), D = σ(d(s, a)), trained by
-`imitation.algorithms.adversarial`'s loss; PPO optimises
+`imitation.algorithms.adversarial`'s loss; PPO optimises (`AdversarialConfig.gail_reward`)
 
-    r(s, a) = −log(1 − D(s, a)) = softplus(d(s, a)),
+    "softplus":  r(s, a) = −log(1 − D(s, a)) = softplus(d(s, a))      (Ho & Ermon's),
+    "logit":     r(s, a) = log D(s, a) − log(1 − D(s, a)) = d(s, a),
 
-which is high where a step looks like the demos'. At the optimum the policy's occupancy measure
-matches the demos', the imitation Ho & Ermon derive from IRL composed with RL. D is exported as a
-reward too, with the caveat that it is not a recovered reward: at the saddle point it is ½
-everywhere, and its value between is only what told the current policy from the demos.
+both high where a step looks like the demos'. The first flattens to 0 wherever D is sure a step is
+the policy's (d ≪ 0), so a discriminator that wins early leaves PPO little to climb; the logit keeps
+its slope there, and is what many GAIL implementations optimise (it is AIRL's reward with f = d
+and no entropy term). At the optimum the policy's occupancy measure matches the demos', the
+imitation Ho & Ermon derive from IRL composed with RL. D is exported as a reward too, with the
+caveat that it is not a recovered reward: at the saddle point it is ½ everywhere, and its value
+between is only what told the current policy from the demos.
 """
 
 from __future__ import annotations
@@ -19,6 +23,9 @@ from torch import nn
 from imitation.algorithms.adversarial import Steps
 from imitation.rewards import RewardNet
 
+# The reward net's output for each GAIL reward: the net pays the reward itself when exported.
+GAIL_OUTPUTS = {"softplus": "softplus", "logit": "linear"}
+
 
 def gail_reward(logits: torch.Tensor) -> torch.Tensor:
     """−log(1 − σ(logit)) = softplus(logit), computed stably."""
@@ -26,15 +33,13 @@ def gail_reward(logits: torch.Tensor) -> torch.Tensor:
 
 
 class GAILDiscriminator(nn.Module):
-    """D's logit d(s, a): a RewardNet whose output is softplus, so that as an exported reward it
-    pays −log(1 − D) itself."""
+    """D's logit d(s, a): a RewardNet whose output is the reward PPO optimises, softplus(d) or d
+    itself, so that as an exported reward it pays that reward."""
 
     uses_policy = False
 
     def __init__(self, net: RewardNet) -> None:
         super().__init__()
-        if net.config.output != "softplus":
-            raise ValueError("GAIL's reward net must have the softplus output, −log(1 − D)")
         self.net = net
 
     def reward_nets(self) -> list[RewardNet]:
@@ -49,7 +54,7 @@ class GAILDiscriminator(nn.Module):
 
     def policy_rewards(self, steps: Steps, log_pi: torch.Tensor | None) -> torch.Tensor:
         logits, _ = self.logits(steps, None, penalised=False)
-        return gail_reward(logits)
+        return gail_reward(logits) if self.net.config.output == "softplus" else logits
 
     def recovered_reward(self) -> RewardNet:
         return self.net

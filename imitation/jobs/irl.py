@@ -15,7 +15,7 @@ import numpy as np
 
 from imitation.algorithms.adversarial import AdversarialConfig, AdversarialImitation, Discriminator
 from imitation.algorithms.airl import AIRLDiscriminator
-from imitation.algorithms.gail import GAILDiscriminator
+from imitation.algorithms.gail import GAIL_OUTPUTS, GAILDiscriminator
 from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning
 from imitation.algorithms.maxent_irl import MaxEntIRL, MaxEntIRLConfig, all_state_rewards, demo_visitation
 from imitation.algorithms.ppo import PPO, PPOConfig, make_observed_env
@@ -181,7 +181,7 @@ def adversarial_job(
 
         discriminator: Discriminator
         if config.method == "gail":
-            discriminator = GAILDiscriminator(net(config.reward_inputs, config.hidden_sizes, "softplus"))
+            discriminator = GAILDiscriminator(net(config.reward_inputs, config.hidden_sizes, GAIL_OUTPUTS[config.gail_reward]))
         else:
             discriminator = AIRLDiscriminator(
                 net(config.reward_inputs, config.hidden_sizes),

@@ -99,8 +99,22 @@ def test_gails_logit_is_its_nets_linear_output_and_its_exported_reward_pays_soft
     assert net(batch.observations, batch.env_actions, batch.next_observations).item() == pytest.approx(math.log1p(math.exp(1.5)), abs=1e-6)
     # The constant control of `eval reward` still pays 1 through the softplus.
     assert constant_reward_like(net)(batch.observations, batch.env_actions, batch.next_observations).item() == pytest.approx(1.0, abs=1e-6)
-    with pytest.raises(ValueError, match="softplus"):
-        GAILDiscriminator(linear([1.0], inputs="sa"))
+
+
+def test_gails_logit_reward_is_the_logit_log_d_minus_log_one_minus_d_and_is_what_its_net_exports() -> None:
+    # The same net with a linear output: PPO's reward is d = 1.5 itself, log σ(1.5) − log(1 − σ(1.5)).
+    net = linear([2.0, -1.0], 0.5, inputs="sa")
+    discriminator = GAILDiscriminator(net)
+    batch = steps([[1.0, 1.0]], [1], [[0.0, 0.0]], [0.0])
+    d = torch.sigmoid(torch.tensor(1.5)).item()
+    assert discriminator.policy_rewards(batch, None).item() == pytest.approx(math.log(d) - math.log(1 - d), abs=1e-6)
+    assert discriminator.policy_rewards(batch, None).item() == pytest.approx(1.5, abs=1e-6)
+    # Where D is sure a step is the policy's (logit −30), softplus has flattened to ~e⁻³⁰; the logit has not.
+    sure = linear([0.0, 0.0], -30.0, inputs="sa")
+    assert GAILDiscriminator(sure).policy_rewards(batch, None).item() == pytest.approx(-30.0)
+    assert net(batch.observations, batch.env_actions, batch.next_observations).item() == pytest.approx(1.5, abs=1e-6)
+    with pytest.raises(ConfigError, match="gail_reward must be one of softplus, logit, got 'log'"):
+        AdversarialConfig(gail_reward="log").validate()
 
 
 def test_the_penalty_of_a_linear_logit_is_its_squared_weight_norm() -> None:
