@@ -26,7 +26,7 @@ nodes see this checkout and OUT at the same paths; "local" by default), each fin
 it returns; the runs of PPO on a recovered reward go after the IRL runs whose rewards they reuse.
 
 Usage: python bench/mujoco_table.py [--envs HalfCheetah,Hopper] [--methods bc,dagger,gail,airl,airl-ppo,gcl-ppo]
-       [--seeds 0,1,2] [--irl-steps N] [--retrain-steps N] [--expert ENV=SPEC | --ppo-expert ENV]
+       [--seeds 0,1,2] [--irl-steps N] [--retrain-steps N] [--gail-args FLAGS] [--expert ENV=SPEC | --ppo-expert ENV]
        [--peer] [--out bench/mujoco-runs]
        [--workers N [--ray-address ADDR]]
 """
@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -180,9 +181,10 @@ def our_run(
             "--out", str(out), threads=args.threads,
         )  # fmt: skip
     elif method in ("gail", "airl"):
+        extra = shlex.split(args.gail_args) if method == "gail" else []
         result, seconds = cli(
             "train", "irl", "--method", method, *common, "--demos", str(demos), "--steps", str(args.irl_steps),
-            "--out", str(out), threads=args.threads,
+            *extra, "--out", str(out), threads=args.threads,
         )  # fmt: skip
     else:
         irl = method.removesuffix("-ppo")
@@ -269,6 +271,9 @@ def main() -> None:
     parser.add_argument("--irl-steps", type=int, default=1_000_000)
     parser.add_argument("--retrain-steps", type=int, default=1_000_000)
     parser.add_argument("--dagger-rounds", type=int, default=5)
+    parser.add_argument(
+        "--gail-args", default="", metavar="FLAGS", help="more `train irl` flags for our GAIL, e.g. '--gail-reward logit'"
+    )
     parser.add_argument(
         "--expert", action="append", default=[], metavar="ENV=SPEC", help="an expert for a task without a zoo one"
     )
