@@ -118,6 +118,29 @@ def test_a_killed_run_resumes_to_the_same_weights(runs) -> None:
     assert runs["resumed"]["best_validation_loss"] == runs["parallel"]["best_validation_loss"]
 
 
+def test_workers_whose_torchrun_is_killed_stop_at_an_epoch_with_a_checkpoint(tmp_path) -> None:
+    # torchrun killed alone cannot stop its workers (they run in sessions of their own): they get
+    # SIGTERM from the kernel instead, and take Ctrl-C's path.
+    options = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True, "cwd": tmp_path, "env": _env(tmp_path)}
+    launcher = subprocess.Popen(_bc(tmp_path / "run", "--epochs", "300", processes=2), start_new_session=True, **options)
+    checkpoint = tmp_path / "run.partial" / "checkpoint"
+    deadline = time.monotonic() + 120
+    while not checkpoint.is_dir():
+        assert launcher.poll() is None, launcher.communicate()[1][-3000:]
+        assert time.monotonic() < deadline, "no checkpoint within 2 minutes"
+        time.sleep(0.02)
+    workers = [int(pid) for pid in Path(f"/proc/{launcher.pid}/task/{launcher.pid}/children").read_text().split()]
+    assert len(workers) == 2
+    os.kill(launcher.pid, signal.SIGKILL)
+    launcher.communicate()
+    deadline = time.monotonic() + 60
+    while any(Path(f"/proc/{pid}").exists() and Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z" for pid in workers):
+        assert time.monotonic() < deadline, "the workers of a killed torchrun still run after 60 s"
+        time.sleep(0.05)
+    state = json.loads((checkpoint / "state.json").read_text())
+    assert 1 <= state["trainer"]["epoch"] < 300 and not (tmp_path / "run").exists()
+
+
 @pytest.fixture(scope="module")
 def shards(tmp_path_factory) -> DemoDataset:
     """Three files of CartPole's episodes: chunks shared by several episodes and episodes over
