@@ -70,9 +70,8 @@ class Checkpointing:
     """`save(tensors, state)` every `every` steps (None: every tenth of the run), after the last
     step, when interrupted, and with `at_start` before the first step of a run not resumed (for a
     learner whose step can be stopped midway: a second Ctrl-C, SIGKILL); `resume`, when given, is
-    the checkpoint to continue from. `agree(requested)`,
-    for the processes of a data-parallel run, says whether any of them was asked to stop, so that
-    all stop after the same step."""
+    the checkpoint to continue from. `agree(requested)`, for the processes of a data-parallel run,
+    says whether any of them was asked to stop, so that all stop after the same step."""
 
     save: Callable[[Tensors, dict[str, Any]], None]
     every: int | None = None
