@@ -95,6 +95,18 @@ def random_return(env_id: str) -> float:
     return evaluate_policy(lambda observation: env.action_space.sample(), env, episodes=10, seed=0)["mean_return"]
 
 
+def irl_steps(args: argparse.Namespace) -> list[str]:
+    """`--steps N` for our IRL runs when --irl-steps is given; else none, for the task's preset."""
+    return ["--steps", str(args.irl_steps)] if args.irl_steps else []
+
+
+def peer_irl_steps(env: str, args: argparse.Namespace) -> int:
+    """The peer's GAIL budget: the same as ours."""
+    from imitation.jobs.presets import preset
+
+    return args.irl_steps or preset(f"imitation/{env}FixedHorizon-v0").irl_steps
+
+
 def demo_return(path: Path) -> float:
     from imitation.data.dataset import DemoDataset
 
@@ -183,7 +195,7 @@ def our_run(
     elif method in ("gail", "airl"):
         extra = shlex.split(args.gail_args) if method == "gail" else []
         result, seconds = cli(
-            "train", "irl", "--method", method, *common, "--demos", str(demos), "--steps", str(args.irl_steps),
+            "train", "irl", "--method", method, *common, "--demos", str(demos), *irl_steps(args),
             *extra, "--out", str(out), threads=args.threads,
         )  # fmt: skip
     else:
@@ -193,7 +205,7 @@ def our_run(
             reward, seconds = runs / f"airl-{seed}", 0.0  # the AIRL row's run: its g
         else:
             _, seconds = cli(
-                "train", "irl", "--method", irl, *common, "--demos", str(demos), "--steps", str(args.irl_steps),
+                "train", "irl", "--method", irl, *common, "--demos", str(demos), *irl_steps(args),
                 "--out", str(reward), threads=args.threads,
             )  # fmt: skip
         result, retrain = cli(
@@ -268,7 +280,9 @@ def main() -> None:
     parser.add_argument("--seeds", default="0,1,2")
     parser.add_argument("--episodes", type=int, default=25, help="expert demo episodes per task")
     parser.add_argument("--action-noise", type=float, default=0.1, help="DART noise of the demos (record --action-noise)")
-    parser.add_argument("--irl-steps", type=int, default=1_000_000)
+    parser.add_argument(
+        "--irl-steps", type=int, help="PPO steps of every IRL run (default: the task's preset, HalfCheetah 3M, the others 1M)"
+    )
     parser.add_argument("--retrain-steps", type=int, default=1_000_000)
     parser.add_argument("--dagger-rounds", type=int, default=5)
     parser.add_argument(
@@ -342,7 +356,7 @@ def main() -> None:
                 if peer[0] is not None and method in ("bc", "gail") and results.get("peer", env, method, seed) is None:
                     spec = {
                         "method": method, "env": env, "demos": str(export_npz(demos, args.out / f"{env}-demos.npz")),
-                        "seed": seed, "eval_episodes": 10, "total_timesteps": args.irl_steps,
+                        "seed": seed, "eval_episodes": 10, "total_timesteps": peer_irl_steps(env, args),
                     }  # fmt: skip
                     result, seconds = run_peer(peer[0], spec)
                     results.add(
