@@ -48,17 +48,6 @@ def _finish(process: subprocess.Popen) -> dict:
     return json.loads(stdout)  # one JSON document: rank 0 alone prints
 
 
-def _first_checkpoint(process: subprocess.Popen, partial: Path) -> Path:
-    """Wait for the run's first checkpoint in `partial`; its folder."""
-    checkpoint = partial / "checkpoint"
-    deadline = time.monotonic() + 120
-    while not checkpoint.is_dir():
-        assert process.poll() is None, process.communicate()[1][-3000:]
-        assert time.monotonic() < deadline, "no checkpoint within 2 minutes"
-        time.sleep(0.02)
-    return checkpoint
-
-
 def _kill_whole_job(process: subprocess.Popen) -> None:
     """SIGKILL torchrun and its workers at once (they run in sessions of their own)."""
     workers = [int(pid) for pid in Path(f"/proc/{process.pid}/task/{process.pid}/children").read_text().split()]
@@ -79,7 +68,12 @@ def runs(tmp_path_factory) -> dict[str, Path | dict]:
     options = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True, "cwd": tmp, "env": env}
     killed = subprocess.Popen(_bc(tmp / "resumed", processes=2), start_new_session=True, **options)
     single = subprocess.Popen(_bc(tmp / "single"), **options)
-    checkpoint = _first_checkpoint(killed, tmp / "resumed.partial")
+    checkpoint = tmp / "resumed.partial" / "checkpoint"
+    deadline = time.monotonic() + 120
+    while not checkpoint.is_dir():
+        assert killed.poll() is None, killed.communicate()[1][-3000:]
+        assert time.monotonic() < deadline, "no checkpoint within 2 minutes"
+        time.sleep(0.02)
     _kill_whole_job(killed)
     stopped_at = json.loads((checkpoint / "state.json").read_text())["trainer"]["epoch"]
     parallel = subprocess.Popen(_bc(tmp / "parallel", processes=2), **options)
@@ -122,24 +116,6 @@ def test_a_killed_run_resumes_to_the_same_weights(runs) -> None:
     assert resumed.keys() == parallel.keys()
     assert all(torch.equal(resumed[name], parallel[name]) for name in resumed), "bitwise equal weights"
     assert runs["resumed"]["best_validation_loss"] == runs["parallel"]["best_validation_loss"]
-
-
-def test_workers_whose_torchrun_is_killed_stop_at_an_epoch_with_a_checkpoint(tmp_path) -> None:
-    # torchrun killed alone cannot stop its workers (they run in sessions of their own): they get
-    # SIGTERM from the kernel instead, and take Ctrl-C's path.
-    options = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True, "cwd": tmp_path, "env": _env(tmp_path)}
-    launcher = subprocess.Popen(_bc(tmp_path / "run", "--epochs", "300", processes=2), start_new_session=True, **options)
-    checkpoint = _first_checkpoint(launcher, tmp_path / "run.partial")
-    workers = [int(pid) for pid in Path(f"/proc/{launcher.pid}/task/{launcher.pid}/children").read_text().split()]
-    assert len(workers) == 2
-    os.kill(launcher.pid, signal.SIGKILL)
-    launcher.communicate()
-    deadline = time.monotonic() + 60
-    while any(Path(f"/proc/{pid}").exists() and Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z" for pid in workers):
-        assert time.monotonic() < deadline, "the workers of a killed torchrun still run after 60 s"
-        time.sleep(0.05)
-    state = json.loads((checkpoint / "state.json").read_text())
-    assert 1 <= state["trainer"]["epoch"] < 300 and not (tmp_path / "run").exists()
 
 
 @pytest.fixture(scope="module")

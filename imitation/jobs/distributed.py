@@ -5,8 +5,7 @@ MASTER_PORT in their environment. `process_group` joins them through torch.distr
 CPU tensors, nccl for CUDA ones) and `ProcessGroup` is what a learner calls: sums, rank 0's
 values, every rank's values, and rank 0's checkpoint handed to the others. A failed collective (a
 process that died, a timeout) is one line naming this rank; torchrun itself stops the other
-processes when one exits with an error, and a process whose torchrun dies (SIGKILL, an OOM kill)
-gets SIGTERM, Ctrl-C's path, instead of training on alone (`stop_with_parent`).
+processes when one exits with an error.
 
 A single-process run never gets here: `world_size()` reads the environment alone.
 """
@@ -15,8 +14,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from datetime import timedelta
@@ -31,7 +28,6 @@ from imitation.errors import ImitationError
 # up with an error: long enough for a rank's share of a large dataset to load before the first
 # one, short enough that a lost process does not hold the others for torch's default half hour.
 TIMEOUT = timedelta(minutes=15)
-PR_SET_PDEATHSIG = 1  # <sys/prctl.h>
 
 T = TypeVar("T")
 
@@ -135,27 +131,12 @@ class ProcessGroup:
         return received, described["state"]
 
 
-def stop_with_parent() -> None:
-    """Have the kernel send this process SIGTERM when its parent, torchrun's agent, dies (Linux's
-    PR_SET_PDEATHSIG; elsewhere nothing). torchrun forwards signals to its workers, but killed
-    outright it cannot, and they would train on, holding the run's lock."""
-    if not sys.platform.startswith("linux"):
-        return
-    import ctypes
-
-    parent = os.getppid()
-    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    if os.getppid() != parent:  # it died before the request was made
-        os.kill(os.getpid(), signal.SIGTERM)
-
-
 @contextmanager
 def process_group(device: torch.device) -> Iterator[ProcessGroup]:
     """This process joined to the others torchrun started (see the module docstring), for the block."""
     import torch.distributed as dist
 
     rank, size = int(os.environ.get("RANK", "0")), world_size()
-    stop_with_parent()
     if device.type == "cuda":
         torch.cuda.set_device(int(os.environ.get("LOCAL_RANK", "0")))
         device = torch.device("cuda", torch.cuda.current_device())
