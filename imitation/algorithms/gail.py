@@ -27,11 +27,6 @@ from imitation.rewards import RewardNet
 GAIL_OUTPUTS = {"softplus": "softplus", "logit": "linear"}
 
 
-def gail_reward(logits: torch.Tensor) -> torch.Tensor:
-    """−log(1 − σ(logit)) = softplus(logit), computed stably."""
-    return nn.functional.softplus(logits)
-
-
 class GAILDiscriminator(nn.Module):
     """D's logit d(s, a): a RewardNet whose output is the reward PPO optimises, softplus(d) or d
     itself, so that as an exported reward it pays that reward."""
@@ -53,8 +48,7 @@ class GAILDiscriminator(nn.Module):
         return self.net.net_output(inputs), inputs
 
     def policy_rewards(self, steps: Steps, log_pi: torch.Tensor | None) -> torch.Tensor:
-        logits, _ = self.logits(steps, None, penalised=False)
-        return gail_reward(logits) if self.net.config.output == "softplus" else logits
+        return self.net.score(self.net.prepare(steps.observations, steps.env_actions, steps.next_observations))
 
     def recovered_reward(self) -> RewardNet:
         return self.net

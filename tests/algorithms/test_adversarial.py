@@ -20,7 +20,7 @@ from imitation.algorithms.adversarial import (
     input_gradient_penalty,
 )
 from imitation.algorithms.airl import AIRLDiscriminator, airl_shaped_reward
-from imitation.algorithms.gail import GAILDiscriminator, gail_reward
+from imitation.algorithms.gail import GAILDiscriminator
 from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.checkpoints import snapshot
 from imitation.data.dataset import DemoDataset
@@ -62,8 +62,10 @@ def test_the_discriminator_loss_is_the_cross_entropy_of_demos_as_1_and_samples_a
 
 def test_gails_reward_is_minus_log_one_minus_d() -> None:
     # D = ½ pays ln 2; D = ¾ (logit ln 3) pays −ln ¼ = ln 4; a confident "policy" (logit −30) pays ~e⁻³⁰.
-    rewards = gail_reward(torch.tensor([0.0, math.log(3.0), -30.0, 30.0]))
-    assert rewards.tolist() == pytest.approx([math.log(2.0), math.log(4.0), math.exp(-30.0), 30.0], rel=1e-6)
+    batch = steps([[1.0, 1.0]], [1], [[0.0, 0.0]], [0.0])
+    logits = [0.0, math.log(3.0), -30.0, 30.0]
+    rewards = [GAILDiscriminator(linear([0.0, 0.0], d, inputs="sa", output="softplus")).policy_rewards(batch, None).item() for d in logits]
+    assert rewards == pytest.approx([math.log(2.0), math.log(4.0), math.exp(-30.0), 30.0], rel=1e-6)
 
 
 def test_airls_shaped_reward_drops_the_next_potential_after_a_termination() -> None:
