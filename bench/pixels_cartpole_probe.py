@@ -57,7 +57,7 @@ from torch import nn
 from imitation.data.loader import load_transitions
 from imitation.encoders import random_shift
 from imitation.envs.pixels import PixelRecipe, StackFrames, frame_stack_index, make_pixel_env
-from imitation.experts.scripted import _CARTPOLE_GAINS, cartpole
+from imitation.experts.scripted import cartpole, cartpole_score
 from imitation.policies import make_policy
 
 CROP = "150,216,168,168"
@@ -296,7 +296,7 @@ def main() -> None:
                 with torch.no_grad():
                     action = int(forward(torch.as_tensor(stack[None]))[0].argmax())
                 state = np.asarray(env.unwrapped.state, dtype=np.float64)
-                label, score = cartpole(state), float(_CARTPOLE_GAINS @ state)
+                label, score = cartpole(state), cartpole_score(state)
                 agreement.append((action == label, abs(score) > 1.0, action))
                 if collect:
                     visited.append(np.array(stack))

@@ -30,6 +30,12 @@ _PENDULUM_CATCH_ANGLE = 0.7
 _PENDULUM_MAX_TORQUE = 2.0
 
 
+def cartpole_score(obs: np.ndarray) -> float:
+    """x + ẋ + 10θ + 2θ̇: the scripted CartPole expert's switching function; its sign is the action,
+    its size how far the state is from the expert's indifference."""
+    return float(_CARTPOLE_GAINS @ np.asarray(obs, dtype=np.float64)[:4])
+
+
 def cartpole(obs: np.ndarray) -> int:
     """CartPole-v1: push right (1) iff x + ẋ + 10θ + 2θ̇ > 0, else left (0).
 
@@ -38,7 +44,7 @@ def cartpole(obs: np.ndarray) -> int:
     leaving |x| < 2.4 (it stays within about 0.15 of the centre). Extra observation entries
     (the failure flag of imitation/CartPoleFixedHorizon-v0) are ignored.
     """
-    return int(float(_CARTPOLE_GAINS @ np.asarray(obs, dtype=np.float64)[:4]) > 0.0)
+    return int(cartpole_score(obs) > 0.0)
 
 
 def mountain_car(obs: np.ndarray) -> int:

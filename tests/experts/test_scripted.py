@@ -8,7 +8,7 @@ import pytest
 
 from imitation.errors import ImitationError
 from imitation.evaluation.policy import evaluate_policy
-from imitation.experts.scripted import SCRIPTED_EXPERTS, scripted_expert
+from imitation.experts.scripted import SCRIPTED_EXPERTS, cartpole, cartpole_score, scripted_expert
 
 SEEDS = range(20)
 
@@ -37,3 +37,11 @@ def test_unknown_env_lists_available_experts() -> None:
     assert "'Nope-v0'" in message
     for env_id in SCRIPTED_EXPERTS:
         assert env_id in message
+
+
+def test_cartpole_score_is_the_switching_function() -> None:
+    # x + ẋ + 10θ + 2θ̇ by hand; the fifth entry (the fixed-horizon failure flag) is ignored
+    state = np.array([0.1, -0.2, 0.03, 0.5, 1.0])
+    assert cartpole_score(state) == pytest.approx(0.1 - 0.2 + 0.3 + 1.0)
+    assert cartpole(state) == 1
+    assert cartpole(-state) == 0
