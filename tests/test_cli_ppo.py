@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import gymnasium as gym
@@ -184,6 +185,25 @@ def test_image_observations_get_the_zoo_atari_preset_that_flags_override() -> No
         assert (images.clip_range, images.entropy_coef, images.value_coef, images.gamma, images.gae_lambda) == (0.1, 0.01, 0.5, 0.99, 0.95)
     overridden = ppo_config("CartPole-v1", pixels=pixels, n_envs=2, total_steps=512)
     assert (overridden.n_envs, overridden.n_epochs, overridden.total_steps) == (2, 4, 512)
+
+
+def test_halfcheetah_gets_the_zoo_preset_on_its_own_reward_and_the_continuous_one_on_a_learned_reward() -> None:
+    """`train ppo` on fixed-horizon HalfCheetah's own reward gets rl-baselines3-zoo's tuned PPO; on a
+    learned reward (`train ppo --reward`, `eval reward`'s retraining, `train irl`'s policy) it keeps
+    the continuous-control settings, as Hopper has on either."""
+    import cli
+    from imitation.jobs.presets import ppo_config
+
+    env_id = "imitation/HalfCheetahFixedHorizon-v0"
+    ppo, learned = ppo_config(env_id), ppo_config(env_id, learned_reward=True)
+    assert (ppo.n_steps, ppo.n_epochs, ppo.gamma, ppo.gae_lambda, ppo.clip_range, ppo.anneal_lr) == (512, 20, 0.98, 0.92, 0.1, False)
+    assert (ppo.hidden_sizes, ppo.activation, ppo.log_std_init, ppo.learning_rate) == ([256, 256], "relu", -2.0, 2.0633e-05)
+    args = cli.build_parser().parse_args(["train", "irl", "--method", "airl", "--env", env_id, "--demos", "datasets/Pendulum-v1.mcap", "--out", "r"])
+    args.command_key = "train irl"  # as `main` sets it
+    assert cli._ppo_beside_irl(args) == dataclasses.replace(learned, total_steps=3_000_000), "`train irl`'s policy"
+    for continuous in (learned, ppo_config("imitation/HopperFixedHorizon-v0")):
+        assert (continuous.n_steps, continuous.n_epochs, continuous.gamma, continuous.hidden_sizes) == (2048, 10, 0.99, [64, 64])
+        assert (continuous.activation, continuous.log_std_init, continuous.learning_rate) == ("tanh", 0.0, 3e-4)
 
 
 def test_resume_takes_the_interrupted_runs_frames_and_refuses_flags_that_disagree(tmp_path) -> None:

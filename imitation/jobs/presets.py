@@ -21,6 +21,9 @@ from imitation.envs.pixels import image_keys
 @dataclass(frozen=True)
 class EnvPreset:
     ppo: dict[str, Any] = field(default_factory=dict)  # PPOConfig fields
+    # PPOConfig fields on a learned reward (the policy `train irl` trains beside it, `train ppo
+    # --reward`, `eval reward`'s retraining) where they differ from `ppo`; None: `ppo`.
+    learned_reward_ppo: dict[str, Any] | None = None
     irl_steps: int = 200_000  # PPO steps of `train irl --method gcl|gail|airl`
     retrain_steps: int = 200_000  # PPO steps of each retraining in `eval reward`
 
@@ -28,6 +31,29 @@ class EnvPreset:
 _CARTPOLE = dict(n_envs=8, n_steps=32, batch_size=256, gamma=0.98, gae_lambda=0.8, n_epochs=20, learning_rate=1e-3)
 _CONTINUOUS = dict(
     n_envs=1, n_steps=2048, batch_size=64, n_epochs=10, learning_rate=3e-4, normalize_observations=True, normalize_rewards=True
+)
+# rl-baselines3-zoo's tuned HalfCheetah PPO (DLR-RM/rl-baselines3-zoo hyperparams/ppo.yml, HalfCheetah-v3:
+# normalize true, n_steps 512, batch_size 64, gamma 0.98, learning_rate 2.0633e-05 constant, ent_coef
+# 0.000401762, clip_range 0.1, n_epochs 20, gae_lambda 0.92, max_grad_norm 0.8, vf_coef 0.58096,
+# log_std_init -2, ReLU, 256-256), but for its ortho_init=False: our layers keep their orthogonal init.
+_HALFCHEETAH = dict(
+    n_envs=1,
+    n_steps=512,
+    batch_size=64,
+    gamma=0.98,
+    learning_rate=2.0633e-05,
+    anneal_lr=False,
+    entropy_coef=0.000401762,
+    clip_range=0.1,
+    n_epochs=20,
+    gae_lambda=0.92,
+    max_grad_norm=0.8,
+    value_coef=0.58096,
+    log_std_init=-2.0,
+    activation="relu",
+    hidden_sizes=[256, 256],
+    normalize_observations=True,
+    normalize_rewards=True,
 )
 # Image observations (--pixels, or an env that observes images), whatever the env: the settings
 # tuned for an MLP on the state (CartPole's 20 epochs over 256-step rollouts) do not carry over to
@@ -79,11 +105,14 @@ PRESETS: dict[str, EnvPreset] = {
     # The fixed-horizon MuJoCo tasks: the continuous-control PPO settings, and the budgets at which
     # AIRL met the MuJoCo table's bars (HalfCheetah needs three times Hopper's).
     **{
-        f"imitation/{task}FixedHorizon-v0": EnvPreset(
-            ppo=_CONTINUOUS, irl_steps=3_000_000 if task == "HalfCheetah" else 1_000_000, retrain_steps=300_000
-        )
-        for task in ("HalfCheetah", "Hopper", "Walker2d", "Swimmer", "Ant")
+        f"imitation/{task}FixedHorizon-v0": EnvPreset(ppo=_CONTINUOUS, irl_steps=1_000_000, retrain_steps=300_000)
+        for task in ("Hopper", "Walker2d", "Swimmer", "Ant")
     },
+    # The zoo's tuned HalfCheetah PPO learns the task's own reward far better than the continuous-
+    # control settings, but not AIRL's g, nor GAIL's policy: learned rewards keep the latter.
+    "imitation/HalfCheetahFixedHorizon-v0": EnvPreset(
+        ppo=_HALFCHEETAH, learned_reward_ppo=_CONTINUOUS, irl_steps=3_000_000, retrain_steps=300_000
+    ),
 }
 
 
@@ -92,16 +121,23 @@ def preset(env_id: str) -> EnvPreset:
 
 
 def ppo_settings(
-    env_id: str, action_space: gym.Space | None = None, *, learned_reward: bool = False, images: bool = False
+    env_id: str,
+    action_space: gym.Space | None = None,
+    *,
+    learned_reward: bool = False,
+    images: bool = False,
 ) -> dict[str, Any]:
     """PPOConfig fields for `env_id`: the pixel preset when the policy sees `images`, else the
-    env's preset, else the continuous-control defaults for Box actions. On a learned reward,
-    rewards are scaled by their running return std, since a learned reward's scale is arbitrary
-    (and drifts while it is being learned)."""
+    env's preset (on a `learned_reward`, its `learned_reward_ppo` if it has one), else the
+    continuous-control defaults for Box actions. On a learned reward, rewards are scaled by their
+    running return std, since a learned reward's scale is arbitrary (and drifts while it is being
+    learned)."""
     if images:
         settings = dict(_PIXELS)
     elif env_id in PRESETS:
-        settings = dict(PRESETS[env_id].ppo)
+        chosen = PRESETS[env_id]
+        learned = chosen.learned_reward_ppo if learned_reward else None
+        settings = dict(chosen.ppo if learned is None else learned)
     else:
         settings = dict(_CONTINUOUS) if isinstance(action_space, gym.spaces.Box) else {}
     return settings | ({"normalize_rewards": True} if learned_reward else {})
