@@ -1,8 +1,9 @@
 """Per-environment presets in one table, like rl-baselines3-zoo's hyperparams: the PPO settings
 that make `train ppo --env ID` work without flags, and how long the reward-learning jobs run.
 
-rl-baselines3-zoo's tuned PPO settings where we have them (Pendulum departs from them, see
-there), CleanRL's defaults otherwise. The figures behind each choice are in bench/RESULTS.md.
+rl-baselines3-zoo's tuned PPO settings where we have them (Pendulum, and HalfCheetah on a learned
+reward, depart from them, see there), CleanRL's defaults otherwise. The figures behind each choice
+are in bench/RESULTS.md.
 """
 
 from __future__ import annotations
