@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from support import run_cli, run_cli_many
+from support import DATASETS, run_cli, run_cli_many
 from test_cli import assert_one_line_error, last_json
 
 from imitation.rewards import make_reward_model, reward_tensors
@@ -198,7 +198,7 @@ def test_halfcheetah_gets_the_zoo_preset_on_its_own_reward_and_the_continuous_on
     ppo, learned = ppo_config(env_id), ppo_config(env_id, learned_reward=True)
     assert (ppo.n_steps, ppo.n_epochs, ppo.gamma, ppo.gae_lambda, ppo.clip_range, ppo.anneal_lr) == (512, 20, 0.98, 0.92, 0.1, False)
     assert (ppo.hidden_sizes, ppo.activation, ppo.log_std_init, ppo.learning_rate) == ([256, 256], "relu", -2.0, 2.0633e-05)
-    args = cli.build_parser().parse_args(["train", "irl", "--method", "airl", "--env", env_id, "--demos", "datasets/Pendulum-v1.mcap", "--out", "r"])
+    args = cli.build_parser().parse_args(["train", "irl", "--method", "airl", "--env", env_id, "--demos", str(DATASETS / "Pendulum-v1.mcap"), "--out", "r"])
     args.command_key = "train irl"  # as `main` sets it
     assert cli._ppo_beside_irl(args) == dataclasses.replace(learned, total_steps=3_000_000), "`train irl`'s policy"
     for continuous in (learned, ppo_config("imitation/HopperFixedHorizon-v0")):

@@ -104,13 +104,14 @@ PRESETS: dict[str, EnvPreset] = {
         ppo=_CARTPOLE | {"entropy_coef": 0.01}, irl_steps=200_000, retrain_steps=300_000
     ),
     # The fixed-horizon MuJoCo tasks: the continuous-control PPO settings, and the budgets at which
-    # AIRL met the MuJoCo table's bars (HalfCheetah needs three times Hopper's).
+    # AIRL met the MuJoCo table's bars.
     **{
         f"imitation/{task}FixedHorizon-v0": EnvPreset(ppo=_CONTINUOUS, irl_steps=1_000_000, retrain_steps=300_000)
         for task in ("Hopper", "Walker2d", "Swimmer", "Ant")
     },
     # The zoo's tuned HalfCheetah PPO learns the task's own reward far better than the continuous-
-    # control settings, but not AIRL's g, nor GAIL's policy: learned rewards keep the latter.
+    # control settings, but not AIRL's g, nor GAIL's policy: learned rewards keep the latter. AIRL
+    # needs three times Hopper's steps here.
     "imitation/HalfCheetahFixedHorizon-v0": EnvPreset(
         ppo=_HALFCHEETAH, learned_reward_ppo=_CONTINUOUS, irl_steps=3_000_000, retrain_steps=300_000
     ),
@@ -122,11 +123,7 @@ def preset(env_id: str) -> EnvPreset:
 
 
 def ppo_settings(
-    env_id: str,
-    action_space: gym.Space | None = None,
-    *,
-    learned_reward: bool = False,
-    images: bool = False,
+    env_id: str, action_space: gym.Space | None = None, *, learned_reward: bool = False, images: bool = False
 ) -> dict[str, Any]:
     """PPOConfig fields for `env_id`: the pixel preset when the policy sees `images`, else the
     env's preset (on a `learned_reward`, its `learned_reward_ppo` if it has one), else the
