@@ -33,10 +33,9 @@ _CARTPOLE = dict(n_envs=8, n_steps=32, batch_size=256, gamma=0.98, gae_lambda=0.
 _CONTINUOUS = dict(
     n_envs=1, n_steps=2048, batch_size=64, n_epochs=10, learning_rate=3e-4, normalize_observations=True, normalize_rewards=True
 )
-# rl-baselines3-zoo's tuned HalfCheetah PPO (DLR-RM/rl-baselines3-zoo hyperparams/ppo.yml, HalfCheetah-v3:
-# normalize true, n_steps 512, batch_size 64, gamma 0.98, learning_rate 2.0633e-05 constant, ent_coef
-# 0.000401762, clip_range 0.1, n_epochs 20, gae_lambda 0.92, max_grad_norm 0.8, vf_coef 0.58096,
-# log_std_init -2, ReLU, 256-256), but for its ortho_init=False: our layers keep their orthogonal init.
+# rl-baselines3-zoo's tuned HalfCheetah PPO (DLR-RM/rl-baselines3-zoo hyperparams/ppo.yml, HalfCheetah-v3,
+# its `normalize: true` as both normalisers), but for its ortho_init=False: our layers keep their
+# orthogonal init.
 _HALFCHEETAH = dict(
     n_envs=1,
     n_steps=512,
