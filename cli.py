@@ -193,7 +193,13 @@ def cmd_train_ppo(args: argparse.Namespace) -> int:
     )
     config = ppo_config(args.env, learned_reward=args.reward is not None, **fields)
     result = ppo_job(
-        config, args.out, reward_run=args.reward, progress=not args.quiet, resume=args.resume, workers=_workers(args)
+        config,
+        args.out,
+        reward_run=args.reward,
+        shaped=args.shaped,
+        progress=not args.quiet,
+        resume=args.resume,
+        workers=_workers(args),
     )
     if args.json:
         _print_json(result)
@@ -1143,6 +1149,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="RUN_DIR",
         help="optimise this reward model instead of the env's reward (true returns are still logged); a pixel reward's "
         "frames are rendered as it was learnt on them",
+    )
+    ppo.add_argument(
+        "--shaped",
+        action="store_true",
+        help="with --reward of an AIRL run: optimise f = g + γh(s') − h(s), its reward g shaped by the potential h it "
+        "learnt (the same optimal policies as g, denser to learn from)",
     )
     ppo.add_argument("--n-envs", dest="n_envs", type=int, metavar="K", help="parallel environments (default: per env)")
     ppo.add_argument("--async", action="store_true", help="step the environments in subprocesses")

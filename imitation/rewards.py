@@ -53,6 +53,7 @@ REWARD_INPUTS = ("s", "sa", "sas")
 # GAIL's reward of its discriminator's logit.
 REWARD_OUTPUTS = ("linear", "softplus")
 REWARD_PREFIX = "reward."
+POTENTIAL_PREFIX = "potential."
 
 
 @dataclass(kw_only=True)
@@ -309,6 +310,11 @@ def reward_tensors(model: RewardNet) -> dict[str, torch.Tensor]:
     return {REWARD_PREFIX + name: tensor for name, tensor in model.state_dict().items()}
 
 
+def potential_tensors(model: RewardNet) -> dict[str, torch.Tensor]:
+    """AIRL's shaping potential h, saved beside its reward g."""
+    return {POTENTIAL_PREFIX + name: tensor for name, tensor in model.state_dict().items()}
+
+
 def load_reward(path: str | os.PathLike) -> RewardNet:
     """The reward model of a run directory, on the CPU, in eval mode."""
     config, weights = read_run(path)
@@ -317,17 +323,36 @@ def load_reward(path: str | os.PathLike) -> RewardNet:
             f"{path}: not a reward model (a {str(config.get('kind', 'unknown'))[:40]!r} run); pass the run directory of "
             "`train irl`"
         )
-    state = {name[len(REWARD_PREFIX) :]: t for name, t in weights.items() if name.startswith(REWARD_PREFIX)}
+    return _saved_net(path, config["reward"], weights, REWARD_PREFIX, ("reward model", "reward"))
+
+
+def load_potential(path: str | os.PathLike) -> RewardNet:
+    """AIRL's shaping potential h of a run directory, on the CPU, in eval mode."""
+    config, weights = read_run(path)
+    if "potential" not in config:
+        raise ImitationError(
+            f"{path}: holds no shaping potential h (a {str(config.get('kind', 'unknown'))[:40]!r} run); only "
+            "`train irl --method airl` saves one"
+        )
+    return _saved_net(path, config["potential"], weights, POTENTIAL_PREFIX, ("shaping potential", "potential"))
+
+
+def _saved_net(
+    path: str | os.PathLike, config: Any, weights: dict[str, torch.Tensor], prefix: str, names: tuple[str, str]
+) -> RewardNet:
+    """The RewardNet of `config` with the `prefix`ed tensors of `weights`, checked against each
+    other; `names` are the net's and its weights' in the errors."""
+    state = {name[len(prefix) :]: t for name, t in weights.items() if name.startswith(prefix)}
     try:
-        reward_config = RewardConfig.from_json(config["reward"])
+        reward_config = RewardConfig.from_json(config)
         check_weights_cover(path, _planned_weights(reward_config), state)
         model = RewardNet(reward_config)
         model.load_state_dict(state)
     except SpaceError as error:
-        raise ImitationError(f"{path}: the reward model's {error}") from None
+        raise ImitationError(f"{path}: the {names[0]}'s {error}") from None
     except (TypeError, KeyError, RuntimeError, ValueError) as error:
         raise ImitationError(
-            f"{path}: reward weights do not match its config ({(str(error).splitlines() or [''])[0][:200]})"
+            f"{path}: {names[1]} weights do not match its config ({(str(error).splitlines() or [''])[0][:200]})"
         ) from None
     return model.eval()
 

@@ -73,6 +73,16 @@ def test_adversarial_runs_write_a_policy_and_a_reward_that_ppo_and_eval_consume(
     assert "discriminator_loss" in rows[0] and len(rows) == 1 + 2048 // 256
     assert {"learning_curve.png", "reward_curve.png"} <= {p.name for p in run.iterdir()}
     last_json(run_cli("train", "ppo", "--env", env_id, "--reward", str(run), "--steps", "2048", "--out", str(tmp_path / "ppo"), "--json", timeout=300))
+    # AIRL also saves its potential h, for PPO on f = g + γh(s') − h(s); GAIL has none to shape with.
+    shaped = run_cli("train", "ppo", "--env", env_id, "--reward", str(run), "--shaped", "--steps", "2048", "--out", str(tmp_path / "shaped"), "--json", timeout=300)
+    if method == "airl":
+        assert config["potential"]["inputs"] == "s"
+        last_json(shaped)
+        assert json.loads((tmp_path / "shaped" / "config.json").read_text())["source"] == f"--reward {run} --shaped"
+    else:
+        assert "potential" not in config
+        assert_one_line_error(shaped, "holds no shaping potential h")
+        assert not (tmp_path / "shaped").exists()
     evaluation = last_json(run_cli("eval", "policy", str(run), "--env", env_id, "--episodes", "2", "--json"))
     assert evaluation["episodes"] == 2 and "mean_return" in evaluation
     judged = last_json(run_cli("eval", "reward", str(run), "--env", env_id, "--retrain-steps", "0", "--quiet", "--json", "--out", str(tmp_path / "judged"), timeout=300))

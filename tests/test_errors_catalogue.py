@@ -707,6 +707,7 @@ CASE_LIST = [
     case("train-43", lambda i: ["train", "bc", "--demos", DATASETS / "Pendulum-v1.mcap", "--env", "Pendulum-v1", "--previous-action", "on", "--stream-memory", "64",
                                 "--epochs", "1", "--quiet", "--out", i.root / "t43"], expect="--stream-memory streams"),
     case("train-45", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--threads", "0", "--out", i.root / "t45"), expect="--threads must"),
+    case("train-50", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--shaped", "--out", i.root / "t50"]),
     case("train-44", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--stream-memory", "0.001", "--batch-size", "256", "--out", i.root / "t44")),
     case("irl-1", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--discount", "0", "--out", i.root / "i1"],
          expect="--discount must"),
@@ -746,6 +747,7 @@ CASE_LIST = [
     case("run-11", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--out", i.root / "r11-ppo", "--reward", i.policy_run("r11")]),
     case("run-12", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--out", i.root / "r12-ppo",
                               "--reward", i.reward_run("r12", weights=lambda t: {k: v.T.contiguous() if v.dim() == 2 else v for k, v in t.items()})]),
+    case("run-22", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--out", i.root / "r22-ppo", "--reward", i.reward_run("r22"), "--shaped"]),
     case("run-14", lambda i: ["train", "bc", "--demos", _multidiscrete_demos(i), "--epochs", "1", "--out", i.root / "r14"]),
     # stable-baselines3 zips
     case("sb3-1", lambda i: _sb3(i.text("not.zip", "not a zip"))),

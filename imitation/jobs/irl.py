@@ -34,7 +34,7 @@ from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
 from imitation.policies import acting_env, make_acting_env, policy_tensors
 from imitation.ray_engine import Workers, worker_session
-from imitation.rewards import RewardNet, make_reward_model, reward_tensors
+from imitation.rewards import RewardNet, make_reward_model, potential_tensors, reward_tensors
 from imitation.seeding import seed_everything
 
 
@@ -180,12 +180,14 @@ def adversarial_job(
             )
 
         discriminator: Discriminator
+        potential = None
         if config.method == "gail":
             discriminator = GAILDiscriminator(net(config.reward_inputs, config.hidden_sizes, GAIL_OUTPUTS[config.gail_reward]))
         else:
+            potential = net("s", config.potential_hidden_sizes)
             discriminator = AIRLDiscriminator(
                 net(config.reward_inputs, config.hidden_sizes),
-                net("s", config.potential_hidden_sizes),
+                potential,
                 gamma=ppo_config.gamma,
                 policy_entropy=config.policy_entropy,
             )
@@ -193,6 +195,7 @@ def adversarial_job(
             name=config.method,
             config=config_json(config),
             reward=discriminator.recovered_reward(),
+            potential=potential,
             learner=lambda ppo, transitions: AdversarialImitation(ppo, discriminator, transitions, config),
             loss="discriminator_loss",
         )
@@ -210,6 +213,7 @@ class _Method:
     reward: RewardNet
     learner: Callable[[PPO, TransitionTensors], Learner]
     loss: str
+    potential: RewardNet | None = None  # AIRL's h, saved beside g for `train ppo --reward RUN --shaped`
 
 
 def _irl_with_ppo(
@@ -253,6 +257,7 @@ def _irl_with_ppo(
         irl={"method": method.name, **method.config},
         ppo=config_json(ppo_config),
         reward=method.reward.config.to_json(),
+        potential=method.potential.config.to_json() if method.potential is not None else None,
     )
     title = f"{method.name.upper()} on {env_id}"
     remote = RayRollouts(ppo_config.n_envs, workers.count) if workers else None
@@ -264,7 +269,8 @@ def _irl_with_ppo(
             seconds = ppo.clock.seconds  # training only, not the evaluation below
         finally:
             ppo.close()
-        run.save_weights(reward_tensors(method.reward) | policy_tensors(ppo.policy))
+        potential = potential_tensors(method.potential) if method.potential is not None else {}
+        run.save_weights(reward_tensors(method.reward) | potential | policy_tensors(ppo.policy))
         run.update_config(policy=ppo.policy.config.to_json())
         plot_curve(
             run.file("learning_curve.png"),

@@ -8,7 +8,8 @@ from contextlib import closing
 from pathlib import Path
 from typing import Any
 
-from imitation.algorithms.ppo import PPO, PPOConfig, make_observed_env
+from imitation.algorithms.airl import ShapedReward
+from imitation.algorithms.ppo import PPO, PPOConfig, RolloutReward, make_observed_env
 from imitation.algorithms.ray_rollouts import RayRollouts
 from imitation.data.spaces import check_spaces_fit
 from imitation.envs.pixels import PixelRecipe
@@ -18,7 +19,7 @@ from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import final_evaluation, save_policy, train_to_end, training_run
 from imitation.policies import acting_env, make_acting_env
 from imitation.ray_engine import Workers, worker_session
-from imitation.rewards import RewardNet, load_reward
+from imitation.rewards import RewardNet, load_potential, load_reward
 from imitation.runs import read_run
 from imitation.seeding import seed_everything
 
@@ -28,6 +29,7 @@ def ppo_job(
     out: str | os.PathLike,
     *,
     reward_run: str | None = None,
+    shaped: bool = False,
     reward: RewardNet | None = None,
     reward_source: str | None = None,
     progress: bool = True,
@@ -36,16 +38,24 @@ def ppo_job(
 ) -> dict[str, Any]:
     """Train PPO into run directory `out`; the metrics also written to metrics.json. It
     optimises the env's reward, or a learned one: the reward model of run directory
-    `reward_run` (`train ppo --reward`), or `reward` itself (described by `reward_source`).
+    `reward_run` (`train ppo --reward`; with `shaped`, AIRL's f, its g shaped by the potential h
+    it learnt, at this PPO's γ), or `reward` itself (described by `reward_source`).
     `resume` continues the interrupted run in `out`.partial from its checkpoint. With
     `workers`, the rollouts run on that many Ray actors (`imitation.algorithms.ray_rollouts`)."""
     config.validate()
     seed_everything(config.seed)
     demos = None
+    learned: RolloutReward | None = reward
     if reward_run is not None:
-        reward = load_reward(reward_run)
-        demos = RunConfig.from_json(read_run(reward_run)[0]).existing_demos()  # the expert reference of `eval policy`
+        learned = reward = load_reward(reward_run)
+        reward_config = RunConfig.from_json(read_run(reward_run)[0])
+        demos = reward_config.existing_demos()  # the expert reference of `eval policy`
         reward_source = f"--reward {reward_run}"
+        if shaped:
+            learned = ShapedReward(reward, load_potential(reward_run), gamma=config.gamma)
+            reward_source += " --shaped"
+    elif shaped:
+        raise ImitationError("--shaped: shapes the reward of an AIRL run, and no --reward was given")
     if reward is not None:
         with closing(
             make_observed_env(config.env_id, config.recipe, config.frame_stack)
@@ -58,7 +68,7 @@ def ppo_job(
     )
     remote = RayRollouts(config.n_envs, workers.count) if workers else None
     with training_run(out, run_config, resume=resume) as run, worker_session(workers):
-        learner = PPO(config, reward=reward, remote=remote)
+        learner = PPO(config, reward=learned, remote=remote)
         with closing(learner):
             seconds = train_to_end(run, learner, progress=progress)
         save_policy(run, learner.policy, learner.reward_scaler.stats if learner.reward_scaler is not None else None)

@@ -42,6 +42,7 @@ class RunConfig:
     search: dict[str, Any] | None = None  # hill-climb, cem, cmaes: the gradient-free search's config
     pg: dict[str, Any] | None = None  # pg: the policy-gradient config
     reward: dict[str, Any] | None = None  # RewardConfig of the reward model the run holds
+    potential: dict[str, Any] | None = None  # AIRL: RewardConfig of the shaping potential h it also holds
     policy: dict[str, Any] | None = None  # PolicyConfig of the policy the run holds
     split: dict[str, Any] | None = None  # bc: which episodes or steps were held out
     world_size: int | None = None  # bc under torchrun: the data-parallel processes (None: one)

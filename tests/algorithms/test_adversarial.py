@@ -19,12 +19,13 @@ from imitation.algorithms.adversarial import (
     discriminator_loss,
     input_gradient_penalty,
 )
-from imitation.algorithms.airl import AIRLDiscriminator, airl_shaped_reward
+from imitation.algorithms.airl import AIRLDiscriminator, ShapedReward, airl_shaped_reward
 from imitation.algorithms.gail import GAILDiscriminator
 from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.checkpoints import snapshot
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import load_transitions, transitions_to_torch
+from imitation.envs.rollout import Rollout
 from imitation.errors import ConfigError
 from imitation.jobs.loop import Checkpointing, run
 from imitation.jobs.presets import ppo_settings
@@ -72,6 +73,24 @@ def test_airls_shaped_reward_drops_the_next_potential_after_a_termination() -> N
     # g = 1, h(s) = 2, h(s') = 3, γ = 0.9: 1 + 2.7 − 2 = 1.7, and 1 − 2 = −1 once s' ended the episode.
     f = airl_shaped_reward(torch.tensor([1.0, 1.0]), torch.tensor([2.0, 2.0]), torch.tensor([3.0, 3.0]), torch.tensor([0.0, 1.0]), 0.9)
     assert f.tolist() == pytest.approx([1.7, -1.0])
+
+
+def test_airls_shaped_reward_relabels_a_rollout_with_g_and_the_potential_it_saved() -> None:
+    # g(s) = s₀, h(s) = s₁, γ = ½. Step 1: s = (1, 2), s' = (3, 4): f = 1 + 2 − 2 = 1. Step 2: s = (3, 4),
+    # s' = (5, 6), which ended the episode: f = 3 − 4 = −1.
+    observations = torch.tensor([[[1.0, 2.0]], [[3.0, 4.0]]])
+    rollout = Rollout(
+        observations=observations,
+        actions=torch.zeros(2, 1, dtype=torch.long),
+        env_actions=torch.zeros(2, 1, dtype=torch.long),
+        next_observations=torch.tensor([[[3.0, 4.0]], [[5.0, 6.0]]]),
+        log_probs=torch.zeros(2, 1),
+        env_rewards=torch.zeros(2, 1),
+        terminated=torch.tensor([[False], [True]]),
+        truncated=torch.zeros(2, 1, dtype=torch.bool),
+    )
+    f = ShapedReward(linear([1.0, 0.0]), linear([0.0, 1.0]), gamma=0.5).relabel(rollout)
+    assert f.shape == (2, 1) and f[:, 0].tolist() == pytest.approx([1.0, -1.0])
 
 
 def test_airls_logit_is_f_minus_log_pi_so_d_is_exp_f_over_exp_f_plus_pi() -> None:
