@@ -737,6 +737,7 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "inputs": "--reward-inputs",
             "discriminator_steps": "--discriminator-steps",
             "policy_updates": "--policy-updates",
+            "pool_rollouts": "--pool-rollouts",
             "gradient_penalty": "--gradient-penalty",
             "gail_reward": "--gail-reward",
             "seed": "--seed",
@@ -1460,6 +1461,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         metavar="N",
         help="airl/gail: PPO updates per round, between the discriminator's steps (default: 1)",
+    )
+    irl.add_argument(
+        "--pool-rollouts",
+        type=int,
+        metavar="N",
+        help="airl/gail: the discriminator's negatives are the policy's last N rollouts (default: 1, the latest)",
     )
     irl.add_argument(
         "--gradient-penalty",

@@ -1,5 +1,5 @@
 """The MuJoCo table (issue 20): normalised returns of BC, DAgger, GAIL, AIRL, PPO retrained on AIRL's
-and GCL's recovered rewards, on the fixed-horizon locomotion tasks (`imitation/…FixedHorizon-v0`:
+and GCL's recovered rewards (and on AIRL's g shaped by its h, `airl-shaped-ppo`), on the fixed-horizon locomotion tasks (`imitation/…FixedHorizon-v0`:
 gymnasium v5, no termination, 1000 steps), beside HumanCompatibleAI/imitation's published figures and,
 with `--peer`, imitation 1.0.1 itself run here on the same demos (BC and GAIL; bench/mujoco_peer.py).
 
@@ -25,7 +25,7 @@ With `--workers N` our runs go to Ray as tasks, N at a time (`--ray-address`: a 
 nodes see this checkout and OUT at the same paths; "local" by default), each finished run recorded as
 it returns; the runs of PPO on a recovered reward go after the IRL runs whose rewards they reuse.
 
-Usage: python bench/mujoco_table.py [--envs HalfCheetah,Hopper] [--methods bc,dagger,gail,airl,airl-ppo,gcl-ppo]
+Usage: python bench/mujoco_table.py [--envs HalfCheetah,Hopper] [--methods bc,dagger,gail,airl,airl-ppo,airl-shaped-ppo,gcl-ppo]
        [--seeds 0,1,2] [--irl-steps N] [--retrain-steps N] [--gail-args FLAGS] [--expert ENV=SPEC | --ppo-expert ENV]
        [--peer] [--out bench/mujoco-runs]
        [--workers N [--ray-address ADDR]]
@@ -52,7 +52,7 @@ ROOT = BENCH.parent
 ZOO = ROOT.parent / "shared" / "testdata" / "experts" / "zoo"
 # The peer's gymnasium 0.29 runs the v4 tasks on the same MuJoCo as ours (imageio: gymnasium's mujoco extra).
 PEER_MUJOCO = ["mujoco==4.0.1", "imageio"]
-METHODS = ("bc", "dagger", "gail", "airl", "airl-ppo", "gcl-ppo")
+METHODS = ("bc", "dagger", "gail", "airl", "airl-ppo", "airl-shaped-ppo", "gcl-ppo")
 # HumanCompatibleAI/imitation's published aggregate over its seals MuJoCo tasks (its README's
 # benchmark summary; quoted in issue 20): normalised between a random policy and the expert.
 PUBLISHED = {"bc": 0.93, "dagger": 0.995, "gail": 0.94, "airl": 0.79}
@@ -199,7 +199,8 @@ def our_run(
             *extra, "--out", str(out), threads=args.threads,
         )  # fmt: skip
     else:
-        irl = method.removesuffix("-ppo")
+        irl = method.removesuffix("-ppo").removesuffix("-shaped")
+        shaped = ["--shaped"] if method == "airl-shaped-ppo" else []
         reward = runs / f"{irl}-reward-{seed}"
         if irl == "airl" and (runs / f"airl-{seed}").exists():
             reward, seconds = runs / f"airl-{seed}", 0.0  # the AIRL row's run: its g
@@ -209,7 +210,7 @@ def our_run(
                 "--out", str(reward), threads=args.threads,
             )  # fmt: skip
         result, retrain = cli(
-            "train", "ppo", *common, "--reward", str(reward), "--steps", str(args.retrain_steps), "--out", str(out),
+            "train", "ppo", *common, "--reward", str(reward), *shaped, "--steps", str(args.retrain_steps), "--out", str(out),
             threads=args.threads,
         )  # fmt: skip
         seconds += retrain

@@ -48,8 +48,7 @@ def ppo_job(
     learned: RolloutReward | None = reward
     if reward_run is not None:
         learned = reward = load_reward(reward_run)
-        reward_config = RunConfig.from_json(read_run(reward_run)[0])
-        demos = reward_config.existing_demos()  # the expert reference of `eval policy`
+        demos = RunConfig.from_json(read_run(reward_run)[0]).existing_demos()  # the expert reference of `eval policy`
         reward_source = f"--reward {reward_run}"
         if shaped:
             learned = ShapedReward(reward, load_potential(reward_run), gamma=config.gamma)
