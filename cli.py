@@ -1155,7 +1155,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--shaped",
         action="store_true",
         help="with --reward of an AIRL run: optimise f = g + γh(s') − h(s), its reward g shaped by the potential h it "
-        "learnt (the same optimal policies as g, denser to learn from)",
+        "learnt (the same optimal policies as g)",
     )
     ppo.add_argument("--n-envs", dest="n_envs", type=int, metavar="K", help="parallel environments (default: per env)")
     ppo.add_argument("--async", action="store_true", help="step the environments in subprocesses")

@@ -1,7 +1,8 @@
 """The MuJoCo table (issue 20): normalised returns of BC, DAgger, GAIL, AIRL, PPO retrained on AIRL's
-and GCL's recovered rewards (and on AIRL's g shaped by its h, `airl-shaped-ppo`), on the fixed-horizon locomotion tasks (`imitation/…FixedHorizon-v0`:
-gymnasium v5, no termination, 1000 steps), beside HumanCompatibleAI/imitation's published figures and,
-with `--peer`, imitation 1.0.1 itself run here on the same demos (BC and GAIL; bench/mujoco_peer.py).
+and GCL's recovered rewards (and on AIRL's g shaped by its h, `airl-shaped-ppo`), on the fixed-horizon
+locomotion tasks (`imitation/…FixedHorizon-v0`: gymnasium v5, no termination, 1000 steps), beside
+HumanCompatibleAI/imitation's published figures and, with `--peer`, imitation 1.0.1 itself run here on the
+same demos (BC and GAIL; bench/mujoco_peer.py).
 
 Every run is the command a user would type (`imitation record`, `train bc`, `train dagger`, `train irl`,
 `train ppo --reward`), in a fresh process, its wall time measured. Each finished run is appended to

@@ -83,8 +83,8 @@ class ShapedReward:
 
     A potential-based shaping of g (Ng, Harada & Russell 1999): an episode's discounted return of
     f is g's plus γ^T h(s_T) − h(s_0), so both rewards rank policies alike (γ^T ≈ 0 over long
-    horizons; h(s_0) does not depend on the policy). PPO retrained on g alone must find by itself
-    what pays later; h, AIRL's estimate of the expert's soft value, pays it at once.
+    horizons; h(s_0) does not depend on the policy). h, AIRL's estimate of the expert's soft value,
+    pays at once for what g pays later; the optimum it leads to is g's.
     """
 
     def __init__(self, reward: RewardNet, potential: RewardNet, *, gamma: float) -> None:

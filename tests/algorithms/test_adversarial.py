@@ -75,12 +75,11 @@ def test_airls_shaped_reward_drops_the_next_potential_after_a_termination() -> N
     assert f.tolist() == pytest.approx([1.7, -1.0])
 
 
-def test_airls_shaped_reward_relabels_a_rollout_with_g_and_the_potential_it_saved() -> None:
+def test_airls_shaped_reward_relabels_a_rollouts_steps_as_g_plus_discounted_next_h_minus_h() -> None:
     # g(s) = s₀, h(s) = s₁, γ = ½. Step 1: s = (1, 2), s' = (3, 4): f = 1 + 2 − 2 = 1. Step 2: s = (3, 4),
     # s' = (5, 6), which ended the episode: f = 3 − 4 = −1.
-    observations = torch.tensor([[[1.0, 2.0]], [[3.0, 4.0]]])
     rollout = Rollout(
-        observations=observations,
+        observations=torch.tensor([[[1.0, 2.0]], [[3.0, 4.0]]]),
         actions=torch.zeros(2, 1, dtype=torch.long),
         env_actions=torch.zeros(2, 1, dtype=torch.long),
         next_observations=torch.tensor([[[3.0, 4.0]], [[5.0, 6.0]]]),
