@@ -323,7 +323,7 @@ def load_reward(path: str | os.PathLike) -> RewardNet:
             f"{path}: not a reward model (a {str(config.get('kind', 'unknown'))[:40]!r} run); pass the run directory of "
             "`train irl`"
         )
-    return _saved_net(path, config["reward"], weights, REWARD_PREFIX, ("reward model", "reward"))
+    return _saved_net(path, config, weights, "reward", "reward model")
 
 
 def load_potential(path: str | os.PathLike) -> RewardNet:
@@ -334,25 +334,26 @@ def load_potential(path: str | os.PathLike) -> RewardNet:
             f"{path}: holds no shaping potential h (a {str(config.get('kind', 'unknown'))[:40]!r} run); only "
             "`train irl --method airl` saves one"
         )
-    return _saved_net(path, config["potential"], weights, POTENTIAL_PREFIX, ("shaping potential", "potential"))
+    return _saved_net(path, config, weights, "potential", "shaping potential")
 
 
 def _saved_net(
-    path: str | os.PathLike, config: Any, weights: dict[str, torch.Tensor], prefix: str, names: tuple[str, str]
+    path: str | os.PathLike, config: dict[str, Any], weights: dict[str, torch.Tensor], key: str, net: str
 ) -> RewardNet:
-    """The RewardNet of `config` with the `prefix`ed tensors of `weights`, checked against each
-    other; `names` are the net's and its weights' in the errors."""
+    """The RewardNet of config.json's `key` section with the weights saved under "`key`.", checked
+    against each other; `net` names it in the errors."""
+    prefix = key + "."
     state = {name[len(prefix) :]: t for name, t in weights.items() if name.startswith(prefix)}
     try:
-        reward_config = RewardConfig.from_json(config)
+        reward_config = RewardConfig.from_json(config[key])
         check_weights_cover(path, _planned_weights(reward_config), state)
         model = RewardNet(reward_config)
         model.load_state_dict(state)
     except SpaceError as error:
-        raise ImitationError(f"{path}: the {names[0]}'s {error}") from None
+        raise ImitationError(f"{path}: the {net}'s {error}") from None
     except (TypeError, KeyError, RuntimeError, ValueError) as error:
         raise ImitationError(
-            f"{path}: {names[1]} weights do not match its config ({(str(error).splitlines() or [''])[0][:200]})"
+            f"{path}: {key} weights do not match its config ({(str(error).splitlines() or [''])[0][:200]})"
         ) from None
     return model.eval()
 
