@@ -52,8 +52,6 @@ REWARD_INPUTS = ("s", "sa", "sas")
 # The network's last linear output as the reward, or its softplus log(1 + e^x) = −log(1 − σ(x)):
 # GAIL's reward of its discriminator's logit.
 REWARD_OUTPUTS = ("linear", "softplus")
-REWARD_PREFIX = "reward."
-POTENTIAL_PREFIX = "potential."
 
 
 @dataclass(kw_only=True)
@@ -307,12 +305,17 @@ def all_state_rewards(model: RewardNet, n_states: int) -> torch.Tensor:
 
 
 def reward_tensors(model: RewardNet) -> dict[str, torch.Tensor]:
-    return {REWARD_PREFIX + name: tensor for name, tensor in model.state_dict().items()}
+    return _net_tensors(model, "reward")
 
 
 def potential_tensors(model: RewardNet) -> dict[str, torch.Tensor]:
     """AIRL's shaping potential h, saved beside its reward g."""
-    return {POTENTIAL_PREFIX + name: tensor for name, tensor in model.state_dict().items()}
+    return _net_tensors(model, "potential")
+
+
+def _net_tensors(model: RewardNet, key: str) -> dict[str, torch.Tensor]:
+    """`model`'s weights under "`key`.", the prefix `_saved_net` reads them back from."""
+    return {f"{key}.{name}": tensor for name, tensor in model.state_dict().items()}
 
 
 def load_reward(path: str | os.PathLike) -> RewardNet:
