@@ -373,6 +373,12 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
         raise ImitationError(f"--workers: --method {args.method} has no PPO rollouts to spread; use it with gcl, airl or gail")
     if args.gail_reward is not None and args.method != "gail":
         raise ImitationError(f"--gail-reward: chooses GAIL's reward, and --method {args.method} is not gail")
+    for name in ("discriminator_steps", "policy_updates", "pool_rollouts", "gradient_penalty"):
+        if getattr(args, name) is not None and args.method not in ("gail", "airl"):
+            flag = "--" + name.replace("_", "-")
+            raise ImitationError(
+                f"{flag}: sets the training of GAIL's and AIRL's discriminator, and --method {args.method} has none"
+            )
     if args.method == "gcl":
         return _train_gcl(args)
     if args.method in ("gail", "airl"):
