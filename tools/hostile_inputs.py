@@ -1,12 +1,14 @@
 """Small hostile inputs through the command line: each is built here, given to the command a user
-would run, and measured (exit code, the one line on stderr, wall time, peak RSS).
+would run, and measured (exit code, the one line on stderr, wall and CPU time, peak RSS).
 
     python tools/hostile_inputs.py            # the table, as markdown (for bench/RESULTS.md)
     python tools/hostile_inputs.py --json     # one JSON object per case
 
 tests/test_hostile_inputs.py runs the same cases and checks that each is refused in one line,
-within 2 s and 200 MB beyond what the same command costs on a trivially bad input (its
-`baseline`: a command that imports torch costs ~2 s and ~400 MB before it reads anything).
+within 2 CPU seconds and 200 MB beyond what the same command costs on a trivially bad input (its
+`baseline`: a command that imports torch costs ~2 s and ~400 MB before it reads anything). CPU
+time, not wall time: the suite's other workers share the cores, and waiting for one is no cost
+of the input.
 """
 
 from __future__ import annotations
@@ -46,26 +48,28 @@ class Outcome:
     returncode: int
     message: str
     seconds: float
+    cpu_seconds: float
     peak_rss_mb: float
 
 
-# Runs one command and reports its peak RSS: the wrapper has that one child, so its
-# RUSAGE_CHILDREN maximum is the command's own.
+# Runs one command and reports its peak RSS and CPU time: the wrapper has that one child, so its
+# RUSAGE_CHILDREN figures are the command's own.
 _WRAPPER = (
     "import resource, subprocess, sys; "
     "code = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL).returncode; "
-    "print(code, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stdout)"
+    "usage = resource.getrusage(resource.RUSAGE_CHILDREN); "
+    "print(code, usage.ru_maxrss, usage.ru_utime + usage.ru_stime, file=sys.stdout)"
 )
 
 
-def run(args: list[str], timeout: float = 120) -> tuple[int, str, float, float]:
-    """(exit code, stderr, wall seconds, peak RSS in MB) of `imitation ARGS` in a fresh process."""
+def run(args: list[str], timeout: float = 120) -> tuple[int, str, float, float, float]:
+    """(exit code, stderr, wall seconds, CPU seconds, peak RSS in MB) of `imitation ARGS` in a fresh process."""
     started = time.perf_counter()
     result = subprocess.run([sys.executable, "-c", _WRAPPER, sys.executable, str(REPO / "cli.py"), *args], capture_output=True, text=True,
                             timeout=timeout, cwd=REPO)
     seconds = time.perf_counter() - started
-    code, rss_kb = (int(part) for part in result.stdout.split())
-    return code, result.stderr, seconds, rss_kb / 1024
+    code, rss_kb, cpu = result.stdout.split()
+    return int(code), result.stderr, seconds, float(cpu), int(rss_kb) / 1024
 
 
 # -- the inputs -------------------------------------------------------------------------------
@@ -258,10 +262,10 @@ CASES = [
 def measure(case: Case, folder: Path) -> Outcome:
     args = case.build(folder)
     size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
-    code, stderr, seconds, rss = run(args)
+    code, stderr, seconds, cpu, rss = run(args)
     lines = [line for line in stderr.splitlines() if line.strip() and not line.startswith("warning:")]
     message = (lines[-1] if lines else "").replace(f"{folder}/", "")
-    return Outcome(case.name, "imitation " + " ".join(a if len(a) < 40 else "…/" + Path(a).name for a in args[:3]), size, code, message, seconds, rss)
+    return Outcome(case.name, "imitation " + " ".join(a if len(a) < 40 else "…/" + Path(a).name for a in args[:3]), size, code, message, seconds, cpu, rss)
 
 
 def measure_all(cases: list[Case] = CASES) -> list[Outcome]:
@@ -274,13 +278,13 @@ def measure_all(cases: list[Case] = CASES) -> list[Outcome]:
 
 def table(outcomes: list[Outcome]) -> str:
     by_name = {o.name: o for o in outcomes}
-    rows = ["| input | command | exit | message | time | peak RSS | beyond the command's baseline |", "|---|---|---|---|---|---|---|"]
+    rows = ["| input | command | exit | message | time (CPU) | peak RSS | beyond the command's baseline (CPU) |", "|---|---|---|---|---|---|---|"]
     for case, outcome in zip(CASES, outcomes):
         base = by_name[case.baseline]
-        extra = "—" if case.baseline == case.name else f"{outcome.seconds - base.seconds:+.2f} s, {outcome.peak_rss_mb - base.peak_rss_mb:+.0f} MB"
+        extra = "—" if case.baseline == case.name else f"{outcome.cpu_seconds - base.cpu_seconds:+.2f} s, {outcome.peak_rss_mb - base.peak_rss_mb:+.0f} MB"
         message = outcome.message if len(outcome.message) <= 140 else outcome.message[:139] + "…"
         rows.append(f"| {case.name} ({outcome.input_bytes:,} B) | `{outcome.command}` | {outcome.returncode} | {message.replace('|', '/')} | "
-                    f"{outcome.seconds:.2f} s | {outcome.peak_rss_mb:.0f} MB | {extra} |")
+                    f"{outcome.seconds:.2f} s ({outcome.cpu_seconds:.2f} s) | {outcome.peak_rss_mb:.0f} MB | {extra} |")
     return "\n".join(rows)
 
 
