@@ -375,7 +375,7 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
         raise ImitationError(f"--gail-reward: chooses GAIL's reward, and --method {args.method} is not gail")
     for name in ("discriminator_steps", "policy_updates", "pool_rollouts", "gradient_penalty"):
         if getattr(args, name) is not None and args.method not in ("gail", "airl"):
-            flag = "--" + name.replace("_", "-")
+            flag = FLAGS["train irl"]["AdversarialConfig"][name]
             raise ImitationError(
                 f"{flag}: sets the training of GAIL's and AIRL's discriminator, and --method {args.method} has none"
             )

@@ -8,6 +8,8 @@ import pytest
 from support import DATASETS, run_cli, run_cli_many
 from test_cli import assert_one_line_error, last_json
 
+from imitation.errors import ImitationError
+
 GRID = "imitation/GridWorld8x8Slippery-v0"
 
 
@@ -87,6 +89,19 @@ def test_adversarial_runs_write_a_policy_and_a_reward_that_ppo_and_eval_consume(
     assert evaluation["episodes"] == 2 and "mean_return" in evaluation
     judged = last_json(run_cli("eval", "reward", str(run), "--env", env_id, "--retrain-steps", "0", "--quiet", "--json", "--out", str(tmp_path / "judged"), timeout=300))
     assert 0.0 <= judged["epic"] <= 1.0 and set(judged["controls"]) == {"constant", "random"}
+
+
+@pytest.mark.parametrize("method", ["gcl", "mce"])
+@pytest.mark.parametrize("flag", ["--discriminator-steps", "--policy-updates", "--pool-rollouts", "--gradient-penalty"])
+def test_discriminator_flags_are_refused_by_a_method_without_a_discriminator(method: str, flag: str, tmp_path) -> None:
+    from cli import build_parser, cmd_train_irl
+
+    args = build_parser().parse_args(
+        ["train", "irl", "--method", method, "--env", "CartPole-v1", "--demos", "d.mcap", flag, "2", "--out", str(tmp_path / "r")]
+    )
+    with pytest.raises(ImitationError, match=f"^{flag}: sets the training of GAIL's and AIRL's discriminator, and --method {method} has none$"):
+        cmd_train_irl(args)
+    assert not any(tmp_path.iterdir())
 
 
 def test_bad_irl_input(grid_demos, tmp_path) -> None:
