@@ -16,7 +16,9 @@ OUT/results.jsonl, so an interrupted benchmark resumes where it stopped.
 - Demos: `--episodes` (default 25) expert episodes per task, recorded with seeds from 1000 and DART
   noise (`record --action-noise`, default 0.1: with that probability a step executes a random
   action while the file keeps the expert's), so that the demos show the states just off the expert's
-  path, labelled. Every learner, ours and the peer's, gets the same file.
+  path, labelled. Every learner, ours and the peer's, gets the same file. `--action-noise ENV=0`
+  records one task's demos clean: GAIL and AIRL match the states the demos visit, so noise that
+  knocks the expert over (our PPO's HalfCheetah gait) becomes part of what they imitate.
 - Normalised return = (R − R_random) / (R_expert − R_random): R the policy's mean over the 10
   deterministic evaluation episodes every `train` command ends with, R_expert the expert's own mean
   over 10 noise-free episodes (recorded with seeds from 2000), R_random a uniform random policy's
@@ -26,8 +28,9 @@ With `--workers N` our runs go to Ray as tasks, N at a time (`--ray-address`: a 
 nodes see this checkout and OUT at the same paths; "local" by default), each finished run recorded as
 it returns; the runs of PPO on a recovered reward go after the IRL runs whose rewards they reuse.
 
-Usage: python bench/mujoco_table.py [--envs HalfCheetah,Hopper] [--methods bc,dagger,gail,airl,airl-ppo,airl-shaped-ppo,gcl-ppo]
-       [--seeds 0,1,2] [--irl-steps N] [--retrain-steps N] [--gail-args FLAGS] [--expert ENV=SPEC | --ppo-expert ENV]
+Usage: python bench/mujoco_table.py [--envs HalfCheetah,Hopper]
+       [--methods bc,dagger,gail,airl,airl-ppo,airl-shaped-ppo,gcl-ppo] [--seeds 0,1,2] [--irl-steps N]
+       [--retrain-steps N] [--gail-args FLAGS] [--expert ENV=SPEC | --ppo-expert ENV] [--action-noise [ENV=]P]
        [--peer] [--out bench/mujoco-runs]
        [--workers N [--ray-address ADDR]]
 """
@@ -281,7 +284,13 @@ def main() -> None:
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument("--seeds", default="0,1,2")
     parser.add_argument("--episodes", type=int, default=25, help="expert demo episodes per task")
-    parser.add_argument("--action-noise", type=float, default=0.1, help="DART noise of the demos (record --action-noise)")
+    parser.add_argument(
+        "--action-noise",
+        action="append",
+        default=[],
+        metavar="[ENV=]P",
+        help="DART noise of the demos (record --action-noise): P for every task (default 0.1), ENV=P for one",
+    )
     parser.add_argument(
         "--irl-steps", type=int, help="PPO steps of every IRL run (default: the task's preset, HalfCheetah 3M, the others 1M)"
     )
@@ -305,6 +314,7 @@ def main() -> None:
     args.out = args.out.resolve()  # the peer runs in bench/, our runs in the checkout: one absolute path for both
     envs, methods, seeds = args.envs.split(","), args.methods.split(","), [int(s) for s in args.seeds.split(",")]
     experts = dict(spec.split("=", 1) for spec in args.expert)
+    noises = dict(spec.split("=", 1) if "=" in spec else ("", spec) for spec in args.action_noise)
     args.out.mkdir(parents=True, exist_ok=True)
     results = Results(args.out / "results.jsonl")
     peer = ensure_peer() if args.peer else (None, "not asked (--peer)")
@@ -330,7 +340,7 @@ def main() -> None:
         demos, clean = args.out / f"{env}-demos.mcap", args.out / f"{env}-expert.mcap"
         recording = ["record", "--env", env_id, "--expert", expert]
         if not demos.exists():
-            noise = ["--action-noise", str(args.action_noise)]
+            noise = ["--action-noise", noises.get(env, noises.get("", "0.1"))]
             cli(
                 *recording,
                 "--episodes",
