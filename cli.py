@@ -373,7 +373,7 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
         raise ImitationError(f"--workers: --method {args.method} has no PPO rollouts to spread; use it with gcl, airl or gail")
     if args.gail_reward is not None and args.method != "gail":
         raise ImitationError(f"--gail-reward: chooses GAIL's reward, and --method {args.method} is not gail")
-    for name in ("discriminator_steps", "policy_updates", "pool_rollouts", "gradient_penalty"):
+    for name in ("discriminator_steps", "policy_updates", "pool_rollouts", "latest_share", "gradient_penalty"):
         if getattr(args, name) is not None and args.method not in ("gail", "airl"):
             flag = FLAGS["train irl"]["AdversarialConfig"][name]
             raise ImitationError(
@@ -744,6 +744,7 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "discriminator_steps": "--discriminator-steps",
             "policy_updates": "--policy-updates",
             "pool_rollouts": "--pool-rollouts",
+            "latest_share": "--latest-share",
             "gradient_penalty": "--gradient-penalty",
             "gail_reward": "--gail-reward",
             "seed": "--seed",
@@ -1473,6 +1474,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         metavar="N",
         help="airl/gail: the discriminator's negatives are the policy's last N rollouts (default: 1, the latest)",
+    )
+    irl.add_argument(
+        "--latest-share",
+        type=_finite,
+        metavar="RHO",
+        help="airl/gail: the share of the discriminator's negatives drawn from the latest rollout, the rest from the "
+        "whole pool of --pool-rollouts (default: 0)",
     )
     irl.add_argument(
         "--gradient-penalty",

@@ -30,7 +30,8 @@ it returns; the runs of PPO on a recovered reward go after the IRL runs whose re
 
 Usage: python bench/mujoco_table.py [--envs HalfCheetah,Hopper]
        [--methods bc,dagger,gail,airl,airl-ppo,airl-shaped-ppo,gcl-ppo] [--seeds 0,1,2] [--irl-steps N]
-       [--retrain-steps N] [--gail-args FLAGS] [--expert ENV=SPEC | --ppo-expert ENV] [--action-noise [ENV=]P]
+       [--retrain-steps N] [--gail-args FLAGS] [--airl-args FLAGS] [--expert ENV=SPEC | --ppo-expert ENV]
+       [--action-noise [ENV=]P]
        [--peer] [--out bench/mujoco-runs]
        [--workers N [--ray-address ADDR]]
 """
@@ -197,7 +198,7 @@ def our_run(
             "--out", str(out), threads=args.threads,
         )  # fmt: skip
     elif method in ("gail", "airl"):
-        extra = shlex.split(args.gail_args) if method == "gail" else []
+        extra = shlex.split(args.gail_args if method == "gail" else args.airl_args)
         result, seconds = cli(
             "train", "irl", "--method", method, *common, "--demos", str(demos), *irl_steps(args),
             *extra, "--out", str(out), threads=args.threads,
@@ -211,7 +212,7 @@ def our_run(
         else:
             _, seconds = cli(
                 "train", "irl", "--method", irl, *common, "--demos", str(demos), *irl_steps(args),
-                "--out", str(reward), threads=args.threads,
+                *(shlex.split(args.airl_args) if irl == "airl" else []), "--out", str(reward), threads=args.threads,
             )  # fmt: skip
         result, retrain = cli(
             "train", "ppo", *common, "--reward", str(reward), *shaped, "--steps", str(args.retrain_steps), "--out", str(out),
@@ -298,6 +299,12 @@ def main() -> None:
     parser.add_argument("--dagger-rounds", type=int, default=5)
     parser.add_argument(
         "--gail-args", default="", metavar="FLAGS", help="more `train irl` flags for our GAIL, e.g. '--gail-reward logit'"
+    )
+    parser.add_argument(
+        "--airl-args",
+        default="",
+        metavar="FLAGS",
+        help="more `train irl` flags for our AIRL (its own row and the g that airl-ppo retrains on), e.g. '--pool-rollouts 1000'",
     )
     parser.add_argument(
         "--expert", action="append", default=[], metavar="ENV=SPEC", help="an expert for a task without a zoo one"

@@ -60,13 +60,13 @@ def test_gcl_writes_a_reward_model_that_ppo_consumes(tmp_path) -> None:
 def test_adversarial_runs_write_a_policy_and_a_reward_that_ppo_and_eval_consume(variant: str, tmp_path) -> None:
     env_id, demos = "imitation/CartPoleFixedHorizon-v0", str(DATASETS / "CartPoleFixedHorizon-v0.mcap")
     method, run = variant.split("-")[0], tmp_path / variant
-    flags = ["--discriminator-steps", "2", "--policy-updates", "2", "--pool-rollouts", "3", "--gradient-penalty", "0.5", "--hidden", "16"]
+    flags = ["--discriminator-steps", "2", "--policy-updates", "2", "--pool-rollouts", "3", "--latest-share", "0.5", "--gradient-penalty", "0.5", "--hidden", "16"]
     flags += ["--gail-reward", "logit"] if variant == "gail-logit" else []
     result = last_json(run_cli("train", "irl", "--method", method, "--env", env_id, "--demos", demos, "--steps", "2048", *flags, "--out", str(run), "--json", timeout=300))
     assert result["method"] == method and result["steps"] == 2048 and result["demo_return"] == 500.0
     assert 0.0 <= result["demo_accuracy"] <= 1.0 and 0.0 <= result["sample_accuracy"] <= 1.0
     config = json.loads((run / "config.json").read_text())
-    assert config["irl"] | {"method": method, "discriminator_steps": 2, "policy_updates": 2, "pool_rollouts": 3, "gradient_penalty": 0.5, "hidden_sizes": [16]} == config["irl"]
+    assert config["irl"] | {"method": method, "discriminator_steps": 2, "policy_updates": 2, "pool_rollouts": 3, "latest_share": 0.5, "gradient_penalty": 0.5, "hidden_sizes": [16]} == config["irl"]
     # AIRL exports g, a reward of the state alone; GAIL its discriminator's −log(1 − D), or its logit, of (s, a).
     assert config["reward"]["inputs"] == {"airl": "s", "gail": "sa"}[method]
     assert config["reward"]["output"] == {"airl": "linear", "gail": "softplus", "gail-logit": "linear"}[variant]
@@ -92,7 +92,7 @@ def test_adversarial_runs_write_a_policy_and_a_reward_that_ppo_and_eval_consume(
 
 
 @pytest.mark.parametrize("method", ["gcl", "mce"])
-@pytest.mark.parametrize("flag", ["--discriminator-steps", "--policy-updates", "--pool-rollouts", "--gradient-penalty"])
+@pytest.mark.parametrize("flag", ["--discriminator-steps", "--policy-updates", "--pool-rollouts", "--latest-share", "--gradient-penalty"])
 def test_discriminator_flags_are_refused_by_a_method_without_a_discriminator(method: str, flag: str, tmp_path) -> None:
     from cli import build_parser, cmd_train_irl
 

@@ -659,6 +659,8 @@ CASE_LIST = [
                               "--gail-reward", "logit", "--out", i.root / "irl29"], expect="--gail-reward: chooses GAIL's reward, and --method airl"),
     case("irl-30", lambda i: ["train", "irl", "--method", "gcl", "--env", "CartPole-v1", "--demos", DATASETS / "CartPole-v1.mcap",
                               "--pool-rollouts", "4", "--out", i.root / "irl30"], expect="--pool-rollouts: sets the training of GAIL's and AIRL's discriminator, and --method gcl has none"),
+    case("irl-31", lambda i: ["train", "irl", "--method", "airl", "--env", "CartPole-v1", "--demos", DATASETS / "CartPole-v1.mcap",
+                              "--latest-share", "2", "--out", i.root / "irl31"], expect="--latest-share must be in [0, 1], got 2.0"),
     case("train-5", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--loss", "mse", "--out", i.root / "t5"), expect="--loss mse"),
     case("train-7", _checkpoint_mismatch(PREPARE_BC, "bc", {"epoch": 2}), expect="this BC run"),
     case("train-7", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "4096", "--quiet", "--resume", "--out", i.interrupted_ppo("bad-ckpt")],

@@ -3,18 +3,21 @@ to tell demo steps (label 1) from the policy's (label 0), and PPO on a reward ma
 is, which reward PPO optimises and which reward is exported are the method's (`imitation.algorithms.gail`,
 `imitation.algorithms.airl`); the loop and D's loss are shared:
 
-    ℓ(D) = −E_demos[log D] − E_pool[log(1 − D)] + λ E‖∇_x logit D‖²,
+    ℓ(D) = −E_demos[log D] − E_negatives[log(1 − D)] + λ E‖∇_x logit D‖²,
 
-the pool being the last `pool_rollouts` rollouts, x every input the discriminator's networks read
-(demo and pooled steps alike), and λ `gradient_penalty`. `discriminator_steps` minibatch steps
-(`batch_size` demo steps and as many pooled ones each) are taken every `policy_updates` PPO
-updates: that pair is the discriminator/generator update ratio.
+the negatives being the policy's steps: a share ρ (`latest_share`) of them drawn from the latest
+rollout and the rest from the pool, the last `pool_rollouts` rollouts; x every input the
+discriminator's networks read (demo and policy steps alike), and λ `gradient_penalty`. A pool of
+many rollouts keeps the early policies' steps among the negatives, so that a recovered reward
+still rates them low; ρ keeps the current policy's steps, whose reward PPO optimises, among them.
+`discriminator_steps` minibatch steps (`batch_size` demo steps and as many policy steps each) are
+taken every `policy_updates` PPO updates: that pair is the discriminator/generator update ratio.
 
 The loop, one `AdversarialImitation.step` per PPO update:
 
     τ ← rollout of π_k                                       (PPO.collect_rollout)
     pool ← the last `pool_rollouts` rollouts, τ among them
-    every `policy_updates` updates: `discriminator_steps` steps on ℓ(D)
+    every `policy_updates` updates: `discriminator_steps` steps on ℓ(D), ρ of the negatives from τ
     PPO update on the method's reward of τ                    (PPO.update)
 
 The state saved with PPO's is D, its Adam state, the pool and the minibatch generator's position,
@@ -65,6 +68,8 @@ class AdversarialConfig:
     discriminator_steps: int = 8
     policy_updates: int = 1
     pool_rollouts: int = 1
+    # ρ: the share of each minibatch's policy steps drawn from the latest rollout, the rest from the pool.
+    latest_share: float = 0.0
     gradient_penalty: float = 0.0
     # GAIL: PPO's reward, "softplus" −log(1 − D) or "logit" log D − log(1 − D) (`imitation.algorithms.gail`).
     gail_reward: str = "softplus"
@@ -90,6 +95,8 @@ class AdversarialConfig:
             raise ConfigError(
                 "learning_rate", f"must be a positive number below 1e30, got {self.learning_rate}", owner="AdversarialConfig"
             )
+        if not 0 <= self.latest_share <= 1:
+            raise ConfigError("latest_share", f"must be in [0, 1], got {self.latest_share}", owner="AdversarialConfig")
         for name in ("gradient_penalty", "policy_entropy"):
             if not 0 <= getattr(self, name) < float("inf"):
                 raise ConfigError(name, f"must be a finite number ≥ 0, got {getattr(self, name)}", owner="AdversarialConfig")
@@ -235,8 +242,7 @@ class DiscriminatorLearner:
     def _step(self, pool: Steps, policy: ActorCritic, step: int, total: int) -> tuple[float, float, float]:
         size = self.config.batch_size
         demo_index = torch.randint(len(self.demos), (size,), generator=self.generator)
-        pool_index = torch.randint(len(pool), (size,), generator=self.generator)
-        batch = self.demos.select(demo_index).cat(pool.select(pool_index))
+        batch = self.demos.select(demo_index).cat(self._negatives(pool, size))
         log_pi = (
             env_action_log_probs(policy, batch.observations, batch.env_actions) if self.discriminator.uses_policy else None
         )
@@ -254,6 +260,17 @@ class DiscriminatorLearner:
         loss.backward()
         self.optimizer.step()
         return loss.item(), float((logits[:size] > 0).float().mean()), float((logits[size:] < 0).float().mean())
+
+    def _negatives(self, pool: Steps, size: int) -> Steps:
+        """SIZE policy steps: round(ρ·SIZE) from the latest rollout, the rest from the whole pool."""
+        latest = round(size * self.config.latest_share)
+        parts = []
+        if latest:
+            newest = self.rollouts[-1]
+            parts.append(newest.select(torch.randint(len(newest), (latest,), generator=self.generator)))
+        if latest < size:
+            parts.append(pool.select(torch.randint(len(pool), (size - latest,), generator=self.generator)))
+        return parts[0] if len(parts) == 1 else parts[0].cat(parts[1])
 
     def state_dict(self) -> CheckpointData:
         optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")

@@ -189,6 +189,34 @@ def test_the_pool_keeps_the_last_rollouts_as_copies() -> None:
         assert torch.equal(kept.observations, expected)  # not overwritten by PPO's next rollout
 
 
+def pooled_learner(pool_rollouts: int, latest_share: float) -> AdversarialImitation:
+    """An AIRL learner whose pool holds three rollouts of the same PPO policy's seed."""
+    config = PPOConfig(env_id=ENV_ID, total_steps=3 * 256, **ppo_settings(ENV_ID) | {"device": "cpu"})
+    learner = make_learner("airl", 0, config, pool_rollouts=pool_rollouts, latest_share=latest_share)
+    for _ in range(3):
+        rollout = learner.ppo.collect_rollout()
+        learner.discriminator.add_rollout(rollout)
+        learner.ppo.update(rollout, rollout.env_rewards)
+    return learner
+
+
+def test_a_share_of_the_negatives_comes_from_the_latest_rollout() -> None:
+    for share, low, high in ((0.5, 128 + 20, 128 + 70), (0.0, 50, 120)):
+        learner = pooled_learner(3, share).discriminator
+        # Rollouts told apart by their observations: rollout k's are all k.
+        learner.rollouts = [steps([[k] * 4] * 256, [0] * 256, [[k] * 4] * 256, [0.0] * 256) for k in range(3)]
+        pool = learner.rollouts[0].cat(learner.rollouts[1]).cat(learner.rollouts[2])
+        from_latest = int((learner._negatives(pool, 256).observations[:, 0] == 2).sum())
+        # ρ·256 drawn from the latest, and about a third of the rest drawn from the whole pool.
+        assert low <= from_latest <= high, (share, from_latest)
+
+
+def test_all_negatives_from_the_latest_rollout_is_a_pool_of_one() -> None:
+    pooled, latest_only = pooled_learner(3, 1.0), pooled_learner(1, 0.0)
+    assert len(pooled.discriminator.rollouts) == 3 and len(latest_only.discriminator.rollouts) == 1
+    assert pooled.discriminator.learn(pooled.ppo.policy) == latest_only.discriminator.learn(latest_only.ppo.policy)
+
+
 def test_the_discriminator_steps_every_policy_updates_updates() -> None:
     config = PPOConfig(env_id=ENV_ID, total_steps=4 * 256, **ppo_settings(ENV_ID) | {"device": "cpu"})
     learner = make_learner("airl", 0, config, policy_updates=2)
@@ -245,6 +273,8 @@ def test_the_discriminator_rides_in_ppos_checkpoints_and_resumes_with_them() -> 
         ({"discriminator_steps": 0}, "discriminator_steps"),
         ({"policy_updates": 0}, "policy_updates"),
         ({"pool_rollouts": 0}, "pool_rollouts"),
+        ({"latest_share": 1.5}, "latest_share"),
+        ({"latest_share": float("nan")}, "latest_share"),
         ({"learning_rate": float("nan")}, "learning_rate"),
         ({"gradient_penalty": -1.0}, "gradient_penalty"),
         ({"policy_entropy": float("inf")}, "policy_entropy"),
