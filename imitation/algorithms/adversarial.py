@@ -119,8 +119,8 @@ class Steps:
     def select(self, index: torch.Tensor) -> Steps:
         return Steps(**{name: tree_index(getattr(self, name), index) for name in Steps.__dataclass_fields__})
 
-    def cat(self, other: Steps) -> Steps:
-        return Steps(**{name: tree_cat(getattr(self, name), getattr(other, name)) for name in Steps.__dataclass_fields__})
+    def cat(self, *others: Steps) -> Steps:
+        return Steps(**{name: tree_cat(*(getattr(s, name) for s in (self, *others))) for name in Steps.__dataclass_fields__})
 
     def __len__(self) -> int:
         return len(self.env_actions)
@@ -216,12 +216,9 @@ class DiscriminatorLearner:
 
     def learn(self, policy: ActorCritic) -> dict[str, float]:
         """`discriminator_steps` minibatch steps on ℓ(D); their mean loss and accuracies."""
-        pool = self.rollouts[0]
-        for steps in self.rollouts[1:]:
-            pool = pool.cat(steps)
         self.discriminator.train()
         total = self.config.discriminator_steps
-        statistics = [self._step(pool, policy, step, total) for step in range(1, total + 1)]
+        statistics = [self._step(policy, step, total) for step in range(1, total + 1)]
         self.discriminator.train(False)
         self.learned += 1
         loss, demo_accuracy, sample_accuracy = np.mean(statistics, axis=0)
@@ -239,10 +236,10 @@ class DiscriminatorLearner:
         with torch.no_grad():
             return self.discriminator.policy_rewards(steps, log_pi)
 
-    def _step(self, pool: Steps, policy: ActorCritic, step: int, total: int) -> tuple[float, float, float]:
+    def _step(self, policy: ActorCritic, step: int, total: int) -> tuple[float, float, float]:
         size = self.config.batch_size
         demo_index = torch.randint(len(self.demos), (size,), generator=self.generator)
-        batch = self.demos.select(demo_index).cat(self._negatives(pool, size))
+        batch = self.demos.select(demo_index).cat(self._negatives(size))
         log_pi = (
             env_action_log_probs(policy, batch.observations, batch.env_actions) if self.discriminator.uses_policy else None
         )
@@ -261,7 +258,7 @@ class DiscriminatorLearner:
         self.optimizer.step()
         return loss.item(), float((logits[:size] > 0).float().mean()), float((logits[size:] < 0).float().mean())
 
-    def _negatives(self, pool: Steps, size: int) -> Steps:
+    def _negatives(self, size: int) -> Steps:
         """SIZE policy steps: round(ρ·SIZE) from the latest rollout, the rest from the whole pool."""
         latest = round(size * self.config.latest_share)
         parts = []
@@ -269,8 +266,23 @@ class DiscriminatorLearner:
             newest = self.rollouts[-1]
             parts.append(newest.select(torch.randint(len(newest), (latest,), generator=self.generator)))
         if latest < size:
-            parts.append(pool.select(torch.randint(len(pool), (size - latest,), generator=self.generator)))
-        return parts[0] if len(parts) == 1 else parts[0].cat(parts[1])
+            pooled = sum(len(steps) for steps in self.rollouts)
+            parts.append(self.pool_select(torch.randint(pooled, (size - latest,), generator=self.generator)))
+        return parts[0].cat(*parts[1:])
+
+    def pool_select(self, index: torch.Tensor) -> Steps:
+        """The pool's steps at INDEX, counted through its rollouts oldest first; gathered from each
+        rollout, so that a pool of many rollouts is not copied whole for every minibatch."""
+        lengths = torch.tensor([len(steps) for steps in self.rollouts])
+        ends = lengths.cumsum(0)
+        rollout = torch.searchsorted(ends, index, right=True)
+        offset = index - (ends - lengths)[rollout]
+        parts, positions = [], []
+        for k in rollout.unique().tolist():
+            at = (rollout == k).nonzero().squeeze(1)
+            parts.append(self.rollouts[k].select(offset[at]))
+            positions.append(at)
+        return parts[0].cat(*parts[1:]).select(torch.cat(positions).argsort())
 
     def state_dict(self) -> CheckpointData:
         optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")

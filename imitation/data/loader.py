@@ -54,11 +54,11 @@ def tree_map(fn: Callable[[Any], Any], tree: Any) -> Any:
     return fn(tree)
 
 
-def tree_cat(first: Any, second: Any) -> Any:
-    """Two batches (tensors, or dicts of them alike) one after the other."""
-    if isinstance(first, dict):
-        return {key: tree_cat(first[key], second[key]) for key in first}
-    return torch.cat([first, second])
+def tree_cat(*trees: Any) -> Any:
+    """Batches (tensors, or dicts of them alike) one after the other."""
+    if isinstance(trees[0], dict):
+        return {key: tree_cat(*(tree[key] for tree in trees)) for key in trees[0]}
+    return torch.cat(trees)
 
 
 @dataclass(frozen=True, kw_only=True)

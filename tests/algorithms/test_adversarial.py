@@ -205,10 +205,18 @@ def test_a_share_of_the_negatives_comes_from_the_latest_rollout() -> None:
         learner = pooled_learner(3, share).discriminator
         # Rollouts told apart by their observations: rollout k's are all k.
         learner.rollouts = [steps([[k] * 4] * 256, [0] * 256, [[k] * 4] * 256, [0.0] * 256) for k in range(3)]
-        pool = learner.rollouts[0].cat(learner.rollouts[1]).cat(learner.rollouts[2])
-        from_latest = int((learner._negatives(pool, 256).observations[:, 0] == 2).sum())
+        from_latest = int((learner._negatives(256).observations[:, 0] == 2).sum())
         # ρ·256 drawn from the latest, and about a third of the rest drawn from the whole pool.
         assert low <= from_latest <= high, (share, from_latest)
+
+
+def test_the_pool_is_read_as_its_rollouts_one_after_another() -> None:
+    learner = pooled_learner(3, 0.0).discriminator
+    learner.rollouts[1] = learner.rollouts[1].select(torch.arange(100))  # rollouts of unequal lengths too
+    pool = learner.rollouts[0].cat(*learner.rollouts[1:])
+    index = torch.tensor([611, 0, 255, 256, 355, 356, 300, 0, 611])
+    for name in Steps.__dataclass_fields__:
+        assert torch.equal(getattr(learner.pool_select(index), name), getattr(pool.select(index), name)), name
 
 
 def test_all_negatives_from_the_latest_rollout_is_a_pool_of_one() -> None:
