@@ -119,18 +119,21 @@ def demo_return(path: Path) -> float:
 
 
 def export_npz(demos: Path, out: Path) -> Path:
-    """The demos as the peer reads them: obs, acts, next_obs (float32) and dones (episode ends)."""
+    """The demos as the peer reads them: obs, acts, next_obs (float32) and dones (episode ends),
+    written under a temporary name and renamed, for the seeds' processes run side by side."""
     from imitation.data.dataset import DemoDataset
     from imitation.data.loader import load_transitions
 
     transitions = load_transitions(DemoDataset([demos]), next_observations=True)
+    partial = out.with_name(f"{out.stem}.{os.getpid()}.partial.npz")
     np.savez(
-        out,
+        partial,
         obs=np.asarray(transitions.observations, dtype=np.float32),
         acts=np.asarray(transitions.actions, dtype=np.float32),
         next_obs=np.asarray(transitions.next_observations, dtype=np.float32),
         dones=transitions.dones,
     )
+    partial.replace(out)
     return out
 
 
