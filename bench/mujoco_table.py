@@ -346,7 +346,10 @@ def main() -> None:
             sys.exit(f"{args.out}: its {env} demos are {recorded_by.read_text()}'s, not {expert}'s; give another --out")
         if expert == str(ppo_run):
             train_ppo_expert(env_id, ppo_run, args)
-        recorded_by.write_text(expert)
+        if not recorded_by.exists():  # renamed into place: the seeds' processes run side by side read it
+            partial = recorded_by.with_name(f"{recorded_by.name}.{os.getpid()}.partial")
+            partial.write_text(expert)
+            partial.replace(recorded_by)
         demos, clean = args.out / f"{env}-demos.mcap", args.out / f"{env}-expert.mcap"
         recording = ["record", "--env", env_id, "--expert", expert]
         if not demos.exists():
