@@ -190,7 +190,7 @@ def test_the_pool_keeps_the_last_rollouts_as_copies() -> None:
 
 
 def pooled_learner(pool_rollouts: int, latest_share: float) -> AdversarialImitation:
-    """An AIRL learner whose pool holds three rollouts of the same PPO policy's seed."""
+    """An AIRL learner (seed 0) after three PPO updates, each one's rollout added to its pool."""
     config = PPOConfig(env_id=ENV_ID, total_steps=3 * 256, **ppo_settings(ENV_ID) | {"device": "cpu"})
     learner = make_learner("airl", 0, config, pool_rollouts=pool_rollouts, latest_share=latest_share)
     for _ in range(3):
