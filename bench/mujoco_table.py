@@ -192,6 +192,7 @@ def our_run(
 ) -> tuple[float, float]:
     """One of our runs: (the policy's mean return, wall seconds, retraining included)."""
     common = ["--env", env_id, "--seed", str(seed)]
+    irl_flags = {"gail": shlex.split(args.gail_args), "airl": shlex.split(args.airl_args)}
     out = runs / f"{method}-{seed}"
     if method == "bc":
         result, seconds = cli("train", "bc", *common, "--demos", str(demos), "--out", str(out), threads=args.threads)
@@ -201,10 +202,9 @@ def our_run(
             "--out", str(out), threads=args.threads,
         )  # fmt: skip
     elif method in ("gail", "airl"):
-        extra = shlex.split(args.gail_args if method == "gail" else args.airl_args)
         result, seconds = cli(
             "train", "irl", "--method", method, *common, "--demos", str(demos), *irl_steps(args),
-            *extra, "--out", str(out), threads=args.threads,
+            *irl_flags[method], "--out", str(out), threads=args.threads,
         )  # fmt: skip
     else:
         irl = method.removesuffix("-ppo").removesuffix("-shaped")
@@ -215,7 +215,7 @@ def our_run(
         else:
             _, seconds = cli(
                 "train", "irl", "--method", irl, *common, "--demos", str(demos), *irl_steps(args),
-                *(shlex.split(args.airl_args) if irl == "airl" else []), "--out", str(reward), threads=args.threads,
+                *irl_flags.get(irl, []), "--out", str(reward), threads=args.threads,
             )  # fmt: skip
         result, retrain = cli(
             "train", "ppo", *common, "--reward", str(reward), *shaped, "--steps", str(args.retrain_steps), "--out", str(out),
