@@ -118,6 +118,22 @@ def demo_return(path: Path) -> float:
     return float(np.mean([facts.episode_return for facts in DemoDataset([path]).episodes]))
 
 
+def noise_spec(text: str) -> tuple[str, float]:
+    """`--action-noise`'s [ENV=]P as (ENV or '' for every task, P)."""
+    env, _, p = text.rpartition("=")
+    try:
+        return env, float(p)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{p!r} is not a probability") from None
+
+
+def recorded_noise(demos: Path) -> float:
+    """The DART noise a demo file was recorded with (`record` writes none when there was none)."""
+    from imitation.data.mcap.reader import DemoFile
+
+    return float(DemoFile(demos).user_metadata.get("action_noise", 0.0))
+
+
 def export_npz(demos: Path, out: Path) -> Path:
     """The demos as the peer reads them: obs, acts, next_obs (float32) and dones (episode ends),
     written under a temporary name and renamed, for the seeds' processes run side by side."""
@@ -292,6 +308,7 @@ def main() -> None:
         "--action-noise",
         action="append",
         default=[],
+        type=noise_spec,
         metavar="[ENV=]P",
         help="DART noise of the demos (record --action-noise): P for every task (default 0.1), ENV=P for one",
     )
@@ -307,7 +324,10 @@ def main() -> None:
         "--airl-args",
         default="",
         metavar="FLAGS",
-        help="more `train irl` flags for our AIRL (its own row and the g that airl-ppo retrains on), e.g. '--pool-rollouts 1000'",
+        help=(
+            "more `train irl` flags for our AIRL (its own row and the g that airl-ppo retrains on), "
+            "e.g. '--pool-rollouts 1000'"
+        ),
     )
     parser.add_argument(
         "--expert", action="append", default=[], metavar="ENV=SPEC", help="an expert for a task without a zoo one"
@@ -324,7 +344,7 @@ def main() -> None:
     args.out = args.out.resolve()  # the peer runs in bench/, our runs in the checkout: one absolute path for both
     envs, methods, seeds = args.envs.split(","), args.methods.split(","), [int(s) for s in args.seeds.split(",")]
     experts = dict(spec.split("=", 1) for spec in args.expert)
-    noises = dict(spec.split("=", 1) if "=" in spec else ("", spec) for spec in args.action_noise)
+    noises = dict(args.action_noise)
     args.out.mkdir(parents=True, exist_ok=True)
     results = Results(args.out / "results.jsonl")
     peer = ensure_peer() if args.peer else (None, "not asked (--peer)")
@@ -352,15 +372,18 @@ def main() -> None:
             partial.replace(recorded_by)
         demos, clean = args.out / f"{env}-demos.mcap", args.out / f"{env}-expert.mcap"
         recording = ["record", "--env", env_id, "--expert", expert]
+        noise = noises.get(env, noises.get("", 0.1))
+        if demos.exists() and recorded_noise(demos) != noise:
+            sys.exit(f"{demos}: recorded with --action-noise {recorded_noise(demos)}, not {noise}; give another --out")
         if not demos.exists():
-            noise = ["--action-noise", noises.get(env, noises.get("", "0.1"))]
             cli(
                 *recording,
                 "--episodes",
                 str(args.episodes),
                 "--seed",
                 "1000",
-                *noise,
+                "--action-noise",
+                str(noise),
                 "--out",
                 str(demos),
                 threads=args.threads,
