@@ -379,6 +379,8 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
             raise ImitationError(
                 f"{flag}: sets the training of GAIL's and AIRL's discriminator, and --method {args.method} has none"
             )
+    if args.warm_start is not None and args.method not in ("gail", "airl"):
+        raise ImitationError(f"--warm-start: starts GAIL's and AIRL's discriminator, and --method {args.method} has none")
     if args.method == "gcl":
         return _train_gcl(args)
     if args.method in ("gail", "airl"):
@@ -451,6 +453,7 @@ def _train_adversarial(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         resume=args.resume,
         workers=_workers(args),
+        warm_start=args.warm_start,
     )
     if args.json:
         _print_json(result)
@@ -1487,6 +1490,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=_finite,
         metavar="L",
         help="airl/gail: weight of E‖∇_x logit D‖² over the discriminator's inputs (default: 0)",
+    )
+    irl.add_argument(
+        "--warm-start",
+        metavar="RUN_DIR",
+        help="airl/gail: start the discriminator (AIRL's g and h, GAIL's D) from a finished run's of the same method "
+        "and networks, the policy from scratch: its negatives then include the states a fresh policy passes through "
+        "on that reward (default: a fresh discriminator)",
     )
     irl.add_argument(
         "--gail-reward",

@@ -158,3 +158,57 @@ def test_gcl_on_pixel_demos_learns_a_cnn_reward_that_ppo_on_the_same_frames_opti
     assert_one_line_error(agreeing, "less than one rollout")
     assert_one_line_error(other_stack, f"--frame-stack 3 disagrees with the reward model of {gcl}, learnt on --frame-stack 2: leave the flag out")
     assert_one_line_error(other_frames, f"--pixels 48x48 disagrees with the reward model of {gcl}, learnt on --pixels 36x36 --grayscale")
+
+
+def _adversarial_run(out, method: str, *, warm_start=None, learning_rate: float = 3e-4, hidden: int = 16, seed: int = 1) -> dict:
+    from imitation.algorithms.adversarial import AdversarialConfig
+    from imitation.jobs.irl import adversarial_job
+    from imitation.jobs.presets import ppo_config
+
+    env_id = "imitation/CartPoleFixedHorizon-v0"
+    config = AdversarialConfig(method=method, hidden_sizes=[hidden], potential_hidden_sizes=[hidden], learning_rate=learning_rate, discriminator_steps=2, seed=seed)
+    ppo = ppo_config(env_id, learned_reward=True, total_steps=512, seed=seed)
+    demos = [str(DATASETS / "CartPoleFixedHorizon-v0.mcap")]
+    return adversarial_job(demos, env_id, config, ppo, out, progress=False, warm_start=warm_start)
+
+
+@pytest.mark.parametrize("method", ["airl", "gail"])
+def test_warm_start_gives_the_discriminator_a_finished_runs_networks_and_their_statistics(method: str, tmp_path) -> None:
+    import torch
+
+    from imitation.rewards import load_potential, load_reward
+
+    first = _adversarial_run(tmp_path / "first", method)["run"]
+    # An Adam step of 1e-30 leaves float32 weights as they were: these runs save what they started
+    # from. Another seed's first rollout would give other observation statistics.
+    still = _adversarial_run(tmp_path / "still", method, warm_start=first, learning_rate=1e-30, seed=2)["run"]
+    fresh = _adversarial_run(tmp_path / "fresh", method, learning_rate=1e-30, seed=2)["run"]
+    loads = [load_reward, *([load_potential] if method == "airl" else [])]
+    for load in loads:
+        started, saved, unstarted = (load(run).state_dict() for run in (still, first, fresh))
+        assert all(torch.equal(started[name], saved[name]) for name in saved)
+        assert not torch.equal(unstarted["observation_std"], saved["observation_std"])
+        assert not torch.equal(unstarted["net.0.weight"], saved["net.0.weight"])
+    assert json.loads((tmp_path / "still" / "config.json").read_text())["irl"]["warm_start"] == str(first)
+    assert "warm_start" not in json.loads((tmp_path / "first" / "config.json").read_text())["irl"]
+
+
+def test_warm_start_refuses_another_method_or_other_networks(tmp_path) -> None:
+    first = _adversarial_run(tmp_path / "first", "airl")["run"]
+    with pytest.raises(ImitationError, match=r"first: --warm-start needs a finished `train irl --method gail` run, not a 'airl' one$"):
+        _adversarial_run(tmp_path / "gail", "gail", warm_start=first)
+    with pytest.raises(ImitationError, match=r"first: --warm-start: its g network's hidden_sizes is \[16\], this run's \[8\]$"):
+        _adversarial_run(tmp_path / "narrow", "airl", warm_start=first, hidden=8)
+    with pytest.raises(ImitationError, match="not a run directory"):
+        _adversarial_run(tmp_path / "none", "airl", warm_start=tmp_path / "missing")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["first"]
+
+
+def test_warm_start_is_refused_by_a_method_without_a_discriminator(tmp_path) -> None:
+    from cli import build_parser, cmd_train_irl
+
+    args = build_parser().parse_args(
+        ["train", "irl", "--method", "gcl", "--env", "CartPole-v1", "--demos", "d.mcap", "--warm-start", "r", "--out", str(tmp_path / "r")]
+    )
+    with pytest.raises(ImitationError, match="^--warm-start: starts GAIL's and AIRL's discriminator, and --method gcl has none$"):
+        cmd_train_irl(args)

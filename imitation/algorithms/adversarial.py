@@ -189,9 +189,13 @@ def demo_steps(demos: TransitionTensors) -> Steps:
 class DiscriminatorLearner:
     """D, its optimiser, the pool of recent rollouts and the minibatch steps on ℓ(D)."""
 
-    def __init__(self, discriminator: Discriminator, demos: TransitionTensors, config: AdversarialConfig) -> None:
+    def __init__(
+        self, discriminator: Discriminator, demos: TransitionTensors, config: AdversarialConfig, *, fit_statistics: bool = True
+    ) -> None:
         config.validate()
         self.discriminator = discriminator
+        # False for a discriminator started from a saved one: its weights were fitted to its own statistics.
+        self.fit_statistics = fit_statistics
         self.demos = demo_steps(demos)
         self.config = config
         self.optimizer = torch.optim.Adam(discriminator.parameters(), lr=config.learning_rate)
@@ -203,7 +207,7 @@ class DiscriminatorLearner:
     def add_rollout(self, rollout: Rollout) -> Steps:
         """Pool the rollout's steps (a CPU copy), dropping the oldest beyond `pool_rollouts`; the steps."""
         steps = rollout_steps(rollout.cpu_copy())
-        if not self.rollouts:
+        if not self.rollouts and self.fit_statistics:
             # Where the space is unbounded, the first policy's states widen the demos' spread.
             for net in self.discriminator.reward_nets():
                 if net.config.normalize_observations:
@@ -312,8 +316,16 @@ class AdversarialImitation(BesidePPO[DiscriminatorLearner]):
     """The learner: PPO and the discriminator, one PPO update per step (the loop of the module
     docstring)."""
 
-    def __init__(self, ppo: PPO, discriminator: Discriminator, demos: TransitionTensors, config: AdversarialConfig) -> None:
-        super().__init__(ppo, DiscriminatorLearner(discriminator, demos, config))
+    def __init__(
+        self,
+        ppo: PPO,
+        discriminator: Discriminator,
+        demos: TransitionTensors,
+        config: AdversarialConfig,
+        *,
+        fit_statistics: bool = True,
+    ) -> None:
+        super().__init__(ppo, DiscriminatorLearner(discriminator, demos, config, fit_statistics=fit_statistics))
         self.policy_updates = config.policy_updates
 
     @property

@@ -27,6 +27,7 @@ from imitation.envs.make import make_env
 from imitation.envs.pixels import PIXELS_KEY, image_keys, recorded_pixels, stack_frames, stacked_space
 from imitation.envs.tabular import tabular_mdp_of
 from imitation.envs.tabular_planning import soft_optimal_returns
+from imitation.errors import ImitationError
 from imitation.evaluation.plots import plot_curve, plot_grid_maps
 from imitation.jobs.loop import Learner
 from imitation.jobs.loop import run as run_learner
@@ -34,7 +35,8 @@ from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
 from imitation.policies import acting_env, make_acting_env, policy_tensors
 from imitation.ray_engine import Workers, worker_session
-from imitation.rewards import RewardNet, make_reward_model, potential_tensors, reward_tensors
+from imitation.rewards import RewardNet, load_potential, load_reward, make_reward_model, potential_tensors, reward_tensors
+from imitation.runs import read_run
 from imitation.seeding import seed_everything
 
 
@@ -166,11 +168,14 @@ def adversarial_job(
     progress: bool = True,
     resume: bool = False,
     workers: Workers | None = None,
+    warm_start: str | os.PathLike | None = None,
 ) -> dict[str, Any]:
     """GAIL or AIRL (`config.method`) on `demos` into run directory `out`: the imitating PPO policy
     (for `eval policy`) and the reward (AIRL's g, or GAIL's −log(1 − D)) for `train ppo --reward`
     and `eval reward`. `resume` continues the interrupted run in `out`.partial. Pixel demos are
-    learnt from their frames, as in `gcl_job`."""
+    learnt from their frames, as in `gcl_job`. `warm_start`, a finished run of the same method and
+    networks, gives the discriminator its start (weights and observation statistics); the policy
+    starts fresh."""
     config.validate()
 
     def make(observation_space: gym.Space, action_space: gym.Space, options: dict[str, Any]) -> _Method:
@@ -191,16 +196,44 @@ def adversarial_job(
                 gamma=ppo_config.gamma,
                 policy_entropy=config.policy_entropy,
             )
+        if warm_start is not None:
+            start_discriminator_from(discriminator, warm_start, config.method, env_id)
         return _Method(
             name=config.method,
-            config=config_json(config),
+            config=config_json(config) | ({"warm_start": str(warm_start)} if warm_start is not None else {}),
             reward=discriminator.recovered_reward(),
             potential=potential,
-            learner=lambda ppo, transitions: AdversarialImitation(ppo, discriminator, transitions, config),
+            learner=lambda ppo, transitions: AdversarialImitation(
+                ppo, discriminator, transitions, config, fit_statistics=warm_start is None
+            ),
             loss="discriminator_loss",
         )
 
     return _irl_with_ppo(demos, env_id, config.seed, ppo_config, out, make, progress=progress, resume=resume, workers=workers)
+
+
+def start_discriminator_from(discriminator: Discriminator, run: str | os.PathLike, method: str, env_id: str) -> None:
+    """`discriminator`'s networks (AIRL's g and h, GAIL's D) set to those `run`, a finished `train
+    irl --method <method>` run on `env_id`, saved; one-line errors for any other run."""
+    saved, _ = read_run(run)
+    saved_method = saved.get("irl", {}).get("method") if isinstance(saved.get("irl"), dict) else None
+    if saved_method != method:
+        raise ImitationError(
+            f"{run}: --warm-start needs a finished `train irl --method {method}` run, not a {saved_method!r} one"
+        )
+    if saved.get("env_id") != env_id:
+        raise ImitationError(f"{run}: --warm-start: its discriminator learnt {saved.get('env_id')!r}, not {env_id}")
+    loaded = [load_reward(run), *([load_potential(run)] if method == "airl" else [])]
+    names = ("g", "h") if method == "airl" else ("D",)
+    for net, start, name in zip(discriminator.reward_nets(), loaded, names, strict=True):
+        ours, theirs = net.config.to_json(), start.config.to_json()
+        differing = [key for key in ours if ours[key] != theirs.get(key)]
+        if differing:
+            raise ImitationError(
+                f"{run}: --warm-start: its {name} network's {differing[0]} is {theirs.get(differing[0])!r}, this run's "
+                f"{ours[differing[0]]!r}"
+            )
+        net.load_state_dict(start.state_dict())
 
 
 @dataclass
