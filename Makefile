@@ -42,12 +42,15 @@ bench: venv
 	$(PY) bench/irl.py --continuous
 
 # The MuJoCo table (issue 20): BC, DAgger, GAIL, AIRL and PPO on recovered rewards, 3 seeds, beside
-# imitation 1.0.1 run on the same demos (its venv under bench/). Hopper's expert is our PPO's (the zoo's SAC
-# falls after ~300 of the 1000 steps on v5). Our GAIL pays PPO the logit log D − log(1 − D) with a
-# gradient penalty: −log(1 − D) alone did not learn Hopper (bench/RESULTS.md). Hours on 2 cores; resumes
-# where it stopped.
+# imitation 1.0.1 run on the same demos (its venv under bench/). The experts are our PPO's, as imitation's
+# are (the zoo's SAC falls after ~300 of Hopper's 1000 steps on v5); HalfCheetah's demos are recorded
+# without DART noise, which knocks its PPO expert over. Our GAIL pays PPO the logit log D − log(1 − D)
+# with a gradient penalty: −log(1 − D) alone did not learn Hopper. AIRL's discriminator keeps every
+# rollout, half of each minibatch's negatives from the latest: the one setting under which both AIRL
+# rows pass on Hopper (bench/RESULTS.md). Hours on 2 cores; resumes where it stopped.
 bench-mujoco: venv
-	$(PY) bench/mujoco_table.py --peer --ppo-expert Hopper --gail-args "--gail-reward logit --gradient-penalty 10"
+	$(PY) bench/mujoco_table.py --peer --ppo-expert Hopper --ppo-expert HalfCheetah --action-noise HalfCheetah=0 \
+		--gail-args "--gail-reward logit --gradient-penalty 10" --airl-args "--pool-rollouts 1000 --latest-share 0.5"
 
 # The notes' claims as experiments, each ending in a verdict line (figures and plots: bench/RESULTS.md,
 # "The notes' claims as experiments"); under an hour on 2 cores.
