@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Callable
 from contextlib import closing
 from pathlib import Path
 
@@ -25,7 +24,8 @@ import imitation.envs  # noqa: F401  (registers the ids)
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import load_transitions
 from imitation.envs.make import make_env
-from imitation.policies import POLICY_PREFIX, ActorCritic, load_policy, make_policy
+from imitation.envs.rollout import collect_transitions
+from imitation.policies import POLICY_PREFIX, ActorCritic, SingleObservationPolicy, load_policy, make_policy
 from imitation.rewards import RewardNet, load_reward
 
 Steps = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # s, a, s', true reward
@@ -47,32 +47,6 @@ def checkpoint_policy(partial: Path, env_id: str) -> ActorCritic:
     tensors = load_file(str(partial / "checkpoint" / "tensors.safetensors"))
     policy.load_state_dict({k[len(POLICY_PREFIX) :]: v for k, v in tensors.items() if k.startswith(POLICY_PREFIX)})
     return policy.eval()
-
-
-def rollouts(env_id: str, act: Callable[[np.ndarray], np.ndarray], episodes: int, seed: int) -> Steps:
-    observations, actions, following, rewards = [], [], [], []
-    with closing(make_env(env_id)) as env:
-        for episode in range(episodes):
-            observation, _ = env.reset(seed=seed + episode)
-            done = False
-            while not done:
-                action = act(observation)
-                next_observation, reward, terminated, truncated, _ = env.step(action)
-                observations.append(observation)
-                actions.append(action)
-                following.append(next_observation)
-                rewards.append(reward)
-                observation, done = next_observation, terminated or truncated
-    return np.array(observations), np.array(actions), np.array(following), np.array(rewards, dtype=np.float64)
-
-
-def deterministic(policy: ActorCritic) -> Callable[[np.ndarray], np.ndarray]:
-    def act(observation: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            action = policy.act(policy.encode(torch.as_tensor(observation[None])), deterministic=True)[0]
-        return policy.to_env_action(action)[0]
-
-    return act
 
 
 def recovered(reward: RewardNet, steps: Steps) -> np.ndarray:
@@ -102,10 +76,10 @@ def main() -> None:
     with closing(make_env(args.env)) as env:
         space = env.action_space
         space.seed(args.seed)
-        sets["random policy"] = rollouts(args.env, lambda _: space.sample(), args.episodes, args.seed)
-    for run in args.policy:
-        policy = checkpoint_policy(run, args.env) if run.name.endswith(".partial") else load_policy(run)
-        sets[str(run)] = rollouts(args.env, deterministic(policy), args.episodes, args.seed)
+        sets["random policy"] = collect_transitions(env, lambda _: space.sample(), episodes=args.episodes, seed=args.seed)
+        for run in args.policy:
+            policy = checkpoint_policy(run, args.env) if run.name.endswith(".partial") else load_policy(run)
+            sets[str(run)] = collect_transitions(env, SingleObservationPolicy(policy), episodes=args.episodes, seed=args.seed)
     print(f"{args.reward} on {args.env}, {args.episodes} deterministic episodes per policy")
     print("| steps of | steps | recovered reward per step | true reward per step | Pearson |")
     print("|---|---:|---:|---:|---:|")

@@ -58,17 +58,19 @@ def play_episode(env: gym.Env, policy: Policy, *, seed: int | None) -> tuple[flo
 
 def collect_transitions(
     env: gym.Env, policy: Policy, *, episodes: int, seed: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(s, a, s') of every step of `episodes` episodes (episode i reset with seed `seed + i`)."""
-    observations, actions, next_observations = [], [], []
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(s, a, s', r) of every step of `episodes` episodes (episode i reset with seed `seed + i`),
+    r the env's reward as float64."""
+    observations, actions, next_observations, rewards = [], [], [], []
     for i in range(episodes):
         observation, _ = env.reset(seed=seed + i)
         done = False
         while not done:
             action = policy(observation)
-            next_observation, _, terminated, truncated, _ = env.step(action)
+            next_observation, reward, terminated, truncated, _ = env.step(action)
             observations.append(observation)
             actions.append(action)
             next_observations.append(next_observation)
+            rewards.append(float(reward))
             observation, done = next_observation, terminated or truncated
-    return np.asarray(observations), np.asarray(actions), np.asarray(next_observations)
+    return np.asarray(observations), np.asarray(actions), np.asarray(next_observations), np.asarray(rewards)

@@ -264,5 +264,5 @@ def _train_ppo_quietly(config: PPOConfig, out: Path, source: dict[str, Any]) -> 
     return ppo_job(config, out, progress=False, resume=resume, **source)
 
 
-def _policy_transitions(run: Path, env: gym.Env, *, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _policy_transitions(run: Path, env: gym.Env, *, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return collect_transitions(env, SingleObservationPolicy(load_policy(run)), episodes=ROLLOUT_EPISODES, seed=seed)
