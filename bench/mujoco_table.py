@@ -373,8 +373,9 @@ def main() -> None:
         demos, clean = args.out / f"{env}-demos.mcap", args.out / f"{env}-expert.mcap"
         recording = ["record", "--env", env_id, "--expert", expert]
         noise = noises.get(env, noises.get("", 0.1))
-        if demos.exists() and recorded_noise(demos) != noise:
-            sys.exit(f"{demos}: recorded with --action-noise {recorded_noise(demos)}, not {noise}; give another --out")
+        recorded = recorded_noise(demos) if demos.exists() else noise
+        if recorded != noise:
+            sys.exit(f"{demos}: recorded with --action-noise {recorded}, not {noise}; give another --out")
         if not demos.exists():
             cli(
                 *recording,

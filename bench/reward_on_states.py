@@ -80,7 +80,7 @@ def main() -> None:
         for run in args.policy:
             policy = checkpoint_policy(run, args.env) if run.name.endswith(".partial") else load_policy(run)
             sets[str(run)] = collect_transitions(env, SingleObservationPolicy(policy), episodes=args.episodes, seed=args.seed)
-    print(f"{args.reward} on {args.env}, {args.episodes} deterministic episodes per policy")
+    print(f"{args.reward} on {args.env}, {args.episodes} episodes per policy (the given ones deterministic)")
     print("| steps of | steps | recovered reward per step | true reward per step | Pearson |")
     print("|---|---:|---:|---:|---:|")
     for name, steps in sets.items():
