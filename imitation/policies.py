@@ -649,15 +649,10 @@ class ActorCritic(nn.Module):
         trunk_input = features[:, : self.inputs] if self.config.previous_action else features
         return self.value_head(self.critic_trunk(trunk_input)).squeeze(-1)
 
-    def act(self, features: torch.Tensor, *, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Sample (or take the mode of) π(·|s): action, its log-prob, and V(s)."""
+    def act(self, features: torch.Tensor, *, deterministic: bool = False) -> torch.Tensor:
+        """An action a ~ π(·|s), or its mode: the policy's own action values (see `to_env_action`)."""
         distribution = self.distribution(features)
-        if deterministic:
-            action = distribution.mode
-        else:
-            action = distribution.sample()
-        log_prob, _ = self.log_prob_and_entropy(distribution, action)
-        return action, log_prob, self.value(features)
+        return distribution.mode if deterministic else distribution.sample()
 
     def from_env_action(self, actions: torch.Tensor) -> torch.Tensor:
         """Env actions (e.g. from demos) → the policy's own action values, for log π(a|s)."""
@@ -683,8 +678,7 @@ class ActorCritic(nn.Module):
         """Env actions for a batch of raw observations (numpy), e.g. for evaluation or as an expert."""
         with torch.no_grad():
             tensors = tensor_tree(observations, self.action_head.weight.device)
-            action, _, _ = self.act(self.encode(tensors), deterministic=deterministic)
-            return self.to_env_action(action)
+            return self.to_env_action(self.act(self.encode(tensors), deterministic=deterministic))
 
 
 def tensor_tree(observations: Any, device: torch.device | str = "cpu") -> Any:

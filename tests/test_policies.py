@@ -197,7 +197,7 @@ def test_multi_discrete_samples_follow_each_components_probabilities() -> None:
         policy.action_head.weight.zero_()
         policy.action_head.bias.copy_(torch.log(torch.tensor([0.6, 0.3, 0.1, 0.2, 0.8])))
     features = torch.zeros(20_000, 4)
-    action, _, _ = policy.act(features)
+    action = policy.act(features)
     assert action.shape == (20_000, 2)
     first = torch.bincount(action[:, 0], minlength=3) / 20_000
     second = torch.bincount(action[:, 1], minlength=2) / 20_000
@@ -206,7 +206,7 @@ def test_multi_discrete_samples_follow_each_components_probabilities() -> None:
     )
     sampled = policy.distribution(features[:5]).sample(torch.Size([7]))
     assert sampled.shape == (7, 5, 2)
-    deterministic, _, _ = policy.act(features[:3], deterministic=True)
+    deterministic = policy.act(features[:3], deterministic=True)
     assert deterministic.tolist() == [[0, 1]] * 3
 
 

@@ -101,6 +101,6 @@ def _piece_scores(policy: ActorCritic, validation: TransitionTensors) -> Scores:
         if policy.is_continuous:
             held = actions.reshape(len(validation), -1).float()
             return {"nll": nll, "mse": float(((distribution.mean - held) ** 2).sum(-1).mean())}
-        chosen, _, _ = policy.act(features, deterministic=True)
+        chosen = policy.act(features, deterministic=True)
         wrong = (chosen.reshape(len(validation), -1) != policy.from_env_action(actions).reshape(len(validation), -1)).any(-1)
         return {"nll": nll, "error_rate": float(wrong.float().mean())}
