@@ -76,7 +76,7 @@ def space_from_json(description: dict[str, Any] | str) -> gym.Space:
         raise
     except (KeyError, TypeError, ValueError, OverflowError, AttributeError, IndexError, RecursionError) as error:
         raise SpaceError(
-            f"malformed space description {_short(description)}: {type(error).__name__}: {str(error)[:100]}"
+            f"malformed space description {short_repr(description)}: {type(error).__name__}: {str(error)[:100]}"
         ) from None
 
 
@@ -112,7 +112,8 @@ def _declared(description: Any) -> tuple[int, int]:
     return 1, math.prod(sizes)
 
 
-def _short(value: Any) -> str:
+def short_repr(value: Any) -> str:
+    """repr(value) for an error line, cut to 120 characters."""
     try:
         text = repr(value)
     except RecursionError:
@@ -126,7 +127,7 @@ def _shape(value: Any) -> tuple[int, ...]:
         or len(value) > 32
         or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in value)
     ):
-        raise SpaceError(f"space shape must be a list of at most 32 sizes ≥ 0, got {_short(value)}")
+        raise SpaceError(f"space shape must be a list of at most 32 sizes ≥ 0, got {short_repr(value)}")
     if math.prod(value) > LIMITS.sample_elements:
         raise over_limit(f"space shape {value}: numbers per sample", math.prod(value), "sample_elements")
     return tuple(value)
@@ -134,7 +135,7 @@ def _shape(value: Any) -> tuple[int, ...]:
 
 def _dtype(value: Any, kinds: str) -> np.dtype:
     if not isinstance(value, str):
-        raise SpaceError(f"space dtype must be a name such as float32, got {_short(value)}")
+        raise SpaceError(f"space dtype must be a name such as float32, got {short_repr(value)}")
     dtype = np.dtype(value)
     if dtype.kind not in kinds or dtype.itemsize > 8:
         raise SpaceError(f"space dtype {value!r} is not a number type a space can hold")
@@ -143,7 +144,7 @@ def _dtype(value: Any, kinds: str) -> np.dtype:
 
 def _space_from_json(description: Any) -> gym.Space:
     if not isinstance(description, dict):
-        raise SpaceError(f"a space description is a JSON object, got {_short(description)}")
+        raise SpaceError(f"a space description is a JSON object, got {short_repr(description)}")
     kind = description["type"]
     if kind == "Box":
         dtype = _dtype(description["dtype"], "biuf")
@@ -168,11 +169,11 @@ def _space_from_json(description: Any) -> gym.Space:
     if kind == "Dict":
         spaces = description["spaces"]
         if not isinstance(spaces, dict):
-            raise SpaceError(f"Dict space needs an object of spaces, got {_short(spaces)}")
+            raise SpaceError(f"Dict space needs an object of spaces, got {short_repr(spaces)}")
         for key in spaces:
             _check_key(key)
         return gym.spaces.Dict({key: _space_from_json(sub) for key, sub in spaces.items()})
-    raise SpaceError(f"unknown space type {_short(kind)}")
+    raise SpaceError(f"unknown space type {short_repr(kind)}")
 
 
 def space_leaves(space: gym.Space, prefix: LeafPath = ()) -> Iterator[tuple[LeafPath, np.dtype, tuple[int, ...]]]:

@@ -22,6 +22,7 @@ from imitation.algorithms.ppo import PPO, PPOConfig, make_observed_env
 from imitation.algorithms.ray_rollouts import RayRollouts
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import TransitionTensors, check_episodes_finite, load_transitions, transitions_to_torch
+from imitation.data.spaces import short_repr
 from imitation.data.types import Transitions
 from imitation.envs.make import make_env
 from imitation.envs.pixels import PIXELS_KEY, image_keys, recorded_pixels, stack_frames, stacked_space
@@ -216,7 +217,8 @@ def start_discriminator_from(discriminator: Discriminator, run: str | os.PathLik
     """`discriminator`'s networks (AIRL's g and h, GAIL's D) set to those `run`, a finished `train
     irl --method <method>` run on `env_id`, saved; one-line errors for any other run."""
     saved, _ = read_run(run)
-    saved_method = saved.get("irl", {}).get("method") if isinstance(saved.get("irl"), dict) else None
+    section = saved.get("irl")
+    saved_method = section.get("method") if isinstance(section, dict) else None
     if saved_method != method:
         raise ImitationError(
             f"{run}: --warm-start needs a finished `train irl --method {method}` run, not a {saved_method!r} one"
@@ -230,8 +232,8 @@ def start_discriminator_from(discriminator: Discriminator, run: str | os.PathLik
         differing = [key for key in ours if ours[key] != theirs.get(key)]
         if differing:
             raise ImitationError(
-                f"{run}: --warm-start: its {name} network's {differing[0]} is {theirs.get(differing[0])!r}, this run's "
-                f"{ours[differing[0]]!r}"
+                f"{run}: --warm-start: its {name} network's {differing[0]} is {short_repr(theirs.get(differing[0]))}, this "
+                f"run's {short_repr(ours[differing[0]])}"
             )
         net.load_state_dict(start.state_dict())
 
