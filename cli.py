@@ -405,13 +405,13 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
 
 
 def _ppo_beside_irl(args: argparse.Namespace) -> Any:
-    """The PPOConfig of `train irl --method gcl|gail|airl`: the env's preset on a learned reward, its
-    IRL length, the flags, and the frames the demos were recorded with."""
+    """The PPOConfig of `train irl --method gcl|gail|airl`: the env's preset for a policy beside a
+    reward being learnt, its IRL length, the flags, and the frames the demos were recorded with."""
     from imitation.jobs.irl import recorded_observation
     from imitation.jobs.presets import ppo_config, preset
 
     fields = {"total_steps": preset(args.env).irl_steps} | _fields(args, "PPOConfig") | recorded_observation(args.demos)
-    return ppo_config(args.env, learned_reward=True, **fields)
+    return ppo_config(args.env, beside_irl=True, **fields)
 
 
 def _train_gcl(args: argparse.Namespace) -> int:

@@ -120,7 +120,7 @@ def run_continuous(env_id: str, seed: int, workdir: Path) -> dict:
     demos, irl_steps, retrain_steps = CONTINUOUS[env_id]
     demos = str(ROOT / "datasets" / demos)
     started = time.perf_counter()
-    gcl_job([demos], env_id, GCLConfig(seed=seed), ppo_config(env_id, learned_reward=True, total_steps=irl_steps, seed=seed), workdir / "gcl", progress=False)
+    gcl_job([demos], env_id, GCLConfig(seed=seed), ppo_config(env_id, beside_irl=True, total_steps=irl_steps, seed=seed), workdir / "gcl", progress=False)
     irl_seconds = time.perf_counter() - started
     retrained = ppo_job(
         ppo_config(env_id, learned_reward=True, total_steps=retrain_steps, seed=seed), workdir / "ppo", reward_run=str(workdir / "gcl"), progress=False,

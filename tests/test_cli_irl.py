@@ -167,7 +167,7 @@ def _adversarial_run(out, method: str, *, warm_start=None, learning_rate: float 
 
     env_id = "imitation/CartPoleFixedHorizon-v0"
     config = AdversarialConfig(method=method, hidden_sizes=[hidden], potential_hidden_sizes=[hidden], learning_rate=learning_rate, discriminator_steps=2, seed=seed)
-    ppo = ppo_config(env_id, learned_reward=True, total_steps=512, seed=seed)
+    ppo = ppo_config(env_id, beside_irl=True, total_steps=512, seed=seed)
     demos = [str(DATASETS / "CartPoleFixedHorizon-v0.mcap")]
     return adversarial_job(demos, env_id, config, ppo, out, progress=False, warm_start=warm_start)
 

@@ -187,21 +187,25 @@ def test_image_observations_get_the_zoo_atari_preset_that_flags_override() -> No
     assert (overridden.n_envs, overridden.n_epochs, overridden.total_steps) == (2, 4, 512)
 
 
-def test_halfcheetah_gets_the_zoo_preset_on_its_own_reward_and_the_continuous_one_on_a_learned_reward() -> None:
-    """`train ppo` on fixed-horizon HalfCheetah's own reward gets rl-baselines3-zoo's tuned PPO; on a
-    learned reward (`train ppo --reward`, `eval reward`'s retraining, `train irl`'s policy) it keeps
-    the continuous-control settings, as Hopper has on either."""
+def test_halfcheetah_gets_the_zoo_preset_but_beside_a_reward_being_learnt() -> None:
+    """`train ppo` on fixed-horizon HalfCheetah's own reward, or on a learned one (`train ppo --reward`,
+    `eval reward`'s retraining), gets rl-baselines3-zoo's tuned PPO, with rewards normalised; the policy
+    `train irl` trains beside its discriminator keeps the continuous-control settings, as Hopper has
+    everywhere."""
     import cli
-    from imitation.jobs.presets import ppo_config
+    from imitation.jobs.presets import ppo_config, ppo_settings
 
     env_id = "imitation/HalfCheetahFixedHorizon-v0"
-    ppo, learned = ppo_config(env_id), ppo_config(env_id, learned_reward=True)
-    assert (ppo.n_steps, ppo.n_epochs, ppo.gamma, ppo.gae_lambda, ppo.clip_range, ppo.anneal_lr) == (512, 20, 0.98, 0.92, 0.1, False)
-    assert (ppo.hidden_sizes, ppo.activation, ppo.log_std_init, ppo.learning_rate) == ([256, 256], "relu", -2.0, 2.0633e-05)
+    ppo, learned, beside = ppo_config(env_id), ppo_config(env_id, learned_reward=True), ppo_config(env_id, beside_irl=True)
+    for zoo in (ppo, learned):
+        assert (zoo.n_steps, zoo.n_epochs, zoo.gamma, zoo.gae_lambda, zoo.clip_range, zoo.anneal_lr) == (512, 20, 0.98, 0.92, 0.1, False)
+        assert (zoo.hidden_sizes, zoo.activation, zoo.log_std_init, zoo.learning_rate) == ([256, 256], "relu", -2.0, 2.0633e-05)
+    assert learned.normalize_rewards and beside.normalize_rewards
+    assert ppo_settings("CartPole-v1", beside_irl=True)["normalize_rewards"] and "normalize_rewards" not in ppo_settings("CartPole-v1")
     args = cli.build_parser().parse_args(["train", "irl", "--method", "airl", "--env", env_id, "--demos", str(DATASETS / "Pendulum-v1.mcap"), "--out", "r"])
     args.command_key = "train irl"  # as `main` sets it
-    assert cli._ppo_beside_irl(args) == dataclasses.replace(learned, total_steps=3_000_000), "`train irl`'s policy"
-    for continuous in (learned, ppo_config("imitation/HopperFixedHorizon-v0")):
+    assert cli._ppo_beside_irl(args) == dataclasses.replace(beside, total_steps=3_000_000), "`train irl`'s policy"
+    for continuous in (beside, ppo_config("imitation/HopperFixedHorizon-v0", learned_reward=True)):
         assert (continuous.n_steps, continuous.n_epochs, continuous.gamma, continuous.hidden_sizes) == (2048, 10, 0.99, [64, 64])
         assert (continuous.activation, continuous.log_std_init, continuous.learning_rate) == ("tanh", 0.0, 3e-4)
 

@@ -161,7 +161,7 @@ def _gcl_stage(datasets: Path, out: Path, *, steps: int) -> dict[str, Any]:
 
     torch.set_num_threads(1)
     with closing(make_env(CARTPOLE_FH)) as env:
-        settings = ppo_settings(CARTPOLE_FH, env.action_space, learned_reward=True)
+        settings = ppo_settings(CARTPOLE_FH, env.action_space, beside_irl=True)
     demos = [str(datasets / f"{CARTPOLE_FH.split('/')[1]}.mcap")]
     run = gcl_job(
         demos,

@@ -1,9 +1,9 @@
 """Per-environment presets in one table, like rl-baselines3-zoo's hyperparams: the PPO settings
 that make `train ppo --env ID` work without flags, and how long the reward-learning jobs run.
 
-rl-baselines3-zoo's tuned PPO settings where we have them (Pendulum, and HalfCheetah on a learned
-reward, depart from them, see there), CleanRL's defaults otherwise. The figures behind each choice
-are in bench/RESULTS.md.
+rl-baselines3-zoo's tuned PPO settings where we have them (Pendulum, and HalfCheetah's policy beside
+a reward being learnt, depart from them, see there), CleanRL's defaults otherwise. The figures
+behind each choice are in bench/RESULTS.md.
 """
 
 from __future__ import annotations
@@ -22,9 +22,11 @@ from imitation.envs.pixels import image_keys
 @dataclass(frozen=True)
 class EnvPreset:
     ppo: dict[str, Any] = field(default_factory=dict)  # PPOConfig fields
-    # PPOConfig fields on a learned reward (the policy `train irl` trains beside it, `train ppo
-    # --reward`, `eval reward`'s retraining) where they differ from `ppo`; None: `ppo`.
-    learned_reward_ppo: dict[str, Any] | None = None
+    # PPOConfig fields of the policy `train irl` trains beside the reward it is learning (GAIL's
+    # generator, AIRL's and GCL's policy), where they differ from `ppo`; None: `ppo`. A reward
+    # already learnt (`train ppo --reward`, `eval reward`'s retraining) stands still like the
+    # env's own, and gets `ppo`.
+    irl_ppo: dict[str, Any] | None = None
     irl_steps: int = 200_000  # PPO steps of `train irl --method gcl|gail|airl`
     retrain_steps: int = 200_000  # PPO steps of each retraining in `eval reward`
 
@@ -108,11 +110,12 @@ PRESETS: dict[str, EnvPreset] = {
         f"imitation/{task}FixedHorizon-v0": EnvPreset(ppo=_CONTINUOUS, irl_steps=1_000_000, retrain_steps=300_000)
         for task in ("Hopper", "Walker2d", "Swimmer", "Ant")
     },
-    # The zoo's tuned HalfCheetah PPO learns the task's own reward far better than the continuous-
-    # control settings, but not AIRL's g, nor GAIL's policy: learned rewards keep the latter. AIRL
-    # needs three times Hopper's steps here.
+    # The zoo's tuned HalfCheetah PPO learns the task's own reward, and AIRL's g once learnt, far
+    # better than the continuous-control settings, but not beside a discriminator that is still
+    # learning (GAIL's generator, AIRL's policy): those keep the latter. AIRL needs three times
+    # Hopper's steps here.
     "imitation/HalfCheetahFixedHorizon-v0": EnvPreset(
-        ppo=_HALFCHEETAH, learned_reward_ppo=_CONTINUOUS, irl_steps=3_000_000, retrain_steps=300_000
+        ppo=_HALFCHEETAH, irl_ppo=_CONTINUOUS, irl_steps=3_000_000, retrain_steps=300_000
     ),
 }
 
@@ -122,29 +125,34 @@ def preset(env_id: str) -> EnvPreset:
 
 
 def ppo_settings(
-    env_id: str, action_space: gym.Space | None = None, *, learned_reward: bool = False, images: bool = False
+    env_id: str,
+    action_space: gym.Space | None = None,
+    *,
+    learned_reward: bool = False,
+    beside_irl: bool = False,
+    images: bool = False,
 ) -> dict[str, Any]:
     """PPOConfig fields for `env_id`: the pixel preset when the policy sees `images`, else the
-    env's preset (on a `learned_reward`, its `learned_reward_ppo` if it has one), else the
-    continuous-control defaults for Box actions. On a learned reward, rewards are scaled by their
-    running return std, since a learned reward's scale is arbitrary (and drifts while it is being
-    learned)."""
+    env's preset (`beside_irl`, the policy of an IRL run: its `irl_ppo` if it has one), else the
+    continuous-control defaults for Box actions. On a learned reward (`beside_irl` is one), rewards
+    are scaled by their running return std, since a learned reward's scale is arbitrary (and
+    drifts while it is being learned)."""
     if images:
         settings = dict(_PIXELS)
     elif env_id in PRESETS:
         chosen = PRESETS[env_id]
-        learned = chosen.learned_reward_ppo if learned_reward else None
-        settings = dict(chosen.ppo if learned is None else learned)
+        beside = chosen.irl_ppo if beside_irl else None
+        settings = dict(chosen.ppo if beside is None else beside)
     else:
         settings = dict(_CONTINUOUS) if isinstance(action_space, gym.spaces.Box) else {}
-    return settings | ({"normalize_rewards": True} if learned_reward else {})
+    return settings | ({"normalize_rewards": True} if learned_reward or beside_irl else {})
 
 
-def ppo_config(env_id: str, *, learned_reward: bool = False, **fields: Any) -> PPOConfig:
+def ppo_config(env_id: str, *, learned_reward: bool = False, beside_irl: bool = False, **fields: Any) -> PPOConfig:
     """A PPOConfig for `env_id`: its preset (`ppo_settings`, which may need the env's spaces:
     the env is made to read them; rendered frames, `fields["pixels"]`, are images), then
     `fields` over it."""
     with closing(make_env(env_id)) as env:
         images = fields.get("pixels") is not None or bool(image_keys(env.observation_space))
-        settings = ppo_settings(env_id, env.action_space, learned_reward=learned_reward, images=images)
+        settings = ppo_settings(env_id, env.action_space, learned_reward=learned_reward, beside_irl=beside_irl, images=images)
     return PPOConfig(env_id=env_id, **settings | fields)

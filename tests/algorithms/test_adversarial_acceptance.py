@@ -24,7 +24,7 @@ DEMOS = str(DATASETS / "CartPoleFixedHorizon-v0.mcap")
 
 def _airl(tmp_path, seed: int, steps: int) -> str:
     run = tmp_path / f"airl-{seed}"
-    config = PPOConfig(env_id=ENV_ID, total_steps=steps, seed=seed, **ppo_settings(ENV_ID, learned_reward=True))
+    config = PPOConfig(env_id=ENV_ID, total_steps=steps, seed=seed, **ppo_settings(ENV_ID, beside_irl=True))
     adversarial_job([DEMOS], ENV_ID, AdversarialConfig(method="airl", seed=seed), config, run, progress=False)
     return str(run)
 

@@ -27,7 +27,7 @@ def _pipeline(env_id: str, demos: str, seed: int, tmp_path, *, irl_steps: int, r
     """The true mean return of PPO trained from scratch on the recovered (or given) reward."""
     if reward_run is None:
         reward_run = tmp_path / f"gcl-{seed}"
-        gcl_job([demos], env_id, GCLConfig(seed=seed), PPOConfig(env_id=env_id, total_steps=irl_steps, seed=seed, **ppo_settings(env_id, learned_reward=True)), reward_run, progress=False)
+        gcl_job([demos], env_id, GCLConfig(seed=seed), PPOConfig(env_id=env_id, total_steps=irl_steps, seed=seed, **ppo_settings(env_id, beside_irl=True)), reward_run, progress=False)
     retrained = ppo_job(
         PPOConfig(env_id=env_id, total_steps=retrain_steps, seed=seed, **ppo_settings(env_id, learned_reward=True)),
         tmp_path / f"ppo-{seed}", reward_run=str(reward_run), progress=False,
