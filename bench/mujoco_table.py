@@ -19,6 +19,10 @@ OUT/results.jsonl, so an interrupted benchmark resumes where it stopped.
   path, labelled. Every learner, ours and the peer's, gets the same file. `--action-noise ENV=0`
   records one task's demos clean: GAIL and AIRL match the states the demos visit, so noise that
   knocks the expert over (our PPO's HalfCheetah gait) becomes part of what they imitate.
+- `--airl-restart [ENV=]N`: PPO from scratch retrains on the g of a second AIRL run (N steps) whose
+  discriminator starts from the AIRL row's run and whose policy starts afresh, so that g also gets
+  fitted against a policy that has not learnt to run yet (`train irl --warm-start`); the AIRL row
+  stays the first run's policy.
 - Normalised return = (R − R_random) / (R_expert − R_random): R the policy's mean over the 10
   deterministic evaluation episodes every `train` command ends with, R_expert the expert's own mean
   over 10 noise-free episodes (recorded with seeds from 2000), R_random a uniform random policy's
@@ -30,8 +34,8 @@ it returns; the runs of PPO on a recovered reward go after the IRL runs whose re
 
 Usage: python bench/mujoco_table.py [--envs HalfCheetah,Hopper]
        [--methods bc,dagger,gail,airl,airl-ppo,airl-shaped-ppo,gcl-ppo] [--seeds 0,1,2] [--irl-steps N]
-       [--retrain-steps N] [--gail-args FLAGS] [--airl-args FLAGS] [--expert ENV=SPEC | --ppo-expert ENV]
-       [--action-noise [ENV=]P]
+       [--retrain-steps N] [--gail-args FLAGS] [--airl-args FLAGS] [--airl-restart [ENV=]N]
+       [--expert ENV=SPEC | --ppo-expert ENV] [--action-noise [ENV=]P]
        [--peer] [--out bench/mujoco-runs]
        [--workers N [--ray-address ADDR]]
 """
@@ -125,6 +129,15 @@ def noise_spec(text: str) -> tuple[str, float]:
         return env, float(p)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{p!r} is not a probability") from None
+
+
+def steps_spec(text: str) -> tuple[str, int]:
+    """`--airl-restart`'s [ENV=]N as (ENV or '' for every task, N)."""
+    env, _, n = text.rpartition("=")
+    try:
+        return env, int(n)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{n!r} is not a number of steps") from None
 
 
 def recorded_noise(demos: Path) -> float:
@@ -233,6 +246,16 @@ def our_run(
                 "train", "irl", "--method", irl, *common, "--demos", str(demos), *irl_steps(args),
                 *irl_flags.get(irl, []), "--out", str(reward), threads=args.threads,
             )  # fmt: skip
+        restart = args.airl_restart.get(runs.name, args.airl_restart.get("", 0))  # runs: OUT/ENV
+        if irl == "airl" and restart:
+            restarted = runs / f"airl-restart-{seed}"
+            if not restarted.exists():
+                _, more = cli(
+                    "train", "irl", "--method", "airl", *common, "--demos", str(demos), "--steps", str(restart),
+                    *irl_flags["airl"], "--warm-start", str(reward), "--out", str(restarted), threads=args.threads,
+                )  # fmt: skip
+                seconds += more
+            reward = restarted
         result, retrain = cli(
             "train", "ppo", *common, "--reward", str(reward), *shaped, "--steps", str(args.retrain_steps), "--out", str(out),
             threads=args.threads,
@@ -330,6 +353,18 @@ def main() -> None:
         ),
     )
     parser.add_argument(
+        "--airl-restart",
+        action="append",
+        default=[],
+        type=steps_spec,
+        metavar="[ENV=]N",
+        help=(
+            "airl-ppo and airl-shaped-ppo retrain on the g of a second AIRL run of N steps (airl-restart-SEED) whose "
+            "discriminator starts from the AIRL row's and its policy from scratch (`train irl --warm-start`); ENV=N "
+            "for one task (default: none, the AIRL row's own g)"
+        ),
+    )
+    parser.add_argument(
         "--expert", action="append", default=[], metavar="ENV=SPEC", help="an expert for a task without a zoo one"
     )
     parser.add_argument(
@@ -345,6 +380,7 @@ def main() -> None:
     envs, methods, seeds = args.envs.split(","), args.methods.split(","), [int(s) for s in args.seeds.split(",")]
     experts = dict(spec.split("=", 1) for spec in args.expert)
     noises = dict(args.action_noise)
+    args.airl_restart = dict(args.airl_restart)
     args.out.mkdir(parents=True, exist_ok=True)
     results = Results(args.out / "results.jsonl")
     peer = ensure_peer() if args.peer else (None, "not asked (--peer)")
