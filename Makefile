@@ -47,10 +47,13 @@ bench: venv
 # without DART noise, which knocks its PPO expert over. Our GAIL pays PPO the logit log D − log(1 − D)
 # with a gradient penalty: −log(1 − D) alone did not learn Hopper. AIRL's discriminator keeps every
 # rollout, half of each minibatch's negatives from the latest: the one setting under which both AIRL
-# rows pass on Hopper (bench/RESULTS.md). Hours on 2 cores; resumes where it stopped.
+# rows pass on Hopper. HalfCheetah's g is retrained on after a second AIRL run whose policy starts
+# afresh (--airl-restart): the first run's g rates standing still like running (bench/RESULTS.md).
+# Hours on 2 cores; resumes where it stopped.
 bench-mujoco: venv
 	$(PY) bench/mujoco_table.py --peer --ppo-expert Hopper --ppo-expert HalfCheetah --action-noise HalfCheetah=0 \
-		--gail-args "--gail-reward logit --gradient-penalty 10" --airl-args "--pool-rollouts 1000 --latest-share 0.5"
+		--gail-args "--gail-reward logit --gradient-penalty 10" --airl-args "--pool-rollouts 1000 --latest-share 0.5" \
+		--airl-restart HalfCheetah=1000000
 
 # The notes' claims as experiments, each ending in a verdict line (figures and plots: bench/RESULTS.md,
 # "The notes' claims as experiments"); under an hour on 2 cores.
