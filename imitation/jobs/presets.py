@@ -110,10 +110,10 @@ PRESETS: dict[str, EnvPreset] = {
         f"imitation/{task}FixedHorizon-v0": EnvPreset(ppo=_CONTINUOUS, irl_steps=1_000_000, retrain_steps=300_000)
         for task in ("Hopper", "Walker2d", "Swimmer", "Ant")
     },
-    # The zoo's tuned HalfCheetah PPO learns the task's own reward, and AIRL's g once learnt, far
-    # better than the continuous-control settings, but not beside a discriminator that is still
-    # learning (GAIL's generator, AIRL's policy): those keep the latter. AIRL needs three times
-    # Hopper's steps here.
+    # The zoo's tuned HalfCheetah PPO learns the task's own reward far better than the continuous-
+    # control settings, and retrains on AIRL's g where they can fail; as GAIL's generator, beside a
+    # discriminator still learning, it did worse: `train irl`'s policy keeps the continuous-control
+    # settings. AIRL needs three times Hopper's steps here.
     "imitation/HalfCheetahFixedHorizon-v0": EnvPreset(
         ppo=_HALFCHEETAH, irl_ppo=_CONTINUOUS, irl_steps=3_000_000, retrain_steps=300_000
     ),
