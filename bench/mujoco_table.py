@@ -50,7 +50,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -122,22 +122,17 @@ def demo_return(path: Path) -> float:
     return float(np.mean([facts.episode_return for facts in DemoDataset([path]).episodes]))
 
 
-def noise_spec(text: str) -> tuple[str, float]:
-    """`--action-noise`'s [ENV=]P as (ENV or '' for every task, P)."""
-    env, _, p = text.rpartition("=")
-    try:
-        return env, float(p)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{p!r} is not a probability") from None
+def per_task(convert: Callable[[str], Any], what: str) -> Callable[[str], tuple[str, Any]]:
+    """An argparse type for [ENV=]VALUE: (ENV or '' for every task, convert(VALUE))."""
 
+    def parse(text: str) -> tuple[str, Any]:
+        env, _, value = text.rpartition("=")
+        try:
+            return env, convert(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{value!r} is not {what}") from None
 
-def steps_spec(text: str) -> tuple[str, int]:
-    """`--airl-restart`'s [ENV=]N as (ENV or '' for every task, N)."""
-    env, _, n = text.rpartition("=")
-    try:
-        return env, int(n)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{n!r} is not a number of steps") from None
+    return parse
 
 
 def recorded_noise(demos: Path) -> float:
@@ -331,7 +326,7 @@ def main() -> None:
         "--action-noise",
         action="append",
         default=[],
-        type=noise_spec,
+        type=per_task(float, "a probability"),
         metavar="[ENV=]P",
         help="DART noise of the demos (record --action-noise): P for every task (default 0.1), ENV=P for one",
     )
@@ -356,7 +351,7 @@ def main() -> None:
         "--airl-restart",
         action="append",
         default=[],
-        type=steps_spec,
+        type=per_task(int, "a number of steps"),
         metavar="[ENV=]N",
         help=(
             "airl-ppo and airl-shaped-ppo retrain on the g of a second AIRL run of N steps (airl-restart-SEED) whose "
