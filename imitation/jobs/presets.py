@@ -24,8 +24,8 @@ class EnvPreset:
     ppo: dict[str, Any] = field(default_factory=dict)  # PPOConfig fields
     # PPOConfig fields of the policy `train irl` trains beside the reward it is learning (GAIL's
     # generator, AIRL's and GCL's policy), where they differ from `ppo`; None: `ppo`. A reward
-    # already learnt (`train ppo --reward`, `eval reward`'s retraining) stands still like the
-    # env's own, and gets `ppo`.
+    # already learnt (`train ppo --reward`, `eval reward`'s retraining) is fixed, like the env's
+    # own, and gets `ppo`.
     irl_ppo: dict[str, Any] | None = None
     irl_steps: int = 200_000  # PPO steps of `train irl --method gcl|gail|airl`
     retrain_steps: int = 200_000  # PPO steps of each retraining in `eval reward`
