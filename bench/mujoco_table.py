@@ -4,6 +4,9 @@ locomotion tasks (`imitation/…FixedHorizon-v0`: gymnasium v5, no termination, 
 HumanCompatibleAI/imitation's published figures and, with `--peer`, imitation 1.0.1 itself run here on the
 same demos (BC and GAIL; bench/mujoco_peer.py).
 
+(Not bench/mujoco.py: a script's own folder comes first on sys.path, where that name would shadow the
+mujoco package gymnasium imports.)
+
 Every run is the command a user would type (`imitation record`, `train bc`, `train dagger`, `train irl`,
 `train ppo --reward`), in a fresh process, its wall time measured. Each finished run is appended to
 OUT/results.jsonl, so an interrupted benchmark resumes where it stopped.
