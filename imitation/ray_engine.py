@@ -12,6 +12,7 @@ import logging
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from types import ModuleType
 from typing import Any
 
@@ -19,6 +20,7 @@ from imitation.errors import ImitationError
 
 LOCAL = "local"
 INSTALL_HINT = "pip install 'imitation-mcap[ray]'"
+DRIVER_DIRECTORY = "IMITATION_DRIVER_DIRECTORY"  # where the command runs, for its workers
 RETRIES = 3  # how often Ray restarts a dead worker (or reruns a dead task) before the run fails
 
 
@@ -67,6 +69,31 @@ def ray_session(address: str = LOCAL, *, num_cpus: int | None = None) -> Iterato
     if ray.is_initialized():
         yield ray
         return
+    # Ray puts the directory the driver connects from first on every worker's import path: a
+    # cli.py or imitation/ in the folder the user runs from would be what the workers import.
+    # Connecting from the folder that holds this package makes that the code the driver runs;
+    # each worker then moves to the user's folder (`enter_driver_directory`).
+    runtime_env = {
+        "env_vars": {DRIVER_DIRECTORY: os.getcwd()},
+        "worker_process_setup_hook": f"{__name__}.enter_driver_directory",
+    }
+    with contextlib.chdir(Path(__file__).resolve().parent.parent):
+        _connect(ray, address, num_cpus, runtime_env)
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+
+
+def enter_driver_directory() -> None:
+    """Every worker's first step (Ray's worker_process_setup_hook): work in the folder the
+    command was run from, as the driver does, so that relative paths mean what the user meant
+    (on another machine of a cluster, where that folder may not exist, it stays where Ray put it)."""
+    with contextlib.suppress(KeyError, OSError):
+        os.chdir(os.environ[DRIVER_DIRECTORY])
+
+
+def _connect(ray: ModuleType, address: str, num_cpus: int | None, runtime_env: dict[str, Any]) -> None:
     if address == LOCAL:
         # Ray's workers would otherwise start torch with a thread per core each, and the actors
         # of one machine would compete for its cores.
@@ -74,16 +101,14 @@ def ray_session(address: str = LOCAL, *, num_cpus: int | None = None) -> Iterato
         # Ray picks token authentication for a local cluster itself and says so on stderr at
         # every start: a notice, not a problem of the run's.
         logging.getLogger("ray._private.authentication.authentication_token_setup").setLevel(logging.ERROR)
-        ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, configure_logging=False)
+        ray.init(
+            num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, configure_logging=False, runtime_env=runtime_env
+        )
     else:
         try:
-            ray.init(address=address, log_to_driver=False, configure_logging=False)
+            ray.init(address=address, log_to_driver=False, configure_logging=False, runtime_env=runtime_env)
         except (ConnectionError, ValueError, RuntimeError) as error:
             raise ImitationError(f"--ray-address {address}: cannot connect to a Ray cluster ({error})") from None
-    try:
-        yield ray
-    finally:
-        ray.shutdown()
 
 
 def ray_get(ray: ModuleType, reference: Any) -> Any:

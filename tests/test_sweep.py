@@ -13,6 +13,7 @@ import re
 import signal
 import subprocess
 import sys
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -118,10 +119,16 @@ def test_an_interrupted_sweep_continues_without_running_finished_trials_again(tm
     partials = [folder for folder in (out / "runs").glob("*.partial") if (folder / "checkpoint").is_dir()]
     continued = [folder.with_name(folder.name.removesuffix(".partial")) for folder in partials]
 
+    # Ray Tune's own state restores by unpickling: planted where Tune kept it, it must not run.
+    marker = plant_tune_state(out / "tune")
     second = run_cli(*sweep_argv(out, config=config), timeout=300)
     assert second.returncode == 0, second.stderr
+    assert not marker.exists()
     again = ended(second.stderr)
     assert not set(first) & set(again) and len(first) + len(again) == 8
+    # The trials run again under their own names: no interrupted trial's folder is left behind.
+    assert sorted(first + again) == [f"trial-{index:03d}" for index in range(8)]
+    assert not list((out / "runs").glob("*.partial"))
     for run, (mtime, weights) in kept.items():
         assert (run / "metrics.json").stat().st_mtime_ns == mtime and (run / "model.safetensors").read_bytes() == weights
     rows = table(out)
@@ -131,11 +138,40 @@ def test_an_interrupted_sweep_continues_without_running_finished_trials_again(tm
         assert len(list((run / "tb").iterdir())) == 2
 
 
+def plant_tune_state(folder: Path) -> Path:
+    """Ray Tune's experiment state as a continued sweep once restored it, each file carrying a
+    pickle that creates the returned marker file when unpickled: `tuner.pkl`, and an
+    `experiment_state-*.json` whose trial holds one as Tune's cloudpickle fallback."""
+    import pickle
+
+    marker = folder.parent / "code-ran"
+
+    class Payload:
+        def __reduce__(self) -> tuple:
+            return (exec, (f"open({str(marker)!r}, 'w').write('ran')",))
+
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "tuner.pkl").write_bytes(pickle.dumps(Payload()))
+    fallback = {"_type": "CLOUDPICKLE_FALLBACK", "value": pickle.dumps(Payload()).hex()}
+    state = {"trial_data": [[json.dumps({"config": fallback}), json.dumps({"status": "RUNNING"})]], "runner_data": {}}
+    (folder / "experiment_state-2026-12-06_00-00-00.json").write_text(json.dumps(state))
+    return marker
+
+
 @needs_tune
 def test_a_sweep_whose_every_trial_fails_says_why_in_one_line(tmp_path: Path) -> None:
-    args = yaml.safe_load(EXAMPLE.read_text())["args"] | {"epochs": 2}
-    config = write_config(tmp_path, "typo", args=args, trials=2, scheduler="none", metric="val_loss", mode="min")
-    result = run_cli(*sweep_argv(tmp_path / "sweep", config=config), timeout=300)
+    """Run from a folder holding a cli.py and an imitation/ package of its own, which Ray's
+    workers must not import; Optuna names the trials."""
+    args = yaml.safe_load(EXAMPLE.read_text())["args"] | {"epochs": 2, "demos": str(REPO / "datasets" / "CartPole-v1.mcap")}
+    config = write_config(tmp_path, "typo", args=args, trials=2, scheduler="none", metric="val_loss", mode="min", search="optuna")
+    here = tmp_path / "here"
+    (here / "imitation").mkdir(parents=True)
+    marker = tmp_path / "code-ran"
+    planted = f"open({str(marker)!r}, 'a').write(__name__)\n"
+    for module in (here / "cli.py", here / "imitation" / "__init__.py"):
+        module.write_text(planted)
+    result = run_cli(*sweep_argv(tmp_path / "sweep", config=config), timeout=300, cwd=here)
+    assert not marker.exists(), marker.read_text()
     message = "train bc logs no column 'val_loss'; its rows have epoch, train_loss, validation_loss"
     *progress, last = result.stderr.strip().splitlines()
     assert (
@@ -198,19 +234,48 @@ def test_a_sweep_keeps_to_its_own_folder(tmp_path: Path) -> None:
     (other / "sweep.json").write_text(json.dumps(settings | {"seed": 1}))
     torn.mkdir()
     (torn / "sweep.json").write_text("{")
+    # A sweep's record of its trials, edited to run a trial with a value outside the space; and
+    # a sweep of an earlier version, which left only Tune's state to continue from.
+    edited, older = tmp_path / "edited", tmp_path / "older"
+    for folder in (edited, older):
+        (folder / "runs" / "a1b2c3_00000").mkdir(parents=True)
+        (folder / "sweep.json").write_text(json.dumps(settings))
+    record = {"trial": "trial-000", "params": {"lr": "0.1 --demos /etc/passwd", "hidden": "8"}, "status": "not finished"}
+    (edited / "trials.json").write_text(json.dumps({"trials": [record]}))
     results = run_cli_many(
         [
             ["sweep", str(listed), "--out", str(tmp_path / "out")],
             ["sweep", str(EXAMPLE), "--out", str(stranger)],
             ["sweep", str(EXAMPLE), "--out", str(other)],
             ["sweep", str(EXAMPLE), "--out", str(torn)],
+            ["sweep", str(EXAMPLE), "--out", str(edited)],
+            ["sweep", str(EXAMPLE), "--out", str(older)],
         ]
     )
     assert_one_line_error(results[0], f"{listed}: a sweep config is a YAML mapping (command, args, space, ...), not a list")
     assert_one_line_error(results[1], f"{stranger}: not empty and not a sweep's folder (no sweep.json)")
     assert_one_line_error(results[2], f"{other}: holds a sweep with other settings (seed differs from {EXAMPLE}'s)")
     assert_one_line_error(results[3], f"{torn / 'sweep.json'}: unreadable (")
+    assert_one_line_error(
+        results[4], f"{edited / 'trials.json'}: unreadable (trial trial-000: lr '0.1 --demos /etc/passwd' is outside the sweep's space)"
+    )
+    assert_one_line_error(results[5], f"{older}: holds a sweep without trials.json (one from an earlier version")
     assert (stranger / "notes.txt").read_text() == "mine" and sorted(path.name for path in other.iterdir()) == ["sweep.json"]
+
+
+def test_random_search_plans_every_trial_from_the_seed_within_the_space() -> None:
+    from imitation.jobs.sweep_trials import plan_trials
+
+    config = read_sweep_config(write_config(Path(tempfile.mkdtemp()), "grid", space={
+        "lr": {"loguniform": [1.0e-4, 1.0e-1]}, "batch-size": {"randint": [16, 18]}, "hidden": {"grid": ["8", "16"]}}, trials=50),
+        CommandLine(cli._train_commands(), cli._train_problem))
+    planned = plan_trials(config)
+    assert [trial.trial for trial in planned] == [f"trial-{index:03d}" for index in range(100)]
+    assert [trial.params["hidden"] for trial in planned] == ["8", "16"] * 50  # each sample runs the whole grid
+    assert {trial.params["batch-size"] for trial in planned} == {16, 17, 18}  # randint includes both ends
+    rates = [trial.params["lr"] for trial in planned]
+    assert all(1.0e-4 <= rate <= 1.0e-1 for rate in rates) and min(rates) < 1e-3 < max(rates) and len(set(rates)) == 100
+    assert [trial.params for trial in plan_trials(config)] == [trial.params for trial in planned]
 
 
 def test_neither_help_nor_a_refused_config_imports_ray(tmp_path: Path) -> None:

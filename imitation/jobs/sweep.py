@@ -3,22 +3,25 @@ Ray Tune (random search or Optuna, ASHA early stopping), into one folder:
 
     OUT/
       sweep.json      the sweep's settings: a rerun with other settings is refused
-      tune/           Ray Tune's experiment state (what a rerun continues from)
+      trials.json     each trial's flags' values, how it ended and its figures (what a rerun continues from)
       runs/TRIAL/     each trial's run directory, as `train` writes it
       results.csv     one row per trial: its flags, its metric, steps run, how it ended, its run
       results.md      the same, aligned, with the best trial marked
       best/           a copy of the best finished trial's run directory
 
 Rerunning the same command after Ctrl-C continues the experiment: finished trials are kept,
-unfinished ones run again (from their run's checkpoint where they saved one). Resuming reads
-Tune's pickled state in OUT/tune, so continue only sweeps you ran yourself.
+unfinished and failed ones run again under their names and with their values (from their run's
+checkpoint where they saved one). Continuing reads only the sweep's JSON and the runs' checkpoints
+(imitation.jobs.sweep_trials), never Ray Tune's pickled state.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import math
 import os
+import shutil
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -29,11 +32,17 @@ from imitation.jobs.sweep_config import SweepConfig
 from imitation.jobs.sweep_results import (
     FAILED,
     FINISHED,
+    RUNS_DIR,
     STOPPED,
+    TrialOutcome,
     choose_best,
     copy_best,
+    finished_run,
+    read_rows,
+    scoped,
     write_results,
 )
+from imitation.jobs.sweep_trials import SweepTrials
 from imitation.output import OutputLock, check_target, os_error
 from imitation.ray_engine import INSTALL_HINT, LOCAL, ray_session
 from imitation.runs import write_json
@@ -62,16 +71,18 @@ def sweep_job(
     started = time.monotonic()
     with OutputLock(out):
         resumed = _claim(out, config)
+        trials = SweepTrials.open(out, config, resumed=resumed)
         # Ray's own reporting (its experiment box, token notices, a traceback per failed trial)
-        # and Optuna's study notice would bury the sweep's one line per trial, which says why a
-        # trial failed, as the table does.
+        # would bury the sweep's one line per trial, which says why a trial failed, as the
+        # table does.
         os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
         logging.getLogger("ray").setLevel(logging.CRITICAL)
-        logging.getLogger("optuna").setLevel(logging.WARNING)
-        with ray_session(ray_address, num_cpus=cpus):
-            from imitation.jobs.sweep_tune import run_trials
+        if trials.unended() or len(trials.records) < config.total_trials:
+            with ray_session(ray_address, num_cpus=cpus):
+                from imitation.jobs.sweep_tune import run_trials
 
-            outcomes = run_trials(config, out, run_train)
+                run_trials(config, out, run_train, trials)
+        outcomes = _outcomes(trials, config, out / RUNS_DIR)
         best = choose_best(outcomes, mode=config.mode)
         counts = {status: sum(outcome.status == status for outcome in outcomes) for status in (FINISHED, STOPPED, FAILED)}
         missing = config.total_trials - counts[FINISHED] - counts[STOPPED] - counts[FAILED]
@@ -103,6 +114,25 @@ def sweep_job(
         "table": table,
         "seconds": time.monotonic() - started,
     }
+
+
+def _outcomes(trials: SweepTrials, config: SweepConfig, runs: Path) -> list[TrialOutcome]:
+    """Every trial as the table shows it: from its run directory when it finished (also one
+    that finished just before Tune could record it), else from the sweep's record. A trial
+    stopped early leaves no run: what it may have left in the middle of a step is removed."""
+    outcomes = []
+    for record in sorted(trials.records.values(), key=lambda record: record.trial):
+        outcome = TrialOutcome(**{**vars(record), "run": None, "best": False})
+        run = runs / record.trial
+        if finished_run(run):
+            rows = read_rows(run)
+            values = [row.get(config.metric, math.nan) for row in rows]
+            outcome.status, outcome.run, outcome.steps, outcome.error = FINISHED, run, len(rows), ""
+            outcome.metric = scoped(values, mode=config.mode, scope=config.scope)
+        elif record.status == STOPPED:
+            shutil.rmtree(runs / f"{record.trial}.partial", ignore_errors=True)
+        outcomes.append(outcome)
+    return outcomes
 
 
 def _require_tune() -> None:

@@ -1,6 +1,10 @@
 """The Ray Tune side of `imitation sweep`: the trial (a function trainable that runs the train
-command in its worker process and reports each logged row), the searcher and scheduler, one
-line per finished trial, and the trials' outcomes once Tune is done.
+command in its worker process and reports each logged row), the searcher and scheduler, and a
+callback that prints one line per ended trial and keeps the sweep's record of its trials
+(`imitation.jobs.sweep_trials`) up to date.
+
+Tune's own experiment state goes to a temporary folder, removed when Tune is done, and is never
+restored from (Tune's restore unpickles it): a rerun continues from the sweep's JSON record.
 
 Imported only inside a Ray session (`imitation.jobs.sweep`): it imports Ray at the top.
 """
@@ -10,8 +14,8 @@ from __future__ import annotations
 import math
 import os
 import re
-import shutil
 import sys
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,47 +29,40 @@ from ray.tune.search.basic_variant import BasicVariantGenerator
 from imitation.errors import ImitationError
 from imitation.jobs.loop import Learner, Row, observe_rows
 from imitation.jobs.sweep_config import Distribution, SweepConfig
-from imitation.jobs.sweep_results import (
-    FAILED,
-    FINISHED,
-    RUNS_DIR,
-    STOPPED,
-    UNFINISHED,
-    TrialOutcome,
-    finished_run,
-    read_rows,
-    run_result,
-    scoped,
-)
+from imitation.jobs.sweep_results import FAILED, FINISHED, RUNS_DIR, STOPPED, UNFINISHED, finished_run, run_result, scoped
+from imitation.jobs.sweep_trials import SweepTrials
 from imitation.runs import has_checkpoint
 
-EXPERIMENT = "tune"  # Tune's experiment state, in the sweep's folder
 STEPS = "steps_completed"  # the learner's steps so far: ASHA's clock
 FINISHED_KEY = "run_finished"  # in a trial's last report: its command ran to its end
+PLANNED = "planned_trial"  # the one parameter of a trial the sweep named: its name
 UNBOUNDED_STEPS = 2**31  # ASHA needs a longest trial; unset, each trial ends where its command ends it
+ERROR_CHARACTERS = 200  # a failed trial's line and table cell: Ray's messages run to pages
 
 
 @dataclass(frozen=True)
 class TrialSetup:
-    """What every trial needs besides its flags' values: the sweep, where runs go, the command
-    line's runner (picklable: Ray ships it to the workers), and the directory the sweep's
-    relative paths start from."""
+    """What every trial needs besides its flags' values: the sweep, where runs go, the values of
+    the trials the sweep named, the command line's runner (picklable: Ray ships it to the
+    workers), and the directory the sweep's relative paths start from."""
 
     config: SweepConfig
     runs: Path
+    planned: dict[str, dict[str, Any]]
     run_train: Callable[[list[str]], None]
     cwd: str
 
 
 def trial(params: dict[str, Any], setup: TrialSetup) -> None:
-    """One trial: the train command with `params`, into `RUNS/<trial id>`; each row with a
-    finite metric goes to Tune (ASHA may stop the trial there), and the trial's result in the
-    sweep's scope last. A run it finished before (a sweep interrupted before Tune recorded it)
+    """One trial: the train command with its flags' values, into `RUNS/<trial name>`; each row
+    with a finite metric goes to Tune (ASHA may stop the trial there), and the trial's result in
+    the sweep's scope last. A run it finished before (a sweep interrupted before it was recorded)
     is reported, not redone; an interrupted one continues from its checkpoint."""
     os.chdir(setup.cwd)  # Tune starts each trial in a folder of its own; the config's paths are the user's
     config = setup.config
-    run = setup.runs / tune.get_context().get_trial_id()
-    argv = config.argv(params, str(run))
+    name = params.get(PLANNED) or tune.get_context().get_trial_id()
+    run = setup.runs / name
+    argv = config.argv(setup.planned.get(name, params), str(run))
     if not finished_run(run):
         if has_checkpoint(run.with_name(run.name + ".partial")):
             argv.append("--resume")
@@ -101,67 +98,105 @@ def reporter(metric: str, command: str, report: Callable[[dict[str, float]], Non
     return observe
 
 
-class TrialLines(tune.Callback):
-    """One line on stderr per trial that ends, terminal or log alike."""
+class TrialRecorder(tune.Callback):
+    """Keeps the sweep's record of each trial as Tune runs it (started, its figures, how it
+    ended), and prints one line on stderr per trial that ends, terminal or log alike."""
 
-    def __init__(self, metric: str, total: int) -> None:
-        self.metric, self.total = metric, total
+    def __init__(self, config: SweepConfig, trials: SweepTrials) -> None:
+        self.config, self.trials = config, trials
+
+    def on_trial_start(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
+        self.trials.started(_name(trial), _params(trial, self.trials))
+
+    def on_trial_result(self, iteration: int, trials: list[Trial], trial: Trial, result: dict, **info: Any) -> None:
+        record = self.trials.records[_name(trial)]
+        value = result.get(self.config.metric)
+        if isinstance(value, float | int) and math.isfinite(value):
+            seen = [] if record.metric is None else [record.metric]
+            record.metric = scoped([*seen, float(value)], mode=self.config.mode, scope=self.config.scope)
+        record.steps = result.get(STEPS, record.steps)
+        self.trials.save()
 
     def on_trial_complete(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
         result = trial.last_result
-        how = "finished" if result.get(FINISHED_KEY) else "stopped early by ASHA"
-        value = result.get(self.metric)
-        figure = f"{self.metric} {value:.4g}" if isinstance(value, float | int) else f"no {self.metric}"
-        self._line(trials, trial, f"{how} after {result.get(STEPS, 0)} steps, {figure}")
+        if not (result.get(FINISHED_KEY) or result.get("done")):
+            return  # Tune was stopped (Ctrl-C) while the trial ran: it stays unfinished, to run again
+        record = self.trials.records[_name(trial)]
+        record.status = FINISHED if result.get(FINISHED_KEY) else STOPPED
+        if result.get(FINISHED_KEY):
+            record.metric = result.get(self.config.metric)
+        self.trials.save()
+        how = "finished" if record.status == FINISHED else "stopped early by ASHA"
+        figure = f"{self.config.metric} {record.metric:.4g}" if record.metric is not None else f"no {self.config.metric}"
+        self._line(trial, f"{how} after {record.steps or 0} steps, {figure}")
 
     def on_trial_error(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
-        self._line(trials, trial, f"failed: {_logged_error(trial)}")
+        record = self.trials.records[_name(trial)]
+        record.status, record.error = FAILED, _logged_error(trial)
+        self.trials.save()
+        self._line(trial, f"failed: {record.error}")
 
-    def _line(self, trials: list[Trial], trial: Trial, what: str) -> None:
-        ended = sum(1 for each in trials if each.status in (Trial.TERMINATED, Trial.ERROR) or each is trial)
+    def _line(self, trial: Trial, what: str) -> None:
+        ended = sum(record.status != UNFINISHED for record in self.trials.records.values())
         params = ", ".join(
-            f"{key} {value:.4g}" if isinstance(value, float) else f"{key} {value}" for key, value in trial.config.items()
+            f"{key} {value:.4g}" if isinstance(value, float) else f"{key} {value}"
+            for key, value in _params(trial, self.trials).items()
         )
-        print(f"[sweep] trial {ended}/{self.total} {trial.trial_id} ({params}) {what}", file=sys.stderr, flush=True)
+        total = self.config.total_trials
+        print(f"[sweep] trial {ended}/{total} {_name(trial)} ({params}) {what}", file=sys.stderr, flush=True)
 
 
-def run_trials(config: SweepConfig, out: Path, run_train: Callable[[list[str]], None]) -> list[TrialOutcome]:
-    """Run the sweep's trials on the connected Ray, or continue the experiment in `out` where
-    one was interrupted (its finished trials are not run again); every trial's outcome."""
-    setup = TrialSetup(config=config, runs=out / RUNS_DIR, run_train=run_train, cwd=os.getcwd())
+def _name(trial: Trial) -> str:
+    return str(trial.config.get(PLANNED) or trial.trial_id)
+
+
+def _params(trial: Trial, trials: SweepTrials) -> dict[str, Any]:
+    planned = trial.config.get(PLANNED)
+    return dict(trials.records[planned].params) if planned else dict(trial.config)
+
+
+def run_trials(config: SweepConfig, out: Path, run_train: Callable[[list[str]], None], trials: SweepTrials) -> None:
+    """Run every trial of `trials` that has not ended (random search's are all planned), then,
+    for Optuna, sample the trials the sweep has not yet started, on the connected Ray. Returns
+    when every trial has ended, or when Ctrl-C stopped Tune (the unended ones stay so)."""
+    setup = TrialSetup(
+        config=config,
+        runs=out / RUNS_DIR,
+        planned={name: record.params for name, record in trials.records.items()},
+        run_train=run_train,
+        cwd=os.getcwd(),
+    )
+    again = trials.unended()
+    if again:
+        _fit(setup, trials, {PLANNED: tune.grid_search(again)}, BasicVariantGenerator(), samples=1)
+        if trials.unended():
+            return
+    new = config.total_trials - len(trials.records)
+    if new > 0:
+        space = {key: _domain(distribution) for key, distribution in config.space.items()}
+        _fit(setup, trials, space, _searcher(config, trials), samples=new)
+
+
+def _fit(setup: TrialSetup, trials: SweepTrials, space: dict[str, Any], searcher: Any, *, samples: int) -> None:
+    config = setup.config
     trainable = tune.with_resources(
         tune.with_parameters(trial, setup=setup), {"cpu": config.cpus_per_trial, "gpu": config.gpus_per_trial}
     )
-    experiment = out / EXPERIMENT
-    if tune.Tuner.can_restore(experiment):
-        # Errored trials run again: a Ctrl-C in a terminal reaches the workers too, which fail.
-        tuner = tune.Tuner.restore(str(experiment), trainable, resume_unfinished=True, restart_errored=True)
-    else:
+    with tempfile.TemporaryDirectory(prefix="imitation-sweep-tune-") as storage:
         tuner = tune.Tuner(
             trainable,
-            param_space={key: _domain(distribution) for key, distribution in config.space.items()},
+            param_space=space,
             tune_config=tune.TuneConfig(
                 metric=config.metric,
                 mode=config.mode,
-                num_samples=config.trials,
-                search_alg=_searcher(config),
+                num_samples=samples,
+                search_alg=searcher,
                 scheduler=_scheduler(config),
                 reuse_actors=True,  # a worker keeps its imports (torch) from one trial to the next: 2x faster
             ),
-            run_config=tune.RunConfig(
-                name=EXPERIMENT,
-                storage_path=str(out),
-                verbose=0,
-                callbacks=[TrialLines(config.metric, config.total_trials)],
-            ),
+            run_config=tune.RunConfig(name="tune", storage_path=storage, verbose=0, callbacks=[TrialRecorder(config, trials)]),
         )
-    grid = tuner.fit()
-    results = [grid[index] for index in range(len(grid))]  # a ResultGrid is indexed; its stubs say nothing of iterating
-    outcomes = sorted((_outcome(result, config, setup.runs) for result in results), key=lambda outcome: outcome.trial)
-    for outcome in outcomes:
-        if outcome.status == STOPPED:  # what a trial stopped in the middle of a step may have left
-            shutil.rmtree(setup.runs / f"{outcome.trial}.partial", ignore_errors=True)
-    return outcomes
+        tuner.fit()
 
 
 def _domain(distribution: Distribution) -> Any:
@@ -176,12 +211,20 @@ def _domain(distribution: Distribution) -> Any:
     return tune.loguniform(float(low), float(high)) if kind == "loguniform" else tune.uniform(float(low), float(high))
 
 
-def _searcher(config: SweepConfig) -> Any:
-    if config.search == "optuna":
-        from ray.tune.search.optuna import OptunaSearch
+def _searcher(config: SweepConfig, trials: SweepTrials) -> Any:
+    """Optuna, told the results of the trials that ended before it samples the rest. Its
+    first samples are random draws: a rerun seeds them past those of the trials already
+    recorded, which the sweep's own seed would draw again."""
+    import optuna
+    from ray.tune.search.optuna import OptunaSearch
 
-        return OptunaSearch(seed=config.seed)
-    return BasicVariantGenerator(random_state=config.seed)
+    optuna.logging.set_verbosity(optuna.logging.WARNING)  # its study notice would sit among the trials' lines
+    told = [record for record in trials.ended() if record.metric is not None]
+    return OptunaSearch(
+        seed=config.seed + len(trials.records),
+        points_to_evaluate=[record.params for record in told] or None,
+        evaluated_rewards=[record.metric for record in told] or None,
+    )
 
 
 def _scheduler(config: SweepConfig) -> Any:
@@ -195,27 +238,6 @@ def _scheduler(config: SweepConfig) -> Any:
     )
 
 
-def _outcome(result: Any, config: SweepConfig, runs: Path) -> TrialOutcome:
-    """A trial's outcome: from its run directory when it finished, else from what Tune recorded."""
-    metrics = result.metrics or {}
-    outcome = TrialOutcome(trial=str(metrics.get("trial_id")), params=dict(result.config or {}), status=UNFINISHED)
-    run = runs / outcome.trial
-    if result.error is not None:
-        outcome.status, outcome.error = FAILED, _error_line(result.error)
-        outcome.run = run if finished_run(run) else None
-    elif finished_run(run):
-        rows = read_rows(run)
-        values = [row.get(config.metric, math.nan) for row in rows]
-        outcome.status, outcome.run, outcome.steps = FINISHED, run, len(rows)
-        outcome.metric = scoped(values, mode=config.mode, scope=config.scope)
-    elif metrics.get("done"):
-        frame = result.metrics_dataframe
-        values = list(frame[config.metric]) if frame is not None and config.metric in frame else []
-        outcome.status, outcome.steps = STOPPED, metrics.get(STEPS)
-        outcome.metric = scoped([float(value) for value in values], mode=config.mode, scope=config.scope)
-    return outcome
-
-
 def _logged_error(trial: Trial) -> str:
     """The last line of the error Tune has just logged for `trial`, without the error's class."""
     try:
@@ -223,19 +245,5 @@ def _logged_error(trial: Trial) -> str:
     except OSError:
         text = ""
     lines = [line.strip() for line in text.splitlines() if line.strip()]
-    return re.sub(r"^[\w.]+: ", "", lines[-1]) if lines else "see the table"
-
-
-def _error_line(error: BaseException | None) -> str:
-    """The one line of a trial's failure: the innermost of Ray's wrapped errors, an ImitationError
-    as its message, anything else as the last line of its text."""
-    seen = error
-    for _ in range(10):  # Ray's wrappers, a few deep
-        inner = getattr(seen, "cause", None) or getattr(seen, "__cause__", None)
-        if not isinstance(inner, BaseException) or inner is seen:
-            break
-        seen = inner
-    if isinstance(seen, ImitationError):
-        return str(seen)
-    lines = [line.strip() for line in str(seen).splitlines() if line.strip()]
-    return lines[-1] if lines else type(seen).__name__
+    line = re.sub(r"^[\w.]+: ", "", lines[-1]) if lines else "no error was logged"
+    return line if len(line) <= ERROR_CHARACTERS else line[: ERROR_CHARACTERS - 1] + "…"
