@@ -1662,6 +1662,25 @@ def _sigterm_as_interrupt() -> None:
         signal.signal(signal.SIGTERM, on_sigterm)
 
 
+def _until_failure(args: argparse.Namespace, handler: Callable[[argparse.Namespace], int]) -> int:
+    """The command; once it fails, SIGTERM no longer raises Ctrl-C in the middle of the clean-up
+    and the report of why (a failing torchrun job terminates its other ranks at that moment)."""
+    try:
+        _apply_limits(args.limit)
+        return handler(args)
+    except BaseException:
+        _sigterm_as_exit()
+        raise
+
+
+def _sigterm_as_exit() -> None:
+    """Once the command has done its work, SIGTERM ends the process as it would any other
+    (torchrun terminates the ranks that are left when one fails): raised as Ctrl-C there, it
+    would interrupt the interpreter's clean-up with a traceback."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def _apply_limits(assignments: list[str]) -> None:
     """The environment's limits, then the command line's; passed on to child processes."""
     from imitation.limits import limits_from_environment, set_limit
@@ -1686,8 +1705,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     handler: Callable[[argparse.Namespace], int] = args.handler
     _sigterm_as_interrupt()
     try:
-        _apply_limits(args.limit)
-        return handler(args)
+        return _run_handler(args, handler)
+    finally:
+        _sigterm_as_exit()
+
+
+def _run_handler(args: argparse.Namespace, handler: Callable[[argparse.Namespace], int]) -> int:
+    try:
+        return _until_failure(args, handler)
     except ConfigError as error:
         print("error: " + _one_line(_flag_message(error, args.command_key)), file=sys.stderr)
         return EXIT_ERROR

@@ -16,9 +16,9 @@ previous one.
 Trainers that can resume (PPO, with GCL's reward learner when `train irl --method gcl` runs it;
 BC; DAgger; tabular MaxEnt/MCE IRL) save a checkpoint into `RUN_DIR.partial/checkpoint/`
 (`tensors.safetensors` and `state.json`, see imitation.checkpoints) every tenth of the run and
-when Ctrl-C (or SIGTERM) stops them. The partial directory of a run interrupted, or stopped by a
-failed write (a full disk), is kept when it holds a checkpoint; any other failure removes it. A new
-run refuses to start over a kept one, and
+when Ctrl-C (or SIGTERM) stops them. The partial directory of a run that stops for any reason (an
+interruption, a full disk, a failure) is kept when it holds a checkpoint, and removed otherwise. A
+new run refuses to start over a kept one, and
 `RunWriter(..., resume=True)` reopens it: the logged rows are cut back to the checkpoint and
 the trainer continues from its state. A finished run keeps no checkpoint: nothing resumes it,
 so `finish()` removes it once the run is in place.
@@ -313,14 +313,19 @@ class RunWriter:
         return self
 
     def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: Any) -> None:
-        # Ctrl-C and failed writes (a full disk) keep a checkpoint for --resume; other failures,
-        # which a resumed run would meet again, leave nothing behind.
+        # A failure never deletes a checkpoint: what stopped the run (a full disk, a lost
+        # process of a torchrun job, a bug) may be mended, and the run continued with --resume.
         if exc_type is None:
             return
-        kept = self.abort(keep_checkpoint=issubclass(exc_type, (KeyboardInterrupt, WriteError)))
+        kept = self.abort(keep_checkpoint=True)
         if kept and isinstance(exc, WriteError):
             exc.args = (
                 f"{exc}; {self.partial} keeps the run's last checkpoint: make room, then run the same command with --resume",
+            )
+        elif kept and isinstance(exc, ImitationError):
+            exc.args = (
+                f"{exc}; {self.partial} keeps the run's last checkpoint: once that is mended, run the same command with "
+                "--resume (or delete it to start over)",
             )
 
     def _close_logs(self) -> None:
