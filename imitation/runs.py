@@ -183,6 +183,7 @@ class RunWriter:
                 shutil.rmtree(self.partial, ignore_errors=True)
                 self.partial.mkdir()
         self.config = config
+        self._started_with = json.loads(json.dumps(_json_ready(config)))
         with writing(self.partial / CONFIG_FILE):
             write_json(self.partial / CONFIG_FILE, config)
             # Kept open for the run's life: log() appends rows; closed by _close_logs().
@@ -209,10 +210,15 @@ class RunWriter:
                 f"--resume: {self.partial} does not exist, so there is no interrupted run to continue; start without --resume"
             )
         tensors, state = read_checkpoint(self.partial)
-        try:
-            saved = json.loads((self.partial / CONFIG_FILE).read_text())
-        except (OSError, json.JSONDecodeError) as error:
-            raise ImitationError(f"--resume: {self.partial / CONFIG_FILE} is unreadable ({error})") from None
+        # The settings the run was started with, as its checkpoint recorded them: config.json
+        # may since have gained what training found (the policy's architecture), written
+        # before a final evaluation that a Ctrl-C can still stop.
+        saved = state.get("config")
+        if not isinstance(saved, dict):
+            try:
+                saved = json.loads((self.partial / CONFIG_FILE).read_text())
+            except (OSError, json.JSONDecodeError) as error:
+                raise ImitationError(f"--resume: {self.partial / CONFIG_FILE} is unreadable ({error})") from None
         differences = _differences(saved, json.loads(json.dumps(_json_ready(config))), ignore)
         if any(difference.startswith("demo_fingerprints") for difference in differences):
             raise ImitationError(
@@ -264,7 +270,7 @@ class RunWriter:
     def save_checkpoint(self, tensors: dict[str, torch.Tensor], state: dict[str, Any]) -> None:
         """Save a trainer's checkpoint with the rows logged so far (see `save_checkpoint`)."""
         with writing(self.partial / CHECKPOINT_DIR):
-            save_checkpoint(self.partial, tensors, {"history": self._history, "trainer": state})
+            save_checkpoint(self.partial, tensors, {"history": self._history, "trainer": state, "config": self._started_with})
 
     def file(self, name: str) -> Path:
         """A path inside the run being written (for plots and extra artefacts)."""

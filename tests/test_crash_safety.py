@@ -389,3 +389,61 @@ def test_resume_refuses_a_checkpoint_whose_counter_was_tampered_with(tmp_path: P
     result = run_cli_many([[*args, "--resume"]])[0]
     assert_one_line_error(result, "the checkpoint's next epoch is -1000000000000, outside 1..51 for this run")
     assert time.monotonic() - started < 60
+
+
+CARTPOLE_DEMOS = str(DATASETS / "CartPole-v1.mcap")
+FIXED_DEMOS = str(DATASETS / "CartPoleFixedHorizon-v0.mcap")
+GRID_DEMOS = str(DATASETS / "GridWorld8x8-v0.mcap")
+# Every learner whose run ends in a final evaluation or records what it learnt in config.json
+# after training, at sizes of seconds.
+LEARNERS = {
+    "ppo": ["train", "ppo", "--env", "CartPole-v1", "--steps", "1024"],
+    "pg": ["train", "pg", "--env", "CartPole-v1", "--steps", "2000"],
+    "cem": ["train", "cem", "--env", "CartPole-v1", "--population", "3", "--steps", "4000"],
+    "bc": ["train", "bc", "--demos", CARTPOLE_DEMOS, "--env", "CartPole-v1", "--epochs", "2"],
+    "gail": ["train", "irl", "--method", "gail", "--env", "imitation/CartPoleFixedHorizon-v0", "--demos", FIXED_DEMOS, "--steps", "2048"],
+    "apprenticeship": ["train", "irl", "--method", "apprenticeship", "--env", "imitation/GridWorld8x8-v0", "--demos", GRID_DEMOS,
+                       "--iterations", "2"],
+}
+
+
+@pytest.mark.parametrize("learner", list(LEARNERS))
+def test_ctrl_c_at_the_end_of_any_learner_resumes_to_the_result_of_an_uninterrupted_run(
+    learner: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    """Ctrl-C once training is over (after config.json gained the policy, or in the final
+    evaluation: where a user waits longest for nothing visible) keeps a checkpoint that --resume
+    finishes, with the weights and evaluation of a run that was never stopped."""
+    import cli
+    import imitation.runs
+    from imitation.jobs import bc, irl, pg, ppo, search
+
+    argv = [*LEARNERS[learner], "--seed", "3", "--quiet", "--json"]
+    assert cli.main([*argv, "--out", str(tmp_path / "whole")]) == 0
+    whole = last_json_of(capsys)
+
+    update_config, stopped = imitation.runs.RunWriter.update_config, []
+
+    def ctrl_c(*_: object, **__: object) -> None:  # what Python's default SIGINT handler does
+        stopped.append(True)
+        raise KeyboardInterrupt
+
+    def updated_then_ctrl_c(self: object, **entries: object) -> None:
+        update_config(self, **entries)
+        ctrl_c()
+
+    for module in (ppo, pg, search, bc, irl):
+        monkeypatch.setattr(module, "final_evaluation", ctrl_c)
+    monkeypatch.setattr(imitation.runs.RunWriter, "update_config", updated_then_ctrl_c)
+    out = tmp_path / "stopped"
+    assert cli.main([*argv, "--out", str(out)]) == 130 and stopped
+    assert "its last checkpoint is in" in capsys.readouterr().err
+    monkeypatch.undo()
+    assert cli.main([*argv, "--out", str(out), "--resume"]) == 0, capsys.readouterr().err
+    resumed = last_json_of(capsys)
+    assert (out / "model.safetensors").read_bytes() == (tmp_path / "whole" / "model.safetensors").read_bytes()
+    assert resumed.get("eval") == whole.get("eval") and resumed.get("mixture_return") == whole.get("mixture_return")
+
+
+def last_json_of(capsys: pytest.CaptureFixture) -> dict:
+    return json.loads(capsys.readouterr().out.strip().splitlines()[-1])
