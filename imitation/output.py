@@ -6,7 +6,8 @@ directories, exports, reports) goes through this module.
 - Temporaries are created exclusively (`O_CREAT | O_EXCL | O_NOFOLLOW`), so a planted symlink at
   a predictable `.partial` name makes the write fail instead of redirecting it.
 - `OutputLock` is an advisory `flock` on a lock file beside the target, held for the whole
-  write: a second writer to the same target fails at once, naming the holder's pid.
+  write: a second writer to the same target fails at once, naming the holder's pid. A lock
+  file that is a hard link (or not a regular file) is refused, never written through.
 - A finished run directory replaces the old one with one `renameat2(RENAME_EXCHANGE)`, so there
   is no moment at which neither exists.
 - `OSError`s become one line naming the path and the cause (disk full, read-only, ...).
@@ -146,6 +147,12 @@ class OutputLock:
                 fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
             except OSError as error:
                 raise os_error(self.target, error) from None
+            if not _is_own_lock(fd):
+                os.close(fd)
+                raise ImitationError(
+                    f"{_printable(self.path)}: not a lock file of this program (a hard link to another file, or not a regular "
+                    "file); not writing through it (remove it)"
+                )
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -180,6 +187,32 @@ class OutputLock:
 
     def __exit__(self, *exc_info: Any) -> None:
         self.release()
+
+
+def _is_own_lock(fd: int) -> bool:
+    """Whether the open lock file is one a writer made: a regular file of one name. A lock file
+    is truncated and written (its holder's pid); a planted hard link would make that write land
+    in the file it links to."""
+    status = os.fstat(fd)
+    return stat.S_ISREG(status.st_mode) and status.st_nlink == 1
+
+
+def remove_stale_locks(folder: Path) -> None:
+    """Remove the lock files under `folder` that no process holds: those of writers that were
+    killed, left in a run directory that is being continued."""
+    for path in folder.rglob(".*.lock"):
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            if _is_own_lock(fd):
+                os.unlink(path)
+        except OSError:  # held by a live writer, or gone
+            pass
+        finally:
+            os.close(fd)
 
 
 def _read_holder(fd: int) -> str:

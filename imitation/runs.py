@@ -39,7 +39,7 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from imitation.errors import ImitationError, WriteError
-from imitation.output import OutputLock, check_target, os_error, replace_directory, writing
+from imitation.output import OutputLock, check_target, os_error, remove_stale_locks, replace_directory, writing
 
 CHECKPOINT_DIR = "checkpoint"
 CHECKPOINT_TENSORS = "tensors.safetensors"
@@ -210,6 +210,7 @@ class RunWriter:
                 f"--resume: {self.partial} does not exist, so there is no interrupted run to continue; start without --resume"
             )
         tensors, state = read_checkpoint(self.partial)
+        remove_stale_locks(self.partial)  # those of writers killed with the run (a DAgger round's)
         # The settings the run was started with, as its checkpoint recorded them: config.json
         # may since have gained what training found (the policy's architecture), written
         # before a final evaluation that a Ctrl-C can still stop.

@@ -11,6 +11,7 @@ import base64
 import dataclasses
 import io
 import json
+import os
 import re
 import shutil
 import struct
@@ -621,6 +622,7 @@ CASE_LIST = [
     case("out-2", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--quiet", "--out", "/dev/null"], expect="--out /dev/null: "),
     case("out-5", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--quiet", "--out", _planted_link(i, "planted.mcap")]),
     case("out-6", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--quiet", "--out", _left_partial(i, "held.mcap")]),
+    case("out-12", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "1", "--quiet", "--out", _linked_lock(i, "linked.mcap")]),
     case("out-7", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "4096", "--quiet", "--out", i.interrupted_ppo("again")]),
     case("out-10", lambda i: ["eval", "policy", _weights_as_folder(i.policy_run("o10")), "--env", "CartPole-v1", "--episodes", "1"]),
     case("rec-1", lambda i: ["recover", DATASETS / "CartPole-v1.mcap"]),
@@ -992,6 +994,12 @@ WIDE_BOX = json.dumps({"type": "Box", "dtype": "float32", "shape": [2**23], "low
 def _planted_link(i: Inputs, name: str) -> Path:
     """`name`, whose partial file is a symlink to a file the writer must not touch."""
     (i.root / f"{name}.partial").symlink_to(i.text(f"{name}.victim", "keep me"))
+    return i.root / name
+
+
+def _linked_lock(i: Inputs, name: str) -> Path:
+    """`name`, whose lock file is a hard link to a file the writer must not touch."""
+    os.link(i.text(f"{name}.victim", "keep me"), i.root / f".{name}.lock")
     return i.root / name
 
 

@@ -94,3 +94,35 @@ def test_a_checkpoint_that_cannot_be_removed_does_not_fail_the_finished_run(tmp_
     # Finished and readable; the checkpoint it could not drop is a harmless duplicate.
     assert sorted(p.name for p in out.iterdir()) == ["checkpoint", *FINISHED]
     assert read_run(out)[0]["weight"] == 1.0
+
+
+def test_resuming_removes_the_lock_files_of_killed_writers_but_not_a_held_one(tmp_path: Path) -> None:
+    """A DAgger round's writer killed with the run leaves `.round-NN.mcap.lock` in the partial
+    run; continuing the run clears it (and every other lock no process holds)."""
+    from imitation.output import OutputLock
+
+    run = run_with_checkpoints(tmp_path / "run", 1.0)
+    rounds = run.partial / "rounds"
+    rounds.mkdir()
+    stale = rounds / ".round-03.mcap.lock"
+    stale.write_text("12345 2026-12-06T00:00:00\n")
+    held = OutputLock(rounds / "round-04.mcap").acquire()
+    run._close_logs()
+    run._release()
+    resumed = RunWriter(tmp_path / "run", config={"kind": "test", "weight": 1.0}, tensorboard=False, resume=True)
+    assert not stale.exists() and held.path.exists()
+    held.release()
+    resumed.finish({})
+    assert not list((tmp_path / "run").rglob("*.lock"))
+
+
+def test_a_lock_file_hard_linked_to_another_file_is_refused_and_the_file_kept(tmp_path: Path) -> None:
+    from imitation.errors import ImitationError
+    from imitation.output import OutputLock
+
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me")
+    os.link(victim, tmp_path / ".x.mcap.lock")
+    with pytest.raises(ImitationError, match=r"\.x\.mcap\.lock: not a lock file of this program \(a hard link to another file"):
+        OutputLock(tmp_path / "x.mcap").acquire()
+    assert victim.read_text() == "keep me"
