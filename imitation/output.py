@@ -119,6 +119,31 @@ def create_exclusive(path: str | os.PathLike, *, target: str | os.PathLike | Non
     return os.fdopen(fd, "wb")
 
 
+def umask() -> int:
+    """The process's umask, read without changing it (os.umask sets it, racing other threads)."""
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    previous = os.umask(0o022)
+    os.umask(previous)
+    return previous
+
+
+def as_the_umask_allows(path: str | os.PathLike) -> None:
+    """Give a finished output, and each file and folder inside it, the permissions the user's
+    umask allows a new one: libraries write some results (safetensors' weights, lerobot's
+    concatenated videos) through private temporaries, readable by their owner only."""
+    mask, root = umask(), Path(path)
+    for each in [root, *root.rglob("*")] if root.is_dir() else [root]:
+        if not each.is_symlink():
+            executable = each.is_dir() or each.stat().st_mode & 0o111
+            os.chmod(each, (0o777 if executable else 0o666) & ~mask)
+
+
 def lstat_kind(path: str | os.PathLike) -> str | None:
     """What is at `path` without following a symlink ("a regular file", "a symbolic link", ...),
     or None when nothing is."""

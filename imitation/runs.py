@@ -39,7 +39,15 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from imitation.errors import ImitationError, WriteError
-from imitation.output import OutputLock, check_target, os_error, remove_stale_locks, replace_directory, writing
+from imitation.output import (
+    OutputLock,
+    as_the_umask_allows,
+    check_target,
+    os_error,
+    remove_stale_locks,
+    replace_directory,
+    writing,
+)
 
 CHECKPOINT_DIR = "checkpoint"
 CHECKPOINT_TENSORS = "tensors.safetensors"
@@ -267,6 +275,7 @@ class RunWriter:
                 {name: tensor.detach().cpu().contiguous() for name, tensor in tensors.items()},
                 str(self.partial / WEIGHTS_FILE),
             )
+            as_the_umask_allows(self.partial / WEIGHTS_FILE)
 
     def save_checkpoint(self, tensors: dict[str, torch.Tensor], state: dict[str, Any]) -> None:
         """Save a trainer's checkpoint with the rows logged so far (see `save_checkpoint`)."""

@@ -8,6 +8,7 @@ fail with ENOSPC on a full disk: the same code path), which needs no mount and n
 
 from __future__ import annotations
 
+import json
 import os
 import resource
 import shutil
@@ -307,3 +308,24 @@ def test_an_out_name_that_is_not_utf8_is_written_or_refused_cleanly(tmp_path: Pa
     assert not [p for p in os.listdir(os.fsencode(tmp_path)) if p.endswith((b".partial", b".lock"))]
     if result.returncode == 0:
         assert len(DemoFile(os.fsdecode(name))) == 1
+
+
+def test_results_take_the_permissions_the_umask_allows(tmp_path: Path) -> None:
+    """Under umask 027 every result is rw-r----- (folders rwxr-x---), as a new file is: also
+    the weights (safetensors writes through a private temporary) and a LeRobot export's videos
+    of several episodes (lerobot concatenates them through one)."""
+
+    commands = [
+        ["record", "--env", "CartPole-v1", "--expert", "scripted", "--episodes", "3", "--pixels", "32x32", "--quiet", "--out",
+         str(tmp_path / "pixels.mcap")],
+        ["export", str(tmp_path / "pixels.mcap"), "--to", "lerobot", str(tmp_path / "lerobot")],
+        ["train", "bc", "--demos", str(DATASETS / "CartPole-v1.mcap"), "--epochs", "1", "--quiet", "--out", str(tmp_path / "bc")],
+    ]
+    script = "import json, sys, cli\nsys.exit(max(cli.main(argv) for argv in json.loads(sys.argv[1])))"
+    result = subprocess.run([sys.executable, "-c", script, json.dumps(commands)], capture_output=True, text=True, timeout=300,
+                            cwd=REPO, preexec_fn=lambda: os.umask(0o027))
+    assert result.returncode == 0, result.stderr
+    assert list(tmp_path.glob("lerobot/videos/*/*/*.mp4")) and (tmp_path / "bc" / "model.safetensors").is_file()
+    for path in tmp_path.rglob("*"):
+        expected = 0o750 if path.is_dir() else 0o640
+        assert stat.S_IMODE(path.stat().st_mode) == expected, (path, oct(path.stat().st_mode))

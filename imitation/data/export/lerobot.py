@@ -37,7 +37,7 @@ from imitation.data.mcap.reader import DemoFile
 from imitation.data.spaces import space_leaves, space_to_json
 from imitation.data.types import Episode, tree_leaves
 from imitation.errors import ImitationError
-from imitation.output import OutputLock, check_target, writing
+from imitation.output import OutputLock, as_the_umask_allows, check_target, writing
 
 
 def _feature_names(space: gym.Space, role: str) -> dict[tuple[str, ...], str]:
@@ -175,6 +175,7 @@ def _write(
             )
             + "\n"
         )
+        as_the_umask_allows(partial)
         if out.exists():
             out.rmdir()  # empty, checked above
         os.replace(partial, out)
