@@ -1,7 +1,7 @@
 """Benchmark: reading a demo file over HTTP by range requests, beside reading it from disk.
 
-Serves one demo file from an HTTP server on 127.0.0.1 (a thread of this process that honours
-`Range: bytes=a-b` and counts what it sends) and, for each load, reports the bytes served and
+Serves one demo file from an HTTP server on 127.0.0.1 (tools/http_servers.py: a thread of this
+process that honours `Range: bytes=a-b` and counts what it sends) and, for each load, reports the bytes served and
 the requests made beside the file's size, and the median seconds over --repeats, next to the
 same load from the local file (with the bytes the reader read there):
 
@@ -20,79 +20,25 @@ CPU (and GIL) with the reader.
 from __future__ import annotations
 
 import argparse
-import re
 import statistics
 import sys
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
 BENCH = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH.parent))
+sys.path.insert(0, str(BENCH.parent / "tools"))
 
+from http_servers import serve  # noqa: E402
 from synth import OURS, make_rollouts, write_ours  # noqa: E402
 
 from imitation.data.dataset import DemoDataset  # noqa: E402
 from imitation.data.loader import load_transitions  # noqa: E402
 from imitation.data.mcap.reader import DemoFile  # noqa: E402
 from imitation.data.summary import summarize  # noqa: E402
-
-
-class Counts:
-    """Bytes and requests the server answered (thread-safe)."""
-
-    def __init__(self) -> None:
-        self.bytes = 0
-        self.requests = 0
-        self.lock = threading.Lock()
-
-    def add(self, count: int) -> None:
-        with self.lock:
-            self.bytes += count
-            self.requests += 1
-
-
-def serve(data: bytes, counts: Counts) -> ThreadingHTTPServer:
-    """An HTTP server on 127.0.0.1 (any free port) serving `data` at /demos.mcap, ranges included."""
-
-    class Handler(BaseHTTPRequestHandler):
-        protocol_version = "HTTP/1.1"  # keep-alive, as object stores serve
-        disable_nagle_algorithm = True  # headers and body go out in two writes: no 40 ms delayed-ACK stall
-
-        def do_HEAD(self) -> None:
-            self.respond(body=False)
-
-        def do_GET(self) -> None:
-            self.respond(body=True)
-
-        def respond(self, *, body: bool) -> None:
-            if self.path != "/demos.mcap":
-                self.send_error(404)
-                return
-            start, end, status = 0, len(data), 200
-            asked = re.fullmatch(r"bytes=(\d+)-(\d*)", self.headers.get("Range", ""))
-            if asked is not None:
-                start, end, status = int(asked[1]), min(len(data), int(asked[2]) + 1 if asked[2] else len(data)), 206
-            self.send_response(status)
-            self.send_header("Content-Length", str(end - start))
-            self.send_header("Accept-Ranges", "bytes")
-            if status == 206:
-                self.send_header("Content-Range", f"bytes {start}-{end - 1}/{len(data)}")
-            self.end_headers()
-            counts.add(end - start if body else 0)
-            if body:
-                self.wfile.write(memoryview(data)[start:end])
-
-        def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (http.server's name)
-            pass
-
-    server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    return server
 
 
 def demo_file(args: argparse.Namespace) -> Path:
@@ -151,15 +97,14 @@ def main() -> None:
 
     path = demo_file(args)
     data = path.read_bytes()
-    counts = Counts()
-    server = serve(data, counts)
-    url = f"http://127.0.0.1:{server.server_address[1]}/demos.mcap"
+    server = serve({"/demos.mcap": data})
+    url = f"{server.url}/demos.mcap"
     remote, local = DemoFile(url), DemoFile(path)
     k = len(local) // 2
     opened: list[DemoFile] = []  # every file the local loads opened: their counters tell what they read
 
     def served() -> tuple[int, int]:
-        return counts.bytes, counts.requests
+        return server.served.bytes, server.served.requests
 
     def read_locally() -> tuple[int, int]:
         return sum(demo.bytes_read for demo in opened), sum(demo.requests for demo in opened)
@@ -196,7 +141,7 @@ def main() -> None:
         (label, measure(over_http, args.repeats, served), measure(here, args.repeats, local_counter))
         for label, over_http, here, local_counter in rows
     ]
-    server.shutdown()
+    server.stop()
 
     size = len(data)
     chunks = {c.offset: c for facts in local.episodes for c in local.chunks_of(facts)}
