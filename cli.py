@@ -980,8 +980,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=[],
         metavar="NAME=N",
         help="raise a resource bound for this run, e.g. --limit sample_elements=33554432 (bounds: sample_elements, "
-        "dict_leaves, expansion_ratio, chunk_bytes, yaml_nodes, policy_parameters, grid_steps_per_message; see "
-        "imitation/limits.py)",
+        "dict_leaves, expansion_ratio, chunk_bytes, yaml_nodes, policy_parameters, grid_steps_per_message, "
+        "remote_stall_seconds, remote_request_seconds, remote_total_seconds, remote_request_bytes; see imitation/limits.py)",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -1682,9 +1682,12 @@ def _sigterm_as_exit() -> None:
 
 
 def _apply_limits(assignments: list[str]) -> None:
-    """The environment's limits, then the command line's; passed on to child processes."""
+    """The environment's limits, then the command line's; passed on to child processes. A
+    command's time for remote reading starts here."""
+    from imitation.data.mcap.remote_reads import restart_command_clock
     from imitation.limits import limits_from_environment, set_limit
 
+    restart_command_clock()
     limits_from_environment()
     for assignment in assignments:
         set_limit(assignment)

@@ -39,6 +39,21 @@ class Limits:
     # data is a damaged stamp stretching a few messages over days (a 7.8 KB bag would be 44 million
     # steps, 3.9 GB); a real silence that long belongs between episodes (`episodes: {split: gap}`).
     grid_steps_per_message: int = 1000
+    # Demo files read from URLs (data/mcap/remote_reads.py): what a server may cost. Seconds it
+    # may send nothing, to connect, to answer or between bytes: object stores answer within a
+    # second, and a transfer stalled this long over the internet seldom resumes.
+    remote_stall_seconds: int = 30
+    # Seconds one request may take, asked to last byte. Reading asks for a chunk at a time (about
+    # 1 MiB as the writer makes them: 4 KB/s suffices); a salvage scan asks for the whole object
+    # at once (remote_request_bytes at 1 MB/s take 268 s).
+    remote_request_seconds: int = 300
+    # Seconds of one command spent waiting on remote reads, all requests together (wall time with
+    # any in flight): 100 GB of demos at 10 MB/s take 2.8 h.
+    remote_total_seconds: int = 4 * 3600
+    # Bytes one request may bring. A chunk is about 1 MiB; a salvage scan of a damaged remote file
+    # holds all of it in memory (a larger one is salvaged from a downloaded copy); a server that
+    # ignores Range sends everything before the range as well.
+    remote_request_bytes: int = 2**28
 
 
 LIMITS = Limits()

@@ -1,5 +1,6 @@
-"""Small hostile files (tools/hostile_inputs.py builds them) are refused in one line, exit 1,
-within 2 CPU seconds and 200 MB beyond what the same command costs on a trivially bad input."""
+"""Small hostile files and misbehaving servers (tools/hostile_inputs.py builds them) are refused
+in one line, exit 1, within 2 CPU seconds (a server's cases: 2 s of wall time as well) and 200 MB
+beyond what the same command costs on a trivially bad input."""
 
 from __future__ import annotations
 
@@ -34,6 +35,8 @@ def test_a_small_hostile_input_is_refused_in_one_line_cheaply(name: str, baselin
     assert outcome.message.startswith("error: ") and case.expect in outcome.message, outcome.message
     assert outcome.cpu_seconds - base.cpu_seconds < 2.0, (outcome.cpu_seconds, base.cpu_seconds)
     assert outcome.peak_rss_mb - base.peak_rss_mb < 200, (outcome.peak_rss_mb, base.peak_rss_mb)
+    if case in hostile.SERVER_CASES:  # waiting on a server costs no CPU: its time is wall time
+        assert outcome.seconds - base.seconds < 2.0, (outcome.seconds, base.seconds)
 
 
 def test_a_bound_raised_with_limit_lets_real_data_through(tmp_path: Path) -> None:

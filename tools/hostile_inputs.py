@@ -259,6 +259,51 @@ CASES = [
 ]
 
 
+# -- hostile servers: `info` of a URL, served by tools/http_servers.py on 127.0.0.1 -----------
+# One server in this process for all cases, started by the first: the bundled CartPole demos at
+# /demos.mcap, and at /BEHAVIOUR/demos.mcap as a misbehaving server answers (HostileHandler).
+# Waiting on a server costs no CPU, so tests/test_hostile_inputs.py bounds these cases' wall time
+# as well. The time bounds' defaults (30 s without a byte, 300 s a request) are for real servers
+# over real networks: the trickling and the silent server are measured with them lowered to 1 s,
+# as `imitation --limit` lets a user lower them.
+
+_SERVER: list = []
+
+
+def _served(path: str) -> str:
+    """The URL of `path` on the hostile server, started on first use."""
+    if not _SERVER:
+        sys.path.insert(0, str(REPO / "tools"))
+        from http_servers import HostileHandler, gzip_bomb, serve
+
+        gzip_bomb()  # made once, before any command is timed
+        _SERVER.append(serve({"/demos.mcap": CARTPOLE.read_bytes(), "/plain.mcap": b"not mcap"}, HostileHandler))
+    return _SERVER[0].url + path
+
+
+SERVER_CASES = [
+    Case("info over HTTP baseline", lambda f: ["info", _served("/plain.mcap")], "not an MCAP file", "info over HTTP baseline"),
+    Case("server streaming without end and without Content-Length", lambda f: ["info", _served("/no-length/demos.mcap")],
+         "sent more than the 8 bytes asked for", "info over HTTP baseline"),
+    Case("server answering 8 bytes with Content-Length 10 GB", lambda f: ["info", _served("/claims-10gb/demos.mcap")],
+         "answered a request for 8 bytes with Content-Length 10737418240", "info over HTTP baseline"),
+    Case("server of a 10 GB object, zeros behind the magic", lambda f: ["info", _served("/garbage-10gb/demos.mcap")],
+         "10737418240 is more than the limit remote_request_bytes", "info over HTTP baseline"),
+    Case("server answering gzip that inflates to 512 MiB", lambda f: ["info", _served("/gzip-bomb/demos.mcap")],
+         "encoded as 'gzip'", "info over HTTP baseline"),
+    Case("server ignoring Range on a 3 GB object (200, the whole body)",
+         lambda f: ["info", _served("/ignores-range/demos.mcap")], "it ignores Range: each answer starts at byte 0", "info over HTTP baseline"),
+    Case("server trickling a byte every 2 s",
+         lambda f: ["--limit", "remote_request_seconds=1", "info", _served("/trickle/demos.mcap")],
+         "took more than 1 s to send 8 bytes", "info over HTTP baseline"),
+    Case("server that never answers", lambda f: ["--limit", "remote_stall_seconds=1", "info", _served("/silent/demos.mcap")],
+         "sent nothing for 1 s", "info over HTTP baseline"),
+    Case("server answering each request after 0.5 s",
+         lambda f: ["--limit", "remote_total_seconds=1", "info", _served("/slow/demos.mcap")],
+         "went past this command's 1 s for remote reading", "info over HTTP baseline"),
+]
+CASES += SERVER_CASES
+
 def measure(case: Case, folder: Path) -> Outcome:
     args = case.build(folder)
     size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())

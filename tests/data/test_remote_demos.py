@@ -10,11 +10,10 @@ import io
 import json
 import re
 import struct
-import threading
+import sys
 from collections.abc import Iterator
 from contextlib import redirect_stderr, redirect_stdout
-from dataclasses import dataclass, field
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from dataclasses import dataclass
 from pathlib import Path
 
 import fsspec
@@ -23,6 +22,7 @@ import numpy as np
 import pytest
 from helpers import assert_episodes_equal
 from mcap.reader import make_reader
+from support import DATASETS, REPO
 
 import cli
 from imitation.data.dataset import DemoDataset
@@ -35,66 +35,11 @@ from imitation.data.types import Episode
 from imitation.errors import DemoFileError, ImitationError
 from imitation.limits import LIMITS
 
+sys.path.insert(0, str(REPO / "tools"))
+from http_servers import HostileHandler, NoRangeHandler, RangeHandler, Served, serve  # noqa: E402
+
 OBSERVATION_SPACE = gym.spaces.Box(-1.0, 1.0, (64,), np.float32)
 ACTION_SPACE = gym.spaces.Box(-1.0, 1.0, (4,), np.float32)
-
-
-@dataclass
-class Served:
-    """What the test server sent: each GET's byte range [start, end), and every request."""
-
-    files: dict[str, bytes]
-    ranges: list[tuple[str, int, int]] = field(default_factory=list)
-    requests: int = 0
-    lock: threading.Lock = field(default_factory=threading.Lock)
-
-    @property
-    def bytes(self) -> int:
-        return sum(end - start for _, start, end in self.ranges)
-
-    def reset(self) -> None:
-        with self.lock:
-            self.ranges.clear()
-            self.requests = 0
-
-
-class _RangeHandler(BaseHTTPRequestHandler):
-    """GET with or without `Range: bytes=a-b`, and HEAD with Content-Length (http.server's own
-    handler knows no ranges)."""
-
-    served: Served
-    disable_nagle_algorithm = True
-
-    def do_HEAD(self) -> None:
-        self._respond(body=False)
-
-    def do_GET(self) -> None:
-        self._respond(body=True)
-
-    def _respond(self, *, body: bool) -> None:
-        with self.served.lock:
-            self.served.requests += 1
-        data = self.served.files.get(self.path)
-        if data is None:
-            self.send_error(404)
-            return
-        start, end, status = 0, len(data), 200
-        asked = re.fullmatch(r"bytes=(\d+)-(\d*)", self.headers.get("Range", ""))
-        if asked is not None:
-            start, end, status = int(asked[1]), min(len(data), int(asked[2]) + 1 if asked[2] else len(data)), 206
-        self.send_response(status)
-        self.send_header("Content-Length", str(end - start))
-        self.send_header("Accept-Ranges", "bytes")
-        if status == 206:
-            self.send_header("Content-Range", f"bytes {start}-{end - 1}/{len(data)}")
-        self.end_headers()
-        if body:
-            with self.served.lock:
-                self.served.ranges.append((self.path, start, end))
-            self.wfile.write(data[start:end])
-
-    def log_message(self, format: str, *args: object) -> None:  # noqa: A002 (http.server's name)
-        pass
 
 
 @dataclass(frozen=True)
@@ -153,14 +98,9 @@ def server(local: Path) -> Iterator[tuple[str, Served]]:
     data = local.read_bytes()
     flipped = bytearray(data)
     flipped[layout(data).summary_start + 20] ^= 0x40
-    served = Served({"/demos.mcap": data, "/cut.mcap": data[: len(data) // 2], "/flipped.mcap": bytes(flipped)})
-    handler = type("Handler", (_RangeHandler,), {"served": served})
-    httpd = ThreadingHTTPServer(("127.0.0.1", 0), handler)
-    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
-    thread.start()
-    yield f"http://127.0.0.1:{httpd.server_address[1]}", served
-    httpd.shutdown()
-    httpd.server_close()
+    running = serve({"/demos.mcap": data, "/cut.mcap": data[: len(data) // 2], "/flipped.mcap": bytes(flipped)})
+    yield running.url, running.served
+    running.stop()
 
 
 @pytest.fixture(scope="module")
@@ -318,7 +258,7 @@ def test_writers_refuse_urls(tmp_path: Path, monkeypatch) -> None:
 
 def test_train_bc_reads_demos_from_a_url(tmp_path: Path, server) -> None:
     base, served = server
-    cartpole = Path(__file__).resolve().parents[2] / "datasets" / "CartPole-v1.mcap"
+    cartpole = DATASETS / "CartPole-v1.mcap"
     served.files["/CartPole-v1.mcap"] = cartpole.read_bytes()
     url = f"{base}/CartPole-v1.mcap"
     code, out, err = _cli("train", "bc", "--demos", url, "--env", "CartPole-v1", "--epochs", "1", "--hidden", "8",
@@ -326,3 +266,63 @@ def test_train_bc_reads_demos_from_a_url(tmp_path: Path, server) -> None:
     assert code == 0, err
     config = json.loads((tmp_path / "bc" / "config.json").read_text())
     assert config["demos"] == [url] and config["demo_fingerprints"] == [DemoFile(cartpole).fingerprint]
+
+
+def test_a_server_that_ignores_range_still_serves_info_and_training(local: Path, tmp_path: Path) -> None:
+    """`python -m http.server` sends the whole file, 200, to every range request: each read takes
+    the file's start up to the end of its range and hangs up, and keeps only the range."""
+    cartpole = DATASETS / "CartPole-v1.mcap"
+    running = serve({"/demos.mcap": local.read_bytes(), "/CartPole-v1.mcap": cartpole.read_bytes()}, NoRangeHandler)
+    try:
+        url = f"{running.url}/demos.mcap"
+        code, remote_json, err = _cli("info", url, "--json")
+        assert code == 0, err
+        assert json.loads(remote_json) == json.loads(_cli("info", str(local), "--json")[1]) | {"file": url}
+        remote, here = DemoFile(url), DemoFile(local)
+        opened = remote.bytes_read, here.bytes_read
+        for got, expected in zip(remote.read_episodes(), here.read_episodes(), strict=True):
+            assert_episodes_equal(got, expected)
+        assert remote.bytes_read - opened[0] == here.bytes_read - opened[1]  # the chunks alone were kept
+        code, _, err = _cli("train", "bc", "--demos", f"{running.url}/CartPole-v1.mcap", "--env", "CartPole-v1",
+                            "--epochs", "1", "--hidden", "8", "--out", str(tmp_path / "bc"), "--json")
+        assert code == 0, err
+    finally:
+        running.stop()
+
+
+def test_a_server_without_content_length_still_serves(local: Path) -> None:
+    """206 with Content-Range but no Content-Length, each body ending when the connection does
+    (HTTP/1.0's way): read to its end, nothing refused."""
+    handler = type("CloseDelimited", (RangeHandler,), {"protocol_version": "HTTP/1.0", "send_length": False})
+    running = serve({"/demos.mcap": local.read_bytes()}, handler)
+    try:
+        remote, here = DemoFile(f"{running.url}/demos.mcap"), DemoFile(local)
+        assert remote.fingerprint == here.fingerprint
+        for got, expected in zip(remote.read_episodes(), here.read_episodes(), strict=True):
+            assert_episodes_equal(got, expected)
+    finally:
+        running.stop()
+
+
+@pytest.fixture(scope="module")
+def hostile(local: Path) -> Iterator[str]:
+    running = serve({"/demos.mcap": local.read_bytes()}, HostileHandler)
+    yield running.url
+    running.stop()
+
+
+@pytest.mark.parametrize(
+    ("behaviour", "wrong"),
+    [
+        ("wrong-range", r"answered bytes 0-\d+ to a request for bytes [1-9]\d*-\d+"),
+        ("short", r"ended its answer after \d+ of the \d+ bytes asked for"),
+        ("no-length", r"sent more than the 8 bytes asked for"),
+        ("claims-10gb", r"answered a request for 8 bytes with Content-Length 10737418240"),
+        ("gzip-bomb", r"answered bytes 0-7 encoded as 'gzip', not as the object's bytes"),
+    ],
+)
+def test_a_misbehaving_server_is_named_with_what_it_did(hostile: str, behaviour: str, wrong: str) -> None:
+    url = f"{hostile}/{behaviour}/demos.mcap"
+    server = hostile.removeprefix("http://")
+    with pytest.raises(DemoFileError, match=f"^{re.escape(url)}: the server at {re.escape(server)} {wrong}$"):
+        DemoFile(url)

@@ -1,6 +1,7 @@
 """Where a demo file's bytes come from: a local file, read with pread, or an object behind an
-fsspec URL (http(s)://, s3://, gs://, memory://, ...), read by range requests. Every read is
-counted (bytes and reads), so tests and benchmarks can tell what opening or loading fetched.
+fsspec URL (http(s)://, s3://, gs://, memory://, ...), read by range requests, each bounded in
+bytes and time (remote_reads.py). Every read is counted (bytes and reads), so tests and
+benchmarks can tell what opening or loading fetched.
 
 A source is opened per reading session and closed after it, as a file would be: a dataset of
 thousands of files holds no descriptor between loads, and threads reading one file each use a
@@ -8,17 +9,17 @@ session of their own."""
 
 from __future__ import annotations
 
-import errno
 import mmap
 import os
-import stat
 import threading
 from abc import ABC, abstractmethod
 from collections.abc import Buffer
 from pathlib import Path
 from typing import Any, Self
 
+from imitation.data.mcap.remote_reads import fetch_range, object_size
 from imitation.errors import DemoFileError, ImitationError
+from imitation.inputs import open_input_fd
 
 # The first read that reaches an object's end fetches this much of its tail instead: footer,
 # summary and episode index of a small dataset, in one request.
@@ -93,18 +94,8 @@ class LocalSource(ByteSource):
 
     def __init__(self, path: Path, counter: ReadCounter, size: int | None) -> None:
         self._counter = counter
-        self._fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
-        if size is not None:
-            self.size = size
-            return
-        try:
-            status = os.fstat(self._fd)
-            if stat.S_ISDIR(status.st_mode):  # os.open opens a directory; open() would refuse it
-                raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
-        except OSError:
-            os.close(self._fd)
-            raise
-        self.size = status.st_size
+        self._fd = open_input_fd(path)  # a FIFO or a device is refused, not waited on or read for ever
+        self.size = size if size is not None else os.fstat(self._fd).st_size
 
     @property
     def parallel_reads(self) -> int:
@@ -143,8 +134,10 @@ class RemoteSource(ByteSource):
 
     def _object_size(self) -> int:
         try:
-            size = self._fs.size(self._path)
+            size = object_size(self._fs, self._path, self.name)
             reason = "the server does not say how large the object is"
+        except DemoFileError:
+            raise
         except Exception as error:
             size, reason = None, _reason(error)
         self._counter.add(0)  # a request (HEAD, for HTTP) that fetches no content
@@ -183,12 +176,12 @@ class RemoteSource(ByteSource):
 
     def _fetch(self, start: int, end: int) -> bytes:
         try:
-            data = self._fs.cat_file(self._path, start=start, end=end)
+            data = fetch_range(self._fs, self._path, self.name, start, end, self.size)
+        except DemoFileError:
+            raise
         except Exception as error:
             raise DemoFileError(f"{self.name}: cannot read: {_reason(error)}") from None
         self._counter.add(len(data))
-        if len(data) == self.size > end - start:  # a server that ignores ranges sends it all
-            data = data[start:end]
         return data
 
 
