@@ -71,7 +71,7 @@ def _printable(path: str | os.PathLike) -> str:
     return os.fsencode(path).decode("utf-8", "backslashreplace")
 
 
-def _kind(mode: int) -> str:
+def kind_of_mode(mode: int) -> str:
     if stat.S_ISLNK(mode):
         return "a symbolic link"
     if stat.S_ISDIR(mode):
@@ -100,8 +100,8 @@ def check_target(path: str | os.PathLike, *, directory: bool = False, flag: str 
     if not wanted:
         needed = "a directory" if directory else "a regular file"
         raise ImitationError(
-            f"{flag} {_printable(path)}: is {_kind(mode)}; it must be {needed} or a new path (remove it, or choose another "
-            "name)"
+            f"{flag} {_printable(path)}: is {kind_of_mode(mode)}; it must be {needed} or a new path (remove it, or choose "
+            "another name)"
         )
 
 
@@ -148,7 +148,7 @@ def lstat_kind(path: str | os.PathLike) -> str | None:
     """What is at `path` without following a symlink ("a regular file", "a symbolic link", ...),
     or None when nothing is."""
     try:
-        return _kind(os.lstat(path).st_mode)
+        return kind_of_mode(os.lstat(path).st_mode)
     except FileNotFoundError:
         return None
 

@@ -695,7 +695,8 @@ CASE_LIST = [
     case("train-17", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--quiet", "--resume", "--out", i.root / "never"]),
     case("train-18", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--quiet", "--resume", "--out", i.folder("early.partial").parent / "early"]),
     case("train-19", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--steps", "8192", "--quiet", "--resume", "--out", i.interrupted_ppo("other-steps")]),
-    case("train-20", _checkpoint_case("ckpt-config", **{"config.json": "{"})),
+    # A checkpoint of an earlier version, which did not record the run's settings: config.json holds them.
+    case("train-20", _checkpoint_case("ckpt-config", **{"config.json": "{", "checkpoint__state.json": '{"history": [], "trainer": {}}'})),
     case("train-21", _checkpoint_case("ckpt-not-json", **{"checkpoint__state.json": "{"})),
     case("train-22", _checkpoint_case("ckpt-list", **{"checkpoint__state.json": "[]"})),
     case("train-23", _checkpoint_case("ckpt-rows", **{"checkpoint__state.json": '{"history": 5}'})),

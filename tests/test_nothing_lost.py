@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support import DATASETS, REPO, run_cli
+from support import DATASETS, REPO, run_cli, run_cli_many
 from test_crash_safety import interrupt_after_first_checkpoint, start, wait_for
 
 from imitation.data.mcap.reader import DemoFile
@@ -329,3 +329,25 @@ def test_results_take_the_permissions_the_umask_allows(tmp_path: Path) -> None:
     for path in tmp_path.rglob("*"):
         expected = 0o750 if path.is_dir() else 0o640
         assert stat.S_IMODE(path.stat().st_mode) == expected, (path, oct(path.stat().st_mode))
+
+
+def test_fifos_and_devices_given_as_input_are_refused_at_once(tmp_path: Path) -> None:
+    """Opening a FIFO waits for a writer and a device never ends: every reader refuses both in
+    one line before reading (the batch would run past its timeout otherwise)."""
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    cases = {
+        "info": ["info", fifo],
+        "convert": ["convert", fifo, "--out", tmp_path / "a.mcap"],
+        "convert --from npz": ["convert", "/dev/zero", "--from", "npz", "--out", tmp_path / "b.mcap"],
+        "convert --from ros1": ["convert", fifo, "--from", "ros1", "--map", fifo, "--out", tmp_path / "c.mcap"],
+        "train bc": ["train", "bc", "--demos", fifo, "--out", tmp_path / "bc"],
+        "sweep": ["sweep", fifo, "--out", tmp_path / "sweep"],
+        "record sb3": ["record", "--env", "CartPole-v1", "--expert", f"sb3:{fifo}", "--out", tmp_path / "r.mcap"],
+    }
+    results = run_cli_many(list(cases.values()), timeout=120)
+    for (name, argv), result in zip(cases.items(), results):
+        device = "/dev/zero" in argv
+        expected = "/dev/zero: is a character device" if device else f"{fifo}: is a FIFO"
+        assert result.returncode == 1 and result.stderr.strip() == f"error: {expected}, not a regular file; give a file", (name, result.stderr)
+    assert not [path for path in tmp_path.iterdir() if path.name != "fifo"]

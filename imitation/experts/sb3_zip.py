@@ -36,6 +36,7 @@ import numpy as np
 import torch
 
 from imitation.errors import ImitationError
+from imitation.inputs import check_input
 from imitation.limits import LIMITS, check_zip_member, over_limit
 from imitation.policies import ACTIVATIONS
 
@@ -145,6 +146,7 @@ def _policy_class(file: str, data: dict[str, Any]) -> tuple[str | None, str | No
 def _read_members(file: str) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     """The `policy.pth` state dict and the `data` JSON of an SB3 zip."""
     try:
+        check_input(file)
         with zipfile.ZipFile(file) as archive:
             names = set(archive.namelist())
             for member in ("policy.pth", "data"):

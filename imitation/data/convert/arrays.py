@@ -35,6 +35,7 @@ from imitation.data.convert.endings import SourceEnds
 from imitation.data.convert.yaml_bounded import read_yaml_file
 from imitation.data.types import Episode
 from imitation.errors import ImitationError
+from imitation.inputs import open_input
 
 ROWS = ("state", "next_state")
 FINAL_STATES = ("row", "none")
@@ -153,7 +154,7 @@ def read_array(path: str | Path, member: str | None) -> tuple[np.ndarray, str]:
     without unpickling; and its name for messages."""
     path = Path(path)
     try:
-        with open(path, "rb") as stream:
+        with open_input(path) as stream:
             is_npy = stream.read(6) == b"\x93NUMPY"
     except OSError as error:
         raise ImitationError(f"{path}: cannot read: {error.strerror or error}") from None

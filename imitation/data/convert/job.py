@@ -11,6 +11,7 @@ from imitation.data.convert.converted import fit_to_env, write_converted
 from imitation.data.convert.endings import settle_ends
 from imitation.data.mcap.source import refuse_url
 from imitation.errors import ImitationError
+from imitation.inputs import check_input, open_input
 
 SOURCES = ("ros2", "ros1", "lerobot", "npz", "array")
 
@@ -20,6 +21,7 @@ def detect_source(path: str | Path) -> str:
     path = Path(path)
     if not path.exists():
         raise ImitationError(f"{path}: no such file or directory")
+    check_input(path)
     if path.is_dir():
         if (path / "meta" / "info.json").is_file():
             return "lerobot"
@@ -31,7 +33,7 @@ def detect_source(path: str | Path) -> str:
             f"{path}: cannot tell what this folder holds (a rosbag2 directory or a LeRobot dataset root); say it with --from"
         )
     try:
-        with open(path, "rb") as stream:
+        with open_input(path) as stream:
             head = stream.read(16)
     except OSError as error:
         raise ImitationError(f"{path}: cannot read: {error.strerror or error}") from None
@@ -53,6 +55,7 @@ def _source_kind(path: str | Path, source: str | None) -> str:
         raise ImitationError(f"--from {source}: unknown source; use one of {', '.join(SOURCES)}")
     if not Path(path).exists():
         raise ImitationError(f"{path}: no such file or directory")
+    check_input(path)
     return source
 
 

@@ -32,6 +32,7 @@ from imitation.data.convert.converted import Converted, box_for, cast_rows, infe
 from imitation.data.convert.endings import SourceEnds
 from imitation.data.types import Episode
 from imitation.errors import ImitationError
+from imitation.inputs import open_input
 from imitation.limits import check_zip_member
 
 SB_KEYS = {"obs", "actions", "rewards", "episode_starts"}
@@ -68,7 +69,7 @@ def _read_npz(path: Path) -> tuple[dict[str, np.ndarray], set[str]]:
     member's .npy header is checked before its data is read: a header promising more bytes than
     the member holds is refused (a damaged file must not make us allocate what it claims)."""
     try:
-        with open(path, "rb") as stream:
+        with open_input(path) as stream:
             if stream.read(6) == b"\x93NUMPY":
                 raise ImitationError(f"{path}: a single .npy array, not an npz archive of named arrays")
         arrays: dict[str, np.ndarray] = {}

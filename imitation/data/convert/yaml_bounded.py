@@ -15,6 +15,7 @@ from typing import Any
 import yaml
 
 from imitation.errors import ImitationError
+from imitation.inputs import open_input
 from imitation.limits import LIMITS, over_limit
 
 MAX_INTEGER_DIGITS = 400
@@ -81,9 +82,12 @@ def read_yaml_file(path: Path, kind: str) -> Any:
     """The YAML of a user's `kind` of file (a map, a layout), bounded as `load_yaml`;
     ImitationError names the file and what is wrong."""
     try:
-        return load_yaml(path.read_bytes())  # bytes: yaml reports text that is not UTF-8 as a YAMLError
+        with open_input(path) as stream:
+            data = stream.read()
     except OSError as error:
         raise ImitationError(f"{path}: cannot read the {kind}: {error.strerror or error}") from None
+    try:
+        return load_yaml(data)  # bytes: yaml reports text that is not UTF-8 as a YAMLError
     except yaml.YAMLError as error:
         raise ImitationError(f"{path}: not valid YAML ({' '.join(str(error).split())[:300]})") from None
     except RecursionError:

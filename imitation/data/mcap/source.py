@@ -9,10 +9,8 @@ session of their own."""
 
 from __future__ import annotations
 
-import errno
 import mmap
 import os
-import stat
 import threading
 from abc import ABC, abstractmethod
 from collections.abc import Buffer
@@ -21,6 +19,7 @@ from typing import Any, Self
 
 from imitation.data.mcap.remote_reads import fetch_range, object_size
 from imitation.errors import DemoFileError, ImitationError
+from imitation.inputs import open_input_fd
 
 # The first read that reaches an object's end fetches this much of its tail instead: footer,
 # summary and episode index of a small dataset, in one request.
@@ -95,18 +94,8 @@ class LocalSource(ByteSource):
 
     def __init__(self, path: Path, counter: ReadCounter, size: int | None) -> None:
         self._counter = counter
-        self._fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
-        if size is not None:
-            self.size = size
-            return
-        try:
-            status = os.fstat(self._fd)
-            if stat.S_ISDIR(status.st_mode):  # os.open opens a directory; open() would refuse it
-                raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
-        except OSError:
-            os.close(self._fd)
-            raise
-        self.size = status.st_size
+        self._fd = open_input_fd(path)  # a FIFO or a device is refused, not waited on or read for ever
+        self.size = size if size is not None else os.fstat(self._fd).st_size
 
     @property
     def parallel_reads(self) -> int:
