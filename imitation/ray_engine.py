@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import socket
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +22,7 @@ from imitation.errors import ImitationError
 LOCAL = "local"
 INSTALL_HINT = "pip install 'imitation-mcap[ray]'"
 DRIVER_DIRECTORY = "IMITATION_DRIVER_DIRECTORY"  # where the command runs, for its workers
+CONNECT_SECONDS = 10  # for a cluster's address to accept a connection
 RETRIES = 3  # how often Ray restarts a dead worker (or reruns a dead task) before the run fails
 
 
@@ -105,10 +107,27 @@ def _connect(ray: ModuleType, address: str, num_cpus: int | None, runtime_env: d
             num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, configure_logging=False, runtime_env=runtime_env
         )
     else:
+        _check_reachable(address)
         try:
             ray.init(address=address, log_to_driver=False, configure_logging=False, runtime_env=runtime_env)
         except (ConnectionError, ValueError, RuntimeError) as error:
             raise ImitationError(f"--ray-address {address}: cannot connect to a Ray cluster ({error})") from None
+
+
+def _check_reachable(address: str) -> None:
+    """Refuse a HOST:PORT (or ray://HOST:PORT) where nothing accepts a connection: Ray itself
+    retries such an address for minutes, saying nothing the user sees."""
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        return  # "auto", or a form Ray resolves itself
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_SECONDS):
+            pass
+    except OSError as error:
+        raise ImitationError(
+            f"--ray-address {address}: nothing answers there ({error.strerror or error}); start the cluster (`ray start "
+            "--head`), or run on this machine with --ray-address local"
+        ) from None
 
 
 def ray_get(ray: ModuleType, reference: Any) -> Any:

@@ -181,6 +181,8 @@ def test_worker_flags_are_checked_in_one_line(tmp_path: Path) -> None:
         ["train", "ppo", "--env", "CartPole-v1", "--workers", "9", "--out", out],
         ["train", "ppo", "--env", "CartPole-v1", "--workers", "2", "--cpus", "0", "--out", out],
         ["train", "dagger", "--env", "CartPole-v1", "--expert", "standin", "--mode", "takeover", "--workers", "2", "--out", out],
+        # Nothing listens at port 1: Ray itself would retry it for minutes.
+        ["train", "ppo", "--env", "CartPole-v1", "--workers", "1", "--ray-address", "127.0.0.1:1", "--out", out],
     ]
     expected = [
         "--ray-address and --cpus go with --workers N",
@@ -190,10 +192,13 @@ def test_worker_flags_are_checked_in_one_line(tmp_path: Path) -> None:
         "--cpus must be at least 1, got 0",
         "--workers: expert standin drives at this machine (take-over or a person's window); its rounds run in this process, "
         "without --workers",
+        "--ray-address 127.0.0.1:1: nothing answers there (Connection refused); start the cluster (`ray start --head`), or run "
+        "on this machine with --ray-address local",
     ]
-    for result, message in zip(run_cli_many(cases), expected):
+    for result, message in zip(run_cli_many(cases, timeout=120), expected):
         assert result.returncode == 1, result.stderr
         assert result.stderr.strip() == f"error: {message}", result.stderr
+    assert not (tmp_path / "run").exists()
 
 
 def test_without_ray_installed_workers_say_how_to_install_it(tmp_path: Path) -> None:
