@@ -259,6 +259,20 @@ def _finite(text: str) -> float:
     return value
 
 
+def _seed(text: str) -> int:
+    """A seed: a whole number in the range every generator a job seeds accepts (numpy's legacy
+    one takes none below 0 or from 2^32 on; torch none from 2^64 on)."""
+    from imitation.seeding import seed_problem
+
+    try:
+        seed = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text[:100]!r}") from None
+    if (problem := seed_problem(seed)) is not None:
+        raise argparse.ArgumentTypeError(problem)
+    return seed
+
+
 def _speed(text: str) -> float:
     """A speed factor of a person's window, from 1/8 to 4 times real time."""
     value = _finite(text)
@@ -764,6 +778,7 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
         # The tabular planner's own check of the discount.
         None: {"discount": "--discount"},
     },
+    "eval policy": {"eval policy": {"episodes": "--episodes"}},
     "eval reward": {
         "RewardEvaluationConfig": {
             "retrain_steps": "--retrain-steps",
@@ -962,7 +977,7 @@ def _add_search_parsers(algorithms: Any) -> None:
             help="episodes each candidate is scored on (default: 1)",
         )
         search.add_argument("--n-envs", dest="n_envs", type=int, metavar="K", help="environment copies (default: 8)")
-        search.add_argument("--seed", type=int, metavar="S", help="seed of the search and its episodes (default: 0)")
+        search.add_argument("--seed", type=_seed, metavar="S", help="seed of the search and its episodes (default: 0)")
         _add_run_output(search)
         _add_resume(search)
         search.set_defaults(handler=cmd_train_search)
@@ -1002,7 +1017,7 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     record.add_argument("--episodes", type=int, default=10, metavar="N", help="number of episodes (default: 10)")
-    record.add_argument("--seed", type=int, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
+    record.add_argument("--seed", type=_seed, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
     record.add_argument("--out", required=True, metavar="F.mcap", help="output demo file")
     record.add_argument(
         "--compression",
@@ -1177,7 +1192,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="image observations (--pixels, or an env whose observations are images): frames stacked per image (default: "
         "the --reward's or the resumed run's, else 1)",
     )
-    ppo.add_argument("--seed", type=int, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
+    ppo.add_argument("--seed", type=_seed, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
     ppo.add_argument("--device", metavar="auto|cpu|cuda", help="where the networks run (default: auto)")
     ppo.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (default: 1, fastest for small networks)")
     _add_workers(ppo, "the rollouts (the environment copies split between them)")
@@ -1240,7 +1255,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="hidden layer widths of the policy and critic, or 'linear' (default: 64,64)",
     )
     pg.add_argument("--n-envs", dest="n_envs", type=int, metavar="K", help="environment copies (default: per env, else 4)")
-    pg.add_argument("--seed", type=int, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
+    pg.add_argument("--seed", type=_seed, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
     _add_run_output(pg)
     _add_resume(pg)
     pg.set_defaults(handler=cmd_train_pg)
@@ -1322,7 +1337,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="stream shuffled batches from the demos, holding at most MB megabytes of decoded transitions (plus one "
         "episode), for image datasets larger than memory; no baseline scores then (default: load everything)",
     )
-    bc.add_argument("--seed", type=int, metavar="S", help="seed (default: 0)")
+    bc.add_argument("--seed", type=_seed, metavar="S", help="seed (default: 0)")
     bc.add_argument("--device", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
     bc.add_argument(
         "--threads", type=int, metavar="N", help="torch CPU threads (default: every core for a CNN, 1 for an MLP alone)"
@@ -1394,7 +1409,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--frame-stack", type=int, metavar="K", help="with --pixels: frames the learner stacks per observation (default: 1)"
     )
     _add_image_training_options(dagger)
-    dagger.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
+    dagger.add_argument("--seed", type=_seed, default=0, metavar="S", help="seed (default: 0)")
     dagger.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
     _add_workers(dagger, "each round's episodes, each worker writing its own shard of the round")
     _add_run_output(dagger)
@@ -1517,7 +1532,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="apprenticeship on Box observations: episodes that estimate each policy's feature expectations (default: 10)",
     )
-    irl.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default: 0)")
+    irl.add_argument("--seed", type=_seed, default=0, metavar="S", help="seed (default: 0)")
     _add_workers(irl, "PPO's rollouts (gcl, airl, gail)")
     _add_run_output(irl)
     _add_resume(irl)
@@ -1533,7 +1548,7 @@ def build_parser() -> argparse.ArgumentParser:
     policy.add_argument("run", metavar="RUN_DIR", help="a PPO, BC or DAgger run directory")
     policy.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
     policy.add_argument("--episodes", type=int, default=10, metavar="N", help="episodes (default: 10)")
-    policy.add_argument("--seed", type=int, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
+    policy.add_argument("--seed", type=_seed, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
     policy.add_argument("--stochastic", action="store_true", help="sample actions instead of taking the most likely one")
     policy.add_argument(
         "--demos",

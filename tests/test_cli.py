@@ -9,7 +9,7 @@ import sys
 import time
 
 import pytest
-from support import DATASETS, REPO, run_cli
+from support import DATASETS, REPO, run_cli, run_cli_many
 
 
 def last_json(result: subprocess.CompletedProcess) -> dict:
@@ -111,6 +111,22 @@ def test_info_reports_salvage_of_a_truncated_file(tmp_path) -> None:
 def test_non_finite_numbers_are_refused_where_they_enter(tmp_path, flag: str, value: str) -> None:
     result = run_cli("train", "bc", "--demos", str(DATASETS / "CartPole-v1.mcap"), flag, value, "--out", str(tmp_path / "r"))
     assert result.returncode == 2 and f"argument {flag}: expected a finite number, got {value!r}" in result.stderr
+    assert not any(tmp_path.iterdir())
+
+
+def test_seeds_every_generator_cannot_take_are_refused_where_they_enter(tmp_path) -> None:
+    """numpy refuses a negative seed and torch one from 2^64 on, deep inside a job: the flag
+    refuses both (and anything from 2^32 on, which leaves room for the seeds a job derives)."""
+    demos = str(DATASETS / "CartPole-v1.mcap")
+    commands = [
+        ["record", "--env", "CartPole-v1", "--expert", "scripted", "--out", str(tmp_path / "r.mcap")],
+        ["train", "bc", "--demos", demos, "--out", str(tmp_path / "bc")],
+        ["train", "ppo", "--env", "CartPole-v1", "--out", str(tmp_path / "ppo")],
+    ]
+    cases = [(command, seed) for command in commands for seed in ("-1", str(2**70), str(2**32))]
+    for (command, seed), result in zip(cases, run_cli_many([[*command, "--seed", seed] for command, seed in cases])):
+        assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+        assert f"argument --seed: must be a whole number from 0 to 4294967295, got {seed}" in result.stderr, result.stderr
     assert not any(tmp_path.iterdir())
 
 

@@ -562,6 +562,8 @@ def case(ids: str, argv: Callable[[Inputs], list], testdata: bool = False, *, va
 CASE_LIST = [
     # command line, environments, experts
     case("cli-1", lambda i: ["record", "--env", "CartPole-v1", "--episodes", "0", "--out", i.path("e.mcap")], expect="--episodes must"),
+    case("cli-1", lambda i: ["eval", "policy", i.policy_run("e0"), "--env", "CartPole-v1", "--episodes", "0"], variant="eval policy",
+         expect="--episodes must"),
     case("cli-2", lambda i: ["export", DATASETS / "CartPole-v1.mcap", "--to", "hdf5", i.path("x")]),
     case("cli-5", lambda i: ["record", "--env", "CartPole-v1", "--pixels", "84", "--out", i.path("c5.mcap")]),
     case("cli-6", lambda i: ["record", "--env", "CartPole-v1", "--pixels", "84x84", "--crop", "1,2,3", "--out", i.path("c6.mcap")]),

@@ -213,6 +213,7 @@ def test_config_mistakes_are_one_line_naming_the_file_and_key_before_ray_starts(
         "no-mode": ({"metric": "train_loss", "mode": None}, "mode: missing: say whether a lower (min) or higher (max)"),
         "bad-asha": ({"scheduler": {"asha": {"grace": 2}}}, "scheduler.asha.grace: unknown"),
         "bad-trials": ({"trials": 0}, "trials: must be at least 1, got 0"),
+        "huge-seed": ({"seed": 2**70}, f"seed: must be a whole number from 0 to 4294967295, got {2**70}"),
         "empty-space": ({"space": {}}, "space: give at least one flag to search over"),
     }
     paths = {name: write_config(tmp_path, name, **changes) for name, (changes, _) in cases.items()}

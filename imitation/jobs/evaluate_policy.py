@@ -7,6 +7,7 @@ import os
 from contextlib import closing
 from typing import Any
 
+from imitation.errors import ConfigError
 from imitation.evaluation.policy import evaluate_policy, normalized_return
 from imitation.evaluation.video import record_video
 from imitation.jobs.run_config import RunConfig
@@ -36,6 +37,8 @@ def eval_policy_job(
     between a random policy (0) and `demos` (default: those the run learnt from) when there are
     any, the references `eval reward` uses too (`reference_returns`); `video` writes episode 0 as
     .mp4 or .gif."""
+    if episodes < 1:
+        raise ConfigError("episodes", f"must be at least 1, got {episodes}", owner="eval policy")
     policy = load_policy(run)
     config, _ = read_run(run)
     actor = SingleObservationPolicy(policy, deterministic=not stochastic)

@@ -26,6 +26,7 @@ from typing import Any
 
 from imitation.data.convert.yaml_bounded import read_yaml_file
 from imitation.errors import ImitationError
+from imitation.seeding import seed_problem
 
 KEYS = (
     "command",
@@ -197,7 +198,7 @@ def read_sweep_config(path: str | Path, command_line: CommandLine) -> SweepConfi
         search=search,
         trials=_integer(document.get("trials", 10), where.at("trials"), least=1),
         asha=_scheduler(document.get("scheduler", "none"), where.at("scheduler")),
-        seed=_integer(document.get("seed", 0), where.at("seed"), least=0),
+        seed=_seed(document.get("seed", 0), where.at("seed")),
         cpus_per_trial=_positive(document.get("cpus_per_trial", 1), where.at("cpus_per_trial")),
         gpus_per_trial=_positive(document.get("gpus_per_trial", 0), where.at("gpus_per_trial"), zero=True),
         seeds_trials="seed" in flags and "seed" not in args and "seed" not in space,
@@ -361,6 +362,13 @@ def _integer(value: Any, where: _Where, *, least: int | None = None) -> int:
     if least is not None and value < least:
         raise where.error(f"must be at least {least}, got {value}")
     return value
+
+
+def _seed(value: Any, where: _Where) -> int:
+    seed = _integer(value, where)
+    if (problem := seed_problem(seed)) is not None:
+        raise where.error(problem)
+    return seed
 
 
 def _number(value: Any, where: _Where) -> float:

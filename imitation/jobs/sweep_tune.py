@@ -32,6 +32,7 @@ from imitation.jobs.sweep_config import Distribution, SweepConfig
 from imitation.jobs.sweep_results import FAILED, FINISHED, RUNS_DIR, STOPPED, UNFINISHED, finished_run, run_result, scoped
 from imitation.jobs.sweep_trials import SweepTrials
 from imitation.runs import has_checkpoint
+from imitation.seeding import SEED_BOUND
 
 STEPS = "steps_completed"  # the learner's steps so far: ASHA's clock
 FINISHED_KEY = "run_finished"  # in a trial's last report: its command ran to its end
@@ -221,7 +222,7 @@ def _searcher(config: SweepConfig, trials: SweepTrials) -> Any:
     optuna.logging.set_verbosity(optuna.logging.WARNING)  # its study notice would sit among the trials' lines
     told = [record for record in trials.ended() if record.metric is not None]
     return OptunaSearch(
-        seed=config.seed + len(trials.records),
+        seed=(config.seed + len(trials.records)) % SEED_BOUND,
         points_to_evaluate=[record.params for record in told] or None,
         evaluated_rewards=[record.metric for record in told] or None,
     )
