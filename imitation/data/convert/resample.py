@@ -17,8 +17,11 @@ NS = 1_000_000_000
 def regular_grid(start_ns: int, end_ns: int, rate_hz: float) -> np.ndarray:
     """Times start, start + 1/rate, … up to end (inclusive), as int64 ns."""
     period_ns = NS / rate_hz
+    # The tolerance keeps a time that float division puts a hair short of `end`; it can also admit
+    # one a nanosecond past it (a span of 1 s − 1 ns at 1 Hz), which the last line drops.
     count = int(np.floor((end_ns - start_ns) / period_ns + 1e-9)) + 1 if end_ns >= start_ns else 0
-    return start_ns + np.round(np.arange(count) * period_ns).astype(np.int64)
+    times = start_ns + np.round(np.arange(count) * period_ns).astype(np.int64)
+    return times[times <= end_ns]
 
 
 def hold_index(times: np.ndarray, grid: np.ndarray) -> np.ndarray:
