@@ -1,0 +1,59 @@
+"""Image frames as Foxglove messages (imitation.data.mcap.images), field by field: each message's
+timestamp is the frame's time to the nanosecond (seconds and nanos apart), a raw frame's
+geometry and encoding are its own, and a message decodes back to the frame."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+
+from imitation.data.mcap.images import decode_frame, encode_frame, encode_frames
+
+TIMES = np.array([0, 999_999_999, 1_000_000_000, 1_700_000_123_456_789_012], dtype=np.int64)
+
+
+def frames(shape: tuple[int, ...]) -> np.ndarray:
+    return np.random.default_rng(0).integers(0, 256, (len(TIMES), *shape), dtype=np.uint8)
+
+
+@pytest.mark.parametrize("codec", ["png", "jpeg", "raw"])
+def test_each_message_is_stamped_with_its_frames_time_to_the_nanosecond(codec: str) -> None:
+    messages = encode_frames(codec, frames((3, 5, 3)), TIMES, jpeg_quality=90)
+    kind = RawImage if codec == "raw" else CompressedImage
+    stamps = [(message.timestamp.seconds, message.timestamp.nanos) for message in map(kind.FromString, messages)]
+    assert stamps == [(0, 0), (0, 999_999_999), (1, 0), (1_700_000_123, 456_789_012)]
+
+
+@pytest.mark.parametrize(
+    ("shape", "encoding"), [((3, 5), "mono8"), ((3, 5, 1), "mono8"), ((3, 5, 3), "rgb8"), ((3, 5, 4), "rgba8")]
+)
+def test_a_raw_message_holds_the_frames_rows_and_geometry(shape: tuple[int, ...], encoding: str) -> None:
+    frame = frames(shape)[0]
+    message = RawImage.FromString(encode_frame("raw", frame, 5, jpeg_quality=90))
+    channels = 1 if len(shape) == 2 else shape[2]
+    assert (message.width, message.height, message.encoding, message.step) == (5, 3, encoding, 5 * channels)
+    assert message.data == frame.tobytes()
+    assert np.array_equal(decode_frame("raw", shape, encode_frame("raw", frame, 5, jpeg_quality=90)), frame)
+
+
+@pytest.mark.parametrize("codec", ["png", "jpeg"])
+@pytest.mark.parametrize("shape", [(4, 6), (4, 6, 3)])
+def test_a_compressed_message_names_its_format_and_decodes_to_the_frame(codec: str, shape: tuple[int, ...]) -> None:
+    frame = np.full(shape, 120, dtype=np.uint8)
+    frame[1:3, 2:4] = 30
+    data = encode_frame(codec, frame, 5, jpeg_quality=95)
+    assert CompressedImage.FromString(data).format == codec
+    decoded = decode_frame(codec, shape, data)
+    assert decoded.shape == shape and decoded.dtype == np.uint8
+    if codec == "png":
+        assert np.array_equal(decoded, frame)
+    else:
+        assert np.abs(decoded.astype(int) - frame).max() <= 8
+
+
+def test_jpeg_quality_is_what_the_encoder_is_given() -> None:
+    frame = frames((32, 32, 3))[0]
+    sizes = [len(encode_frame("jpeg", frame, 0, jpeg_quality=quality)) for quality in (10, 95)]
+    assert sizes[0] < sizes[1] / 2
