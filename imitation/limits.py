@@ -1,6 +1,7 @@
 """Resource bounds checked before anything is allocated, so that a small hostile file (a space
-declaring 2^26 numbers, a chunk of zeros expanding a thousandfold, a YAML alias bomb) is refused
-in one line instead of exhausting memory or CPU.
+declaring 2^26 numbers, a chunk of zeros expanding a thousandfold, a YAML alias bomb, camera
+frames that decode to gigabytes, a JPEG of thousands of scans) is refused in one line instead of
+exhausting memory or CPU.
 
 Every bound is generous for real data and can be raised for one run with the global option
 `imitation --limit NAME=VALUE` (repeatable), or the environment variable
@@ -9,6 +10,7 @@ Every bound is generous for real data and can be raised for one run with the glo
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import zipfile
@@ -39,6 +41,18 @@ class Limits:
     # data is a damaged stamp stretching a few messages over days (a 7.8 KB bag would be 44 million
     # steps, 3.9 GB); a real silence that long belongs between episodes (`episodes: {split: gap}`).
     grid_steps_per_message: int = 1000
+    # Bytes of decoded camera frames per byte of the file or folder that holds them (beyond the
+    # first 64 MiB): PNG and JPEG frames of a demo file, a ROS bag's camera messages on the
+    # resampled grid, a LeRobot dataset's images and video frames. Measured on real data, the
+    # most compressible are CartPole rendered at 400x600 (PNG 373, JPEG 467) and LeRobot's
+    # AV1 and H.264 videos (SO-101 337, ALOHA sim 350); cameras' own PNG and JPEG frames stay
+    # near 20. A 34 KB file of identical compressed frames decoding to 3 GB is 90,000.
+    image_expansion_ratio: int = 2000
+    # Scans of one JPEG frame. A progressive JPEG's scans each pass over the whole picture, and a
+    # scan of "nothing changed" takes 12 bytes: 600 of them made an 8 KB 1080p frame take 0.6 s
+    # to decode. Encoders write 1 (baseline) or 3 (one per colour), libjpeg's progressive mode
+    # 10 (colour) or 6 (grey), mozjpeg's searched progressions about a dozen.
+    jpeg_scans: int = 100
     # Demo files read from URLs (data/mcap/remote_reads.py): what a server may cost. Seconds it
     # may send nothing, to connect, to answer or between bytes: object stores answer within a
     # second, and a transfer stalled this long over the internet seldom resumes.
@@ -83,6 +97,40 @@ def over_limit(what: str, amount: int, name: str) -> ImitationError:
         f"{what}: {amount} is more than the limit {name}={getattr(LIMITS, name)} (raise it with `imitation --limit {name}=N` "
         "if the data is real)"
     )
+
+
+def input_bytes(path: str | os.PathLike) -> int:
+    """Bytes of a file, or of every file in a folder and its subfolders (symlinked folders not
+    followed): what decoded frames are counted against."""
+    if not os.path.isdir(path):
+        return os.path.getsize(path)
+    total = 0
+    for folder, _, names in os.walk(os.fspath(path)):
+        for name in names:
+            with contextlib.suppress(OSError):  # a dangling link holds nothing
+                total += os.path.getsize(os.path.join(folder, name))
+    return total
+
+
+class ImageBudget:
+    """Decoded bytes of camera frames from one input, counted before each frame (or batch of
+    frames) is decoded, against `image_expansion_ratio` times the input's size: frames that
+    compress ten-thousandfold are refused in one line instead of filling memory."""
+
+    def __init__(self, what: str, source_bytes: int) -> None:
+        """`what` names the input in the error."""
+        self.what, self.source_bytes, self.decoded = what, source_bytes, 0
+        self.allowed = max(FREE_EXPANSION_BYTES, LIMITS.image_expansion_ratio * source_bytes)
+
+    def take(self, amount: int) -> None:
+        """Count `amount` more decoded bytes; ImitationError once the total passes the bound."""
+        self.decoded += amount
+        if self.decoded > self.allowed:
+            raise ImitationError(
+                f"{self.what}: decoded bytes of its camera frames (from {self.source_bytes} bytes): {self.decoded} is more "
+                f"than the limit image_expansion_ratio={LIMITS.image_expansion_ratio} (raise it with "
+                "`imitation --limit image_expansion_ratio=N` if the data is real)"
+            )
 
 
 def check_zip_member(file: str | os.PathLike, info: zipfile.ZipInfo) -> None:

@@ -159,13 +159,15 @@ def load_transitions(
     episodes: Sequence[int] | None = None,
     next_observations: bool = True,
     finite: bool = True,
+    too_large: str = "train on fewer demo files, or on a machine with more memory",
 ) -> Transitions:
     """All transitions of the chosen episodes as one contiguous numpy batch.
 
     Leave out `next_observations` when the learner does not need s': it is a second copy of
     the observations. With `finite` (the default), NaN or ±inf anywhere in the observations,
     actions or rewards is an ImitationError naming the file, episode and step (see
-    `check_finite`)."""
+    `check_finite`). A batch larger than the memory available is refused before it is
+    allocated, the error ending in `too_large` (what the caller's user can do about it)."""
     dataset = source if isinstance(source, DemoDataset) else DemoDataset(source)
     indices = sorted(set(int(k) for k in episodes)) if episodes is not None else list(range(len(dataset)))
     if indices and not 0 <= indices[0] <= indices[-1] < len(dataset):
@@ -174,7 +176,7 @@ def load_transitions(
     steps = sum(all_facts[k].length for k in indices)
     if steps == 0:
         raise ImitationError("no transitions to load: the demos hold no steps")
-    _check_memory(dataset, steps, len(indices), next_observations=next_observations)
+    _check_memory(dataset, steps, len(indices), next_observations=next_observations, too_large=too_large)
     transitions = read_transitions(dataset, indices, next_observations=next_observations)
     if transitions is None:
         transitions = episodes_to_transitions(_read(dataset, indices), indices, next_observations=next_observations)
@@ -211,7 +213,7 @@ def select_human_steps(
     return transitions.select(torch.from_numpy(np.flatnonzero(human_steps(dataset, episodes, unrecorded=unrecorded))))
 
 
-def _check_memory(dataset: DemoDataset, steps: int, episodes: int, *, next_observations: bool) -> None:
+def _check_memory(dataset: DemoDataset, steps: int, episodes: int, *, next_observations: bool, too_large: str) -> None:
     """Refuse, before allocating, a load that cannot fit in the memory this machine has free:
     one line naming the size, instead of an out-of-memory kill or traceback midway."""
     observation_row = sum(dtype.itemsize * math.prod(shape) for _, dtype, shape in space_leaves(dataset.observation_space))
@@ -226,8 +228,7 @@ def _check_memory(dataset: DemoDataset, steps: int, episodes: int, *, next_obser
     if available is not None and needed > available:
         raise ImitationError(
             f"{dataset.files[0].path}: loading {steps} transitions ({len(dataset.files)} file(s)) needs {needed / 2**30:.1f} "
-            f"GiB of memory and {available / 2**30:.1f} GiB is available; train on fewer demo files, or on a machine with "
-            "more memory"
+            f"GiB of memory and {available / 2**30:.1f} GiB is available; {too_large}"
         )
 
 

@@ -336,7 +336,12 @@ def _split(
     gives this process for the training episodes `counted`; the split's record stays whole."""
 
     def load(episodes: list[int] | None = None) -> Transitions:
-        transitions = load_transitions(dataset, episodes=episodes, next_observations=False)
+        transitions = load_transitions(
+            dataset,
+            episodes=episodes,
+            next_observations=False,
+            too_large="stream them instead (--stream-memory MB), train on fewer demo files, or on a machine with more memory",
+        )
         if frames > 1:
             observations = stack_frames(transitions.observations, transitions.episode_index, frames, image_keys or [])
             transitions = dataclasses.replace(transitions, observations=observations)

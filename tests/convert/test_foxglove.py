@@ -60,3 +60,46 @@ def test_recordings_keep_their_real_times_and_dict_observations(tmp_path: Path) 
     steps = [(time, body) for topic, time, body in messages if topic == "/step"]
     assert [time for time, _ in steps] == [1_000, 5_000, 9_000]
     assert steps[1][1]["observation"] == {"position": [2.0, 3.0], "mode": 1} and steps[1][1]["reward"] == 1.5
+
+
+def test_camera_leaves_are_copied_as_image_messages_not_json(tmp_path: Path) -> None:
+    """A camera is not numbers to plot: its frames go out as the demo file holds them (Foxglove
+    image messages on the leaf's own topic, same bytes and log times), and `/step` keeps the rest.
+    A 1080p frame as a JSON list took seconds and hundreds of MB per step."""
+    rng = np.random.default_rng(0)
+    steps = 4
+    frames = rng.integers(0, 255, (steps + 1, 6, 8, 3), dtype=np.uint8)
+    space = gym.spaces.Dict({"front": gym.spaces.Box(0, 255, (6, 8, 3), np.uint8), "speed": gym.spaces.Box(-9, 9, (1,), np.float32)})
+    episode = Episode(observations={"front": frames, "speed": np.arange(steps + 1, dtype=np.float32).reshape(-1, 1)},
+                      actions=np.zeros(steps, np.int64), rewards=np.ones(steps), timestamps=np.arange(steps + 1, dtype=np.int64) * 1000 + 50)
+    source = write_episodes(tmp_path / "camera.mcap", [episode, episode], env_id="", observation_space=space,
+                            action_space=gym.spaces.Discrete(2))
+    result = export_foxglove(source, tmp_path / "steps.mcap", progress=False)
+    assert result["topics"] == ["/step", "/episode", "/observation/front"]
+    with open(source, "rb") as stream:
+        stored = [(m.log_time, m.data) for _, c, m in make_reader(stream).iter_messages() if c.topic == "/observation/front"]
+    with open(tmp_path / "steps.mcap", "rb") as stream:
+        reader = make_reader(stream)
+        schemas = {s.name: s for s in reader.get_summary().schemas.values()}
+        exported = [(c.topic, m.log_time, m.data) for _, c, m in reader.iter_messages(log_time_order=False)]
+    assert json.loads(schemas["imitation.Step"].data)["properties"]["observation"]["properties"].keys() == {"speed"}
+    assert schemas["foxglove.CompressedImage"].encoding == "protobuf"
+    assert [(time, data) for topic, time, data in exported if topic == "/observation/front"] == stored and len(stored) == 2 * (steps + 1)
+    step_messages = [json.loads(data) for topic, _, data in exported if topic == "/step"]
+    assert step_messages[2]["observation"] == {"speed": [2.0]}
+    assert result["messages"] == len(exported) == 2 * (steps + 1 + 1 + steps + 1)
+    times = [time for _, time, _ in exported]
+    assert times == sorted(times)  # each frame right after its step
+
+
+def test_an_observation_that_is_a_camera_alone_leaves_no_observation_in_step(tmp_path: Path) -> None:
+    frames = np.zeros((3, 4, 4), np.uint8)
+    source = write_episodes(tmp_path / "camera.mcap", [Episode(observations=frames, actions=np.zeros(2, np.int64), rewards=np.zeros(2))],
+                            env_id="", observation_space=gym.spaces.Box(0, 255, (4, 4), np.uint8), action_space=gym.spaces.Discrete(2))
+    export_foxglove(source, tmp_path / "steps.mcap", progress=False)
+    with open(tmp_path / "steps.mcap", "rb") as stream:
+        reader = make_reader(stream)
+        schema = json.loads(next(s for s in reader.get_summary().schemas.values() if s.name == "imitation.Step").data)
+        topics = [c.topic for _, c, _ in reader.iter_messages()]
+    assert "observation" not in schema["properties"] and "observation" not in schema["required"]
+    assert topics.count("/observation") == 3 and topics.count("/step") == 3

@@ -4,6 +4,7 @@ own decoder gives; `export --to lerobot` writes them back as videos with lerobot
 
 from __future__ import annotations
 
+import io
 import json
 import shutil
 from pathlib import Path
@@ -22,6 +23,7 @@ from imitation.data.mcap.reader import DemoFile
 from imitation.data.mcap.writer import write_episodes
 from imitation.data.types import Episode
 from imitation.errors import ImitationError
+from imitation.limits import LIMITS, ImageBudget
 
 WRIST = "videos/observation.images.wrist/chunk-000/file-000.mp4"
 
@@ -64,19 +66,24 @@ def test_so101_wrist_video_decodes_to_lerobots_pixels(testdata: Path) -> None:
         assert psnr(frames, expected) == float("inf")  # identical: same seek, same frames, same rgb24 conversion
 
 
-def test_a_missing_frame_or_a_broken_video_is_one_line_naming_file_feature_and_frame(testdata: Path, tmp_path: Path) -> None:
+def test_a_missing_frame_or_a_broken_video_is_one_line_naming_file_feature_and_frame(
+        testdata: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     video = testdata / "lerobot" / "so101_v30" / WRIST
     with pytest.raises(ImitationError) as missing:
-        frames_at(video, np.array([0.0, 1 / 30, 100.0]), tolerance_s=1e-4, shape=(360, 640, 3), what="video feature 'w', episode 0")
+        frames_at(video, np.array([0.0, 1 / 30, 100.0]), tolerance_s=1e-4, shape=(360, 640, 3), what="video feature 'w', episode 0",
+                  budget=ImageBudget(str(video), video.stat().st_size))
     assert str(missing.value) == (
         f"{video}: video feature 'w', episode 0: no video frame within 0.0001 s of frame 2 (at 100.000000 s)"
     )
     with pytest.raises(ImitationError, match="cannot decode the video \\(ValueError: frames are 640x360, the dataset declares 64x36\\)"):
-        frames_at(video, np.array([0.0]), tolerance_s=1e-4, shape=(36, 64, 3), what="w")
+        frames_at(video, np.array([0.0]), tolerance_s=1e-4, shape=(36, 64, 3), what="w", budget=ImageBudget(str(video), video.stat().st_size))
 
     root = tmp_path / "so101"
     shutil.copytree(testdata / "lerobot" / "so101_v30", root)
     (root / WRIST).write_bytes(b"\x00\x00\x00\x20ftypisom" + bytes(range(256)) * 8)
+    # Without the 3.5 MB video the folder is too small for its frames (image_expansion_ratio):
+    # the bound raised, the broken video itself is what is refused.
+    monkeypatch.setattr(LIMITS, "image_expansion_ratio", 10**6)
     with pytest.raises(ImitationError) as broken:
         lerobot_to_episodes(root, episodes=[0], progress=False)
     message = str(broken.value)
@@ -117,6 +124,49 @@ def test_a_frame_larger_than_the_limits_is_refused_before_decoding(testdata: Pat
     (root / "meta/info.json").write_text(json.dumps(info))
     with pytest.raises(ImitationError, match=r"'observation.images.wrist': numbers per frame: 99532800 is more than the limit sample_elements"):
         lerobot_to_episodes(root, progress=False)
+
+
+def test_frames_that_decode_to_far_more_than_the_dataset_are_refused_before_decoding(
+        testdata: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """SO-101's episodes decode to 337 times the folder's bytes (AV1, 2 KB a 640x360 frame): under
+    a bound of 300 they are refused by their count, before a frame is decoded."""
+    root = testdata / "lerobot" / "so101_v30"
+    monkeypatch.setattr(LIMITS, "image_expansion_ratio", 300)
+    size = sum(f.stat().st_size for f in root.rglob("*") if f.is_file())
+    with pytest.raises(ImitationError) as caught:
+        lerobot_to_episodes(root, progress=False)
+    assert str(caught.value).startswith(
+        f"{root}: decoded bytes of its camera frames (from {size} bytes): {1782 * 360 * 640 * 3} is more than the limit "
+        "image_expansion_ratio=300"
+    )
+
+
+def test_video_frames_passed_over_on_the_way_count_too(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A timestamp 10 s in a video of one keyframe: the 300 frames before it are decoded to reach
+    it, and each is counted, so a small video of thousands of frames stops at the bound."""
+    import av
+
+    import imitation.limits
+
+    video = tmp_path / "still.mp4"
+    with av.open(str(video), "w") as container:
+        stream = container.add_stream("h264", rate=30, options={"g": "1000"})
+        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p"
+        for _ in range(301):
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(np.zeros((48, 64, 3), np.uint8), format="rgb24")))
+        container.mux(stream.encode())
+    monkeypatch.setattr(imitation.limits, "FREE_EXPANSION_BYTES", 0)
+    monkeypatch.setattr(LIMITS, "image_expansion_ratio", 100)  # the video's frames decode to 290 times its bytes
+    size, frame = video.stat().st_size, 48 * 64 * 3
+    budget = ImageBudget(str(video), size)
+    assert budget.allowed < 301 * frame
+    with pytest.raises(ImitationError, match=r"decoded bytes of its camera frames .* is more than the limit image_expansion_ratio=100"):
+        frames_at(video, np.array([10.0]), tolerance_s=1e-4, shape=(48, 64, 3), what="w", budget=budget)
+    assert budget.decoded == (budget.allowed // frame + 1) * frame  # stopped at the first frame past the bound
+    monkeypatch.setattr(LIMITS, "image_expansion_ratio", 10**6)
+    admitted = ImageBudget(str(video), size)
+    assert frames_at(video, np.array([10.0]), tolerance_s=1e-4, shape=(48, 64, 3), what="w", budget=admitted).shape == (1, 48, 64, 3)
+    assert admitted.decoded == 301 * frame
 
 
 def test_an_unknown_episode_is_refused(testdata: Path) -> None:
@@ -210,6 +260,21 @@ def test_lerobot_image_features_convert_losslessly(tmp_path: Path) -> None:
     broken = pa.StructArray.from_arrays([pa.array(blobs, pa.binary()), column.field("path")], names=["bytes", "path"])
     pq.write_table(table.set_column(table.schema.get_field_index("observation.images.top"), "observation.images.top", broken), data)
     with pytest.raises(ImitationError, match=r"img: episode 1: image feature 'observation.images.top', frame 1: cannot decode it as a 16x12 image with 3 channels \(UnidentifiedImageError"):
+        lerobot_to_episodes(tmp_path / "img", progress=False)
+
+    # A JPEG of more scans than the limit jpeg_scans: refused before it is decoded.
+    from PIL import Image
+
+    from imitation.data.jpeg_scans import scan_count
+
+    out = io.BytesIO()
+    Image.fromarray(images[1][1]).save(out, format="JPEG", progressive=True)
+    jpeg = out.getvalue()
+    last, end = jpeg.rindex(b"\xff\xda"), jpeg.rindex(b"\xff\xd9")
+    blobs[5] = jpeg[:end] + jpeg[last:end] * (500 - scan_count(jpeg)) + jpeg[end:]
+    many = pa.StructArray.from_arrays([pa.array(blobs, pa.binary()), column.field("path")], names=["bytes", "path"])
+    pq.write_table(table.set_column(table.schema.get_field_index("observation.images.top"), "observation.images.top", many), data)
+    with pytest.raises(ImitationError, match=r"img: episode 1: image feature 'observation.images.top', frame 1: scans of one JPEG frame: 500 is more than the limit jpeg_scans=100"):
         lerobot_to_episodes(tmp_path / "img", progress=False)
 
 

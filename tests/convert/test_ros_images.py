@@ -4,6 +4,7 @@ serialisers (ROS 2 MCAP, rosbag2 sqlite, ROS 1), the frames rendered by CartPole
 
 from __future__ import annotations
 
+import io
 import re
 import shutil
 import struct
@@ -25,6 +26,7 @@ from test_ros_real_logs import BagWriter
 from imitation.data.convert.job import convert
 from imitation.data.convert.maps import parse_map
 from imitation.data.convert.ros_images import COMPRESSED, IMAGE, ImageError, decode, frame_of
+from imitation.data.jpeg_scans import scan_count
 from imitation.data.mcap.reader import DemoFile
 from imitation.errors import ImitationError
 
@@ -220,6 +222,17 @@ def small_bag(path: Path, camera: list[Any], *, kind: str = "ros2 mcap") -> Path
 
 PIXELS = np.arange(8 * 12 * 3, dtype=np.uint8).reshape(8, 12, 3)
 JPEG = encoded(PIXELS, ".jpg")
+
+
+def many_scans(pixels: np.ndarray, scans: int) -> bytes:
+    """Pillow's progressive JPEG of `pixels` with its last scan repeated until it has `scans`."""
+    from PIL import Image
+
+    out = io.BytesIO()
+    Image.fromarray(pixels).save(out, format="JPEG", progressive=True)
+    data = out.getvalue()
+    last, end = data.rindex(b"\xff\xda"), data.rindex(b"\xff\xd9")
+    return data[:end] + data[last:end] * (scans - scan_count(data)) + data[end:]
 SMALL_MAP = {
     "rate_hz": 10,
     "observation": [{"topic": "/camera", "image": "cam"}],
@@ -278,6 +291,11 @@ BAD_BAGS = {
         ["frame 0", "compressedDepth is not supported"],
     ),
     "short data": ([rgb, rgb, short_data], SMALL_MAP, ["frame 2", "data holds 283 bytes", "step × height is 36 × 8 = 288"]),
+    "a progressive JPEG of 150 scans": (
+        [jpeg, lambda b, t: b.compressed(t, many_scans(PIXELS, 150), "jpeg"), jpeg],
+        SMALL_MAP,
+        ["frame 1 (logged at", "scans of one JPEG frame: 150 is more than the limit jpeg_scans=100"],
+    ),
     "a PNG declaring 4000x4000": (
         [lambda b, t: b.compressed(t, png_header(4000, 4000), "png")],
         SMALL_MAP,
@@ -336,6 +354,62 @@ def test_bad_frames_fail_in_one_line_and_write_nothing(tmp_path: Path) -> None:
         except AssertionError as error:
             raise AssertionError(f"{name}: {error}") from None
     assert list(out.iterdir()) == []  # nothing written, not even a .partial
+
+
+def test_frames_held_over_many_steps_count_once_per_step(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two frames held over a 100 Hz grid: each step is a decoded frame, counted against
+    image_expansion_ratio times the bag's bytes (the free 64 MiB set to 0 for 12x8 frames)
+    before the episode's frames are allocated."""
+    import imitation.limits
+
+    def nothing(bag: BagWriter, t: int) -> None:
+        return None
+
+    bag = small_bag(tmp_path / "bag", [jpeg, nothing, nothing, jpeg, nothing, nothing])
+    fast = write_map(tmp_path, {**SMALL_MAP, "rate_hz": 100})
+    size = sum(f.stat().st_size for f in bag.iterdir())
+    steps = 52  # 0.5 s of commands at 100 Hz, and one period past the last
+    monkeypatch.setattr(imitation.limits, "FREE_EXPANSION_BYTES", 0)
+    monkeypatch.setattr(imitation.limits.LIMITS, "image_expansion_ratio", steps * PIXELS.nbytes // size)
+    with pytest.raises(ImitationError) as caught:
+        convert(bag, tmp_path / "d.mcap", map_path=fast, progress=False)
+    assert str(caught.value).startswith(
+        f"{bag}: decoded bytes of its camera frames (from {size} bytes): {steps * PIXELS.nbytes} is more than the limit image_expansion_ratio="
+    )
+    assert not (tmp_path / "d.mcap").exists()
+    monkeypatch.setattr(imitation.limits.LIMITS, "image_expansion_ratio", steps * PIXELS.nbytes // size + 1)
+    assert convert(bag, tmp_path / "d.mcap", map_path=fast, progress=False)["transitions"] == steps - 1
+
+
+def test_a_640x480_camera_bag_converts_and_trains_within_the_image_bounds(tmp_path: Path) -> None:
+    """Real data is not refused by the bounds on decoded frames: a 640x480 JPEG camera at 30 Hz
+    (rendered CartPole with a sensor's noise) for 2 s, resampled at 50 Hz (each frame held over
+    one or two steps: 93 MB decoded from a 3 MB bag, past the free 64 MiB) and at 10 Hz, which
+    `train bc` loads whole, frames decoded, and learns from (the state alone: the Nature CNN on
+    640x480 frames holds 139M weights, minutes of CPU per epoch)."""
+    frames, states, _ = cartpole_frames(60)
+    rng = np.random.default_rng(4)
+    with CameraBagWriter(tmp_path / "bag", "ros2 mcap") as bag:
+        for i, frame in enumerate(frames):
+            t = START_NS + i * NS // 30
+            big = cv2.resize(frame, (640, 480), interpolation=cv2.INTER_LINEAR).astype(np.int16) + rng.normal(0, 3, (480, 640, 3)).astype(np.int16)
+            bag.write("/camera/image_raw/compressed", t, bag.compressed(t, encoded(np.clip(big, 0, 255).astype(np.uint8)[..., ::-1], ".jpg"), "jpeg"))
+            if i % 3 == 0:  # the state and the command at 10 Hz
+                bag.write("/joint_states", t + 1_000_000, bag.joint_state(t + 1_000_000, states[i]))
+                bag.write("/cmd", t + 2_000_000, bag.msg("std_msgs/msg/Float64", data=float(i % 2)))
+    camera_map = {"observation": [{"topic": "/joint_states", "fields": ["position"]}, {"topic": "/camera/image_raw/compressed", "image": "front"}],
+                  "action": [{"topic": "/cmd", "fields": ["data"]}]}
+    held = convert(tmp_path / "bag", tmp_path / "held.mcap", map_path=write_map(tmp_path, {**camera_map, "rate_hz": 50}, "held.yaml"), progress=False)
+    assert held["transitions"] == 99  # the 1.97 s from the first command to the last frame, at 50 Hz
+    assert DemoFile(tmp_path / "held.mcap").observation_space["front"].shape == (480, 640, 3)
+    results = run_cli_many([
+        ["convert", tmp_path / "bag", "--map", write_map(tmp_path, {**camera_map, "rate_hz": 10}), "--out", tmp_path / "demos.mcap"],
+        ["train", "bc", "--demos", tmp_path / "demos.mcap", "--observation-keys", "state", "--epochs", "1", "--quiet", "--out", tmp_path / "run"],
+        ["info", tmp_path / "demos.mcap"],
+    ])
+    for result in results:
+        assert result.returncode == 0, result.stderr[-2000:]
+    assert (tmp_path / "run" / "model.safetensors").is_file()
 
 
 def test_the_ros1_reader_checks_frames_too(tmp_path: Path) -> None:

@@ -4,12 +4,14 @@ tooling, the protobuf schema, and one-line errors for hostile frames."""
 
 from __future__ import annotations
 
+import contextlib
 import io
 import shutil
 import struct
 import subprocess
 import sys
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 
 import gymnasium as gym
@@ -22,11 +24,13 @@ from PIL import Image
 
 from imitation.data.columns import read_transitions
 from imitation.data.dataset import DemoDataset
+from imitation.data.jpeg_scans import scan_count
 from imitation.data.loader import load_transitions
 from imitation.data.mcap.reader import DemoFile
 from imitation.data.mcap.writer import DemoWriter, write_episodes
 from imitation.data.types import Episode
 from imitation.errors import DemoFileError, ImitationError
+from imitation.limits import LIMITS
 
 H, W = 24, 32
 SPACE = gym.spaces.Dict(
@@ -380,3 +384,94 @@ def test_channel_declaring_another_shape_than_the_space_is_refused(tmp_path) -> 
         DemoFileError, match=r"/observation/rgb: an image channel declaring uint8 \[2, 2, 3\], but the space's leaf"
     ):
         DemoFile(bad)[0]
+
+
+# -- frames cheap to store and dear to decode (imitation/limits.py) ----------------------------
+
+
+@contextlib.contextmanager
+def limits(free_bytes: int | None = None, **values: int) -> Iterator[None]:
+    """The block runs with LIMITS' `values` (as `imitation --limit` sets them) and, given, the
+    bytes every file may decode to whatever its size."""
+    import imitation.limits
+
+    saved = {name: getattr(LIMITS, name) for name in values}, imitation.limits.FREE_EXPANSION_BYTES
+    try:
+        for name, value in values.items():
+            setattr(LIMITS, name, value)
+        if free_bytes is not None:
+            imitation.limits.FREE_EXPANSION_BYTES = free_bytes
+        yield
+    finally:
+        for name, value in saved[0].items():
+            setattr(LIMITS, name, value)
+        imitation.limits.FREE_EXPANSION_BYTES = saved[1]
+
+
+def _progressive(pixels: np.ndarray, scans: int) -> bytes:
+    """Pillow's progressive JPEG of `pixels` with its last scan (a refinement of the picture)
+    repeated until it has `scans`: libjpeg decodes each scan over the whole picture."""
+    out = io.BytesIO()
+    Image.fromarray(pixels).save(out, format="JPEG", progressive=True, quality=90)
+    data = out.getvalue()
+    last, end = data.rindex(b"\xff\xda"), data.rindex(b"\xff\xd9")
+    return data[:end] + data[last:end] * (scans - scan_count(data)) + data[end:]
+
+
+def test_scans_are_counted_from_the_markers() -> None:
+    frame = smooth(1, (H, W, 3), 0)[0]
+    for options, scans in (({}, 1), ({"progressive": True}, 10)):
+        out = io.BytesIO()
+        Image.fromarray(frame).save(out, format="JPEG", **options)
+        assert scan_count(out.getvalue()) == scans
+    grey = io.BytesIO()
+    Image.fromarray(frame[..., 0]).save(grey, format="JPEG", progressive=True)
+    assert scan_count(grey.getvalue()) == 6
+    assert scan_count(_progressive(frame, 250)) == 250
+    # A segment's contents are skipped by its length: a whole JPEG inside a comment is not scans.
+    inner = _progressive(frame, 40)
+    outer = io.BytesIO()
+    Image.fromarray(frame).save(outer, format="JPEG", comment=inner)
+    assert inner in outer.getvalue() and scan_count(outer.getvalue()) == 1
+    assert scan_count(b"not a jpeg") == 0
+
+
+def test_a_jpeg_frame_of_more_scans_than_the_limit_is_refused_before_it_is_decoded(tmp_path) -> None:
+    good = write(tmp_path / "good.mcap", NO_ALPHA_EPISODES[:3], NO_ALPHA, image_codec="jpeg")
+    bad_time = DemoFile(good).episodes[2].t_start_ns + 3 * 20_000_000
+    many = _progressive(smooth(1, (H, W, 3), 1)[0], 150)
+    bad = tmp_path / "bad.mcap"
+    rewrite_messages(
+        good, bad, lambda topic, t, data: (t, _compressed(many, "jpeg") if (topic, t) == ("/observation/rgb", bad_time) else data)
+    )
+    expected = f"{bad}: /observation/rgb, episode 2, step 3: scans of one JPEG frame: 150 is more than the limit jpeg_scans=100"
+    for read in (lambda: DemoFile(bad)[2], lambda: load_transitions(bad), lambda: DemoFile(bad, salvage=True, verify=True)):
+        with pytest.raises(DemoFileError) as caught:
+            read()  # `info`'s salvage scan stops on it too: a limit is not damage to salvage around
+        assert str(caught.value).startswith(expected), str(caught.value)
+    with limits(jpeg_scans=150):
+        frame = DemoFile(bad)[2].observations["rgb"][3]
+    assert np.array_equal(frame, np.asarray(Image.open(io.BytesIO(many))))  # raised, the same frame decodes as Pillow decodes it
+
+
+def test_frames_that_decode_to_far_more_than_the_file_are_refused_when_it_is_opened(tmp_path) -> None:
+    """A file whose frames decode to more than image_expansion_ratio times its size (beyond the
+    free 64 MiB, lowered here) is refused on opening, through its summary or by the salvage
+    scan; raised, the same file reads."""
+    black = gym.spaces.Box(0, 255, (64, 64, 3), np.uint8)
+    frames = np.zeros((101, 64, 64, 3), np.uint8)  # 1.2 MB decoded, 290 B of PNG each
+    path = write_episodes(tmp_path / "black.mcap", [Episode(observations=frames, actions=np.zeros(100, np.int64), rewards=np.zeros(100))],
+                          env_id="", observation_space=black, action_space=ACTIONS)
+    size = path.stat().st_size
+    ratio = frames.nbytes // size
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(path.read_bytes()[:-40])  # no footer: the salvage scan decodes as it reads
+    with limits(image_expansion_ratio=ratio - 1, free_bytes=0):
+        for read, name in ((lambda: DemoFile(path), path), (lambda: DemoFile(damaged, salvage=True), damaged)):
+            with pytest.raises(DemoFileError) as caught:
+                read()
+            assert str(caught.value).startswith(f"{name}: decoded bytes of its camera frames (from {name.stat().st_size} bytes): "
+                                                 f"{frames.nbytes} is more than the limit image_expansion_ratio={ratio - 1}")
+    with limits(image_expansion_ratio=2 * ratio, free_bytes=0):
+        assert np.array_equal(DemoFile(path)[0].observations, frames)
+        assert len(DemoFile(damaged, salvage=True)) == 1

@@ -18,6 +18,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from imitation.data.jpeg_scans import excess_scans
 from imitation.errors import ImitationError
 from imitation.limits import LIMITS, over_limit
 
@@ -73,6 +74,8 @@ def decoded_images(blobs: list[Any], camera: Camera, what: str) -> np.ndarray:
                 # Image.open reads the header alone: a frame of another size is refused before it is decompressed.
                 if image.size != (camera.shape[1], camera.shape[0]):
                     raise ValueError(f"the image is {image.size[0]}x{image.size[1]}")
+                if image.format in ("JPEG", "MPO") and (problem := excess_scans(blob)) is not None:
+                    raise ImitationError(f"{what}: image feature {camera.key!r}, frame {row}: {problem}")
                 pixels = np.asarray(image.convert(_MODES[camera.shape[2]]))
             out[row] = pixels.reshape(pixels.shape[:2] + (-1,))
         except (OSError, ValueError, UnidentifiedImageError, Image.DecompressionBombError) as error:

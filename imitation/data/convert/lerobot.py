@@ -21,7 +21,10 @@ with `--env`, each episode's `source_end` says whether it ended at the env's tim
 warning.
 
 Cameras (`observation.images.*`, dtype "video" or "image") become uint8 (H, W, C) leaves
-(`imitation.data.convert.cameras`), decoded one episode at a time. A video frame is found as
+(`imitation.data.convert.cameras`), decoded one episode at a time; the frames the episodes hold,
+and every video frame decoded on the way to them, may come to at most `image_expansion_ratio`
+times the dataset folder's bytes (counted before the first frame is decoded, and as the videos
+are). A video frame is found as
 lerobot finds it: at the episode's `videos/<key>/from_timestamp` (v3.0; 0 in v2.1's one file per
 episode) plus the row's `timestamp`, within lerobot's default tolerance of 1e-4 s. A video
 feature some of whose files the folder lacks is skipped with a warning naming them, and the
@@ -55,7 +58,7 @@ from imitation.data.convert.video import frames_at
 from imitation.data.spaces import space_from_json, space_leaves
 from imitation.data.types import Episode, Tree
 from imitation.errors import ImitationError
-from imitation.limits import LIMITS, over_limit
+from imitation.limits import LIMITS, ImageBudget, input_bytes, over_limit
 
 SIDECAR = "meta/imitation.json"
 _INDEX_FEATURES = {"timestamp", "frame_index", "episode_index", "index", "task_index"}
@@ -506,6 +509,12 @@ def _build(
         raise ImitationError(f"{root}: Dict action spaces are not supported")
     rewards = columns["next.reward"].reshape(-1) if "next.reward" in columns else None
     done = columns["next.done"].reshape(-1) if "next.done" in columns else None
+    if cameras:
+        # The frames the episodes hold, counted before the first is decoded; `leaves.budget`
+        # counts each video frame decoded on the way to them too.
+        frame_bytes = sum(math.prod(leaves.cameras[key].shape) for key in leaves.used.values() if key in leaves.cameras)
+        rows = sum(int(bounds[k + 1] - bounds[k]) for k in kept)
+        ImageBudget(str(root), leaves.budget.source_bytes).take(rows * frame_bytes)
     episodes = []
     bar = tqdm(kept, desc="decode", unit="episode", disable=None if progress and cameras else True, dynamic_ncols=True)
     for k in bar:
@@ -589,6 +598,7 @@ class _Leaves:
             if isinstance(feature.get("dtype"), str) and feature["dtype"] in _VISUAL and key not in self.cameras
         }
         self.used: dict[str, str] = {}  # leaf name ("" for a bare space) → feature, once the space is known
+        self.budget = ImageBudget(str(root), input_bytes(root) if cameras else 0)
 
     def inferred(self) -> gym.Space:
         """The space the features give: one leaf's own, or a Dict of them all."""
@@ -648,6 +658,7 @@ class _Leaves:
             tolerance_s=TOLERANCE_S,
             shape=camera.shape,
             what=f"video feature {key!r}, episode {episode}",
+            budget=self.budget,
         )
 
 

@@ -13,7 +13,8 @@ refused before the grid is allocated: a damaged stamp stretching a few messages 
 
 Camera topics (`image` entries, ros_images.py) become uint8 or uint16 (H, W, C) leaves of a Dict
 observation beside `state`, the numeric entries: each grid time holds the latest frame at or
-before it, decoded once however many steps hold it.
+before it, decoded once however many steps hold it. The steps' frames together may decode to at
+most `image_expansion_ratio` times the bag's bytes, counted before each episode's are allocated.
 
 Values keep their precision: each field's dtype is the float that holds every value of the type
 its definition declares (float32 for float32 and small integers, float64 for float64 and wider
@@ -39,7 +40,7 @@ from imitation.data.convert.resample import NS, hold_index, regular_grid, sample
 from imitation.data.convert.ros_images import Frame, ImageError, decode, frame_of, image_kind
 from imitation.data.types import Episode, Tree
 from imitation.errors import ImitationError
-from imitation.limits import LIMITS, over_limit
+from imitation.limits import LIMITS, ImageBudget, input_bytes, over_limit
 
 _STAMP = parse_field("header.stamp")
 
@@ -115,6 +116,11 @@ class _ImageColumn:
     def error(self, label: str, reason: str) -> ImitationError:
         return ImitationError(f"{self.bag_path}: {self.stream.where} ({self.stream.topic}) {label}: {reason}")
 
+    @property
+    def frame_bytes(self) -> int:
+        first = self.frames[0]
+        return first.height * first.width * first.channels * first.dtype.itemsize
+
     def space(self) -> gym.spaces.Box:
         first = self.frames[0]
         return gym.spaces.Box(0, np.iinfo(first.dtype).max, shape=first.shape, dtype=first.dtype)
@@ -182,6 +188,8 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
     observation_space = _observation_space(bag, state, images, observation_dtype)
     # Streams without a default (images never have one) have no value before their first sample: start the grid after it.
     first_values = [int(arrays[id(c)][0][0]) for c in columns if isinstance(c, _ImageColumn) or c.default is None]
+    # Frames held over many steps are copied to each: the steps' bytes are counted, not the messages'.
+    budget = ImageBudget(str(bag.path), input_bytes(bag.path)) if images else None
     for index, (start, end) in enumerate(spans):
         begin = max([start, *first_values])
         if (end - begin) / NS * recording_map.rate_hz > MAX_EPISODE_STEPS:  # before allocating the grid
@@ -211,6 +219,8 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
         vector = np.concatenate([values[id(c)] for c in state], axis=1).astype(observation_dtype) if state else None
         observations: Tree
         if images:
+            assert budget is not None  # made whenever there are cameras
+            budget.take(len(grid) * sum(c.frame_bytes for c in images))
             observations = {c.key: c.on_grid(*arrays[id(c)], grid) for c in images}
             if vector is not None:
                 observations = {STATE_KEY: vector, **observations}

@@ -13,10 +13,11 @@ returns RGB whatever channel order the encoder was handed, so the format only na
 mono or colour is read from the file itself. compressedDepth (PNG behind a private header) is
 refused, as is a 16-bit colour PNG, which Pillow would narrow to 8 bits.
 
-Checking a frame (`frame_of`) reads its header only — size, channels, and that the bytes hold
-what the header claims — and allocates nothing: the size limits are applied to what it returns
-before any pixel is decoded. `decode` produces the pixels, only for the frames a resampling grid
-shows, so what is held meanwhile is the bag's (compressed) bytes, not a decoded copy of every frame.
+Checking a frame (`frame_of`) reads its header only — size, channels, that the bytes hold what
+the header claims, and a JPEG's count of scans (`jpeg_scans`) — and allocates nothing: the size
+limits are applied to what it returns before any pixel is decoded. `decode` produces the pixels,
+only for the frames a resampling grid shows, so what is held meanwhile is the bag's (compressed)
+bytes, not a decoded copy of every frame.
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
+
+from imitation.data.jpeg_scans import excess_scans
 
 IMAGE = "Image"
 COMPRESSED = "CompressedImage"
@@ -186,6 +189,8 @@ def _compressed_frame(message: Any) -> Frame:
     width, height = image.size
     if height <= 0 or width <= 0:
         raise ImageError(f"an empty image ({width}x{height})")
+    if image.format in ("JPEG", "MPO") and (problem := excess_scans(data)) is not None:
+        raise ImageError(problem)
     channels, dtype = layout
     return Frame(height, width, channels, dtype, text, data, codec=image.format)
 

@@ -15,13 +15,18 @@ from pathlib import Path
 import numpy as np
 
 from imitation.errors import ImitationError
+from imitation.limits import ImageBudget
 
 
-def frames_at(path: Path, timestamps: np.ndarray, *, tolerance_s: float, shape: tuple[int, int, int], what: str) -> np.ndarray:
+def frames_at(
+    path: Path, timestamps: np.ndarray, *, tolerance_s: float, shape: tuple[int, int, int], what: str, budget: ImageBudget
+) -> np.ndarray:
     """The frames of the video at `path` nearest to each of `timestamps` (seconds), of `shape`
     (H, W, 3). `what` names the frames in errors (the feature and episode); every failure is one
     ImitationError naming the file: a video PyAV cannot read or whose frames have another size
-    ("cannot decode"), or a timestamp no frame is near ("no video frame within")."""
+    ("cannot decode"), or a timestamp no frame is near ("no video frame within"). Every frame
+    decoded, wanted or passed over on the way, is counted in `budget` (image_expansion_ratio) as
+    it comes: a small video of thousands of frames that barely change stops at the bound."""
     import av
 
     wanted = np.asarray(timestamps, dtype=np.float64).reshape(-1)
@@ -48,6 +53,7 @@ def frames_at(path: Path, timestamps: np.ndarray, *, tolerance_s: float, shape: 
             # As lerobot: the nearest keyframe at or before the first timestamp, with one tick of margin.
             container.seek(round(ordered[0] / base) - 1, backward=True, any_frame=False, stream=stream)
             for frame in container.decode(stream):
+                budget.take(shape[0] * shape[1] * shape[2])
                 if frame.pts is None:
                     continue
                 at = float(frame.pts * base)

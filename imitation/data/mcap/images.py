@@ -11,8 +11,9 @@ Foxglove and other MCAP tools show it as a video:
 
 The schema record holds a serialized FileDescriptorSet of the message (and of
 google/protobuf/timestamp.proto, which it imports). Pillow encodes and decodes the pictures;
-decoding checks every frame's header against the channel's declared shape before any pixel is
-decoded, so a hostile frame costs no more memory than an honest one.
+decoding checks every frame's header against the channel's declared shape, and a JPEG's count of
+scans against the limit `jpeg_scans`, before any pixel is decoded, so a hostile frame costs no
+more memory or time than an honest one.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from imitation.data.jpeg_scans import excess_scans
+
 IMAGE_ENCODING = "protobuf"
 CODECS = ("png", "jpeg", "raw")
 DEFAULT_JPEG_QUALITY = 95
@@ -35,6 +38,7 @@ _SCHEMA_NAMES = {"png": "foxglove.CompressedImage", "jpeg": "foxglove.Compressed
 _PIL_FORMATS = {"png": "PNG", "jpeg": "JPEG"}
 _PIL_MODES = {1: "L", 3: "RGB", 4: "RGBA"}
 _RAW_ENCODINGS = {1: "mono8", 3: "rgb8", 4: "rgba8"}
+_JPEG_FORMATS = ("JPEG", "MPO")  # Pillow opens a JPEG with a multi-picture segment as MPO
 # Pillow's zlib level 3 encodes a rendered frame as fast as level 1 and a little smaller; level 6
 # halves the size again at 1.7× the time.
 _PNG_LEVEL = 3
@@ -45,6 +49,11 @@ _THREADS = min(os.cpu_count() or 1, 8)
 class FrameError(ValueError):
     """One frame that does not decode to its channel's declared image; the message names the
     topic, episode and step, and the reader prefixes the file."""
+
+
+class FrameLimitError(FrameError):
+    """A frame refused by a resource limit (`jpeg_scans`): not damage, so a salvage scan stops
+    on it rather than keeping the episodes before it."""
 
 
 def is_image_leaf(dtype: np.dtype | None, shape: tuple[int, ...]) -> bool:
@@ -136,7 +145,7 @@ def decode_frames(
         try:
             out[step] = decode_frame(codec, shape, frames[step])
         except FrameError as error:
-            raise FrameError(f"{topic}, episode {episode}, step {step}: {error}") from None
+            raise type(error)(f"{topic}, episode {episode}, step {step}: {error}") from None
 
     _map(decode, len(frames))
     return out
@@ -262,6 +271,8 @@ def _compressed_pixels(codec: str, data: bytes | memoryview, height: int, width:
             f"a {picture.size[0]}x{picture.size[1]} {picture.mode} picture, but the channel declares {width}x{height} "
             f"{_PIL_MODES[channels]}"
         )
+    if picture.format in _JPEG_FORMATS and (problem := excess_scans(data)) is not None:
+        raise FrameLimitError(problem)
     try:
         picture.load()  # here, not inside np.asarray, which would swallow its errors
         pixels = np.asarray(picture)

@@ -44,7 +44,7 @@ from imitation.data.mcap.format import (
     metadata_crc,
     to_json_text,
 )
-from imitation.data.mcap.images import FrameError, decode_frames, is_image_leaf
+from imitation.data.mcap.images import FrameError, FrameLimitError, decode_frames, is_image_leaf
 from imitation.data.mcap.records import (
     OP_CHANNEL,
     OP_CHUNK,
@@ -66,7 +66,7 @@ from imitation.data.mcap.source import ByteSource, ReadCounter, is_url, open_sou
 from imitation.data.spaces import space_from_json
 from imitation.data.types import Episode, Interventions, Tree, stack_samples, tree_from_leaves
 from imitation.errors import DemoFileError, ImitationError
-from imitation.limits import FREE_EXPANSION_BYTES, LIMITS, over_limit
+from imitation.limits import FREE_EXPANSION_BYTES, LIMITS, ImageBudget, over_limit
 
 _FOOTER_LENGTH = 1 + 8 + 20
 
@@ -101,6 +101,9 @@ class _EpisodeAssembler:
         self._observation_fields = [f for f in fields if f.kind == "observation"]
         self._action_fields = [f for f in fields if f.kind == "action"]
         self._blocks: dict[str, list[bytes | memoryview]] = {}
+        # Set by the salvage scan, which decodes episodes as it finds them (a file read through
+        # its summary is checked whole when it is opened).
+        self.budget: ImageBudget | None = None
 
     def add(
         self, channel_id: int, log_time: int, data: memoryview, keep: Callable[[EpisodeFacts], bool] | None = None
@@ -118,6 +121,8 @@ class _EpisodeAssembler:
         blocks, self._blocks = self._blocks, {}
         if keep is not None and not keep(facts):
             return facts, None
+        if self.budget is not None:
+            _take(self.budget, (facts.length + 1) * image_row_bytes(self._observation_fields, self._channels))
         return facts, self._build(facts, blocks)
 
     def _build(self, facts: EpisodeFacts, blocks: dict[str, list[bytes | memoryview]]) -> Episode:
@@ -160,6 +165,21 @@ class _EpisodeAssembler:
             interventions=interventions,
             metadata=facts.metadata,
         )
+
+
+def _take(budget: ImageBudget, amount: int) -> None:
+    """`budget.take`, refusing as the reader does: a DemoFileError, which neither the summary's
+    nor the salvage scan's handling of damage takes for damage."""
+    try:
+        budget.take(amount)
+    except ImitationError as error:
+        raise DemoFileError(str(error)) from None
+
+
+def image_row_bytes(observation_fields: Sequence[Field], channels: dict[int, Field | None]) -> int:
+    """Bytes one observation's image leaves decode to (0 without any)."""
+    images = {c.topic for c in channels.values() if c is not None and c.codec is not None}
+    return sum(f.row_nbytes for f in observation_fields if f.topic in images)
 
 
 def _interventions(
@@ -544,6 +564,15 @@ class DemoFile:
             if chunk.offset + chunk.length > footer.summary_start:
                 raise Damage("chunk index points past the data section")
         _check_episode_index(episodes, sum(chunk.uncompressed_size for chunk in chunks))
+        observations = [
+            f
+            for f in fields_for(space_from_json(dataset["observation_space"]), space_from_json(dataset["action_space"]))
+            if f.kind == "observation"
+        ]
+        _take(
+            ImageBudget(str(self.path), self.size),
+            sum(facts.length + 1 for facts in episodes) * image_row_bytes(observations, channels),
+        )
         chunks.sort(key=lambda c: (c.start_time, c.offset))
         return _Index(dataset, channels, chunks, episodes)
 
@@ -579,6 +608,7 @@ class DemoFile:
                         assembler = _EpisodeAssembler(
                             space_from_json(dataset["observation_space"]), space_from_json(dataset["action_space"]), channels
                         )
+                        assembler.budget = ImageBudget(str(self.path), self.size)
                 elif opcode == OP_CHANNEL:
                     channel = Channel.read(ReadDataStream(BytesIO(body)))
                     channels.setdefault(channel.id, channel_field(channel))
@@ -607,6 +637,8 @@ class DemoFile:
                 damage = "truncated: the file ends before its data section does"
         except DemoFileError:
             raise
+        except FrameLimitError as error:
+            raise DemoFileError(f"{self.path}: {error}") from None
         except Damage as error:
             damage = str(error)
         except Exception as error:
