@@ -51,3 +51,15 @@ def test_a_bound_raised_with_limit_lets_real_data_through(tmp_path: Path) -> Non
     inherited = subprocess.run([sys.executable, str(REPO / "cli.py"), "info", str(zeros)], capture_output=True, text=True,
                                env={**os.environ, "IMITATION_LIMITS": "expansion_ratio=1000000"})
     assert inherited.returncode == 0, inherited.stderr
+
+
+def test_image_bounds_raised_with_limit_let_real_frames_through(tmp_path: Path) -> None:
+    """Black frames and a many-scan JPEG are real pictures Pillow wrote: `--limit` admits them."""
+    black = hostile._black_frames_demo(tmp_path, "black.mcap", 12)  # 13 frames, 81 MB decoded from 9 KB
+    refused = hostile.run(["info", str(black)])
+    assert refused[0] == 1 and "image_expansion_ratio" in refused[1]
+    assert hostile.run(["--limit", "image_expansion_ratio=100000", "info", str(black)])[0] == 0
+    scans = hostile._many_scans_demo(tmp_path, 600, 1)
+    refused = hostile.run(["info", str(scans)])
+    assert refused[0] == 1 and "jpeg_scans" in refused[1]
+    assert hostile.run(["--limit", "jpeg_scans=600", "info", str(scans)])[0] == 0

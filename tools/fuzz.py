@@ -603,7 +603,39 @@ def demo_seeds(work: Path) -> list[Files]:
     write_episodes(path, episodes, env_id="Fuzz-v0", observation_space=observation_space, action_space=action_space, block_steps=3, compression="none")
     seeds.append({"demo.mcap": path.read_bytes()})
     seeds.extend({"demo.mcap": image_demo(work / f"images-{codec}.mcap", codec).read_bytes()} for codec in ("png", "jpeg", "raw"))
+    seeds.append({"demo.mcap": progressive(image_demo(work / "images-jpeg.mcap", "jpeg"), work / "images-progressive.mcap").read_bytes()})
     return seeds
+
+
+def progressive(path: Path, out: Path) -> Path:
+    """The JPEG image demo `path` with every frame encoded again by Pillow as a progressive JPEG
+    (10 scans for colour, 6 for grey, which the reader counts from the markers before decoding)."""
+    import numpy as np
+    from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+    from PIL import Image
+
+    with open(path, "rb") as stream, open(out, "wb") as target:
+        reader = make_reader(stream)
+        writer = Writer(target)
+        writer.start(profile="", library="fuzz")
+        for record in reader.iter_metadata():
+            writer.add_metadata(record.name, record.metadata)
+        summary = reader.get_summary()
+        schemas = {s.id: writer.register_schema(s.name, s.encoding, s.data) for s in summary.schemas.values()}
+        channels = {c.id: writer.register_channel(c.topic, c.message_encoding, schemas.get(c.schema_id, 0), c.metadata) for c in summary.channels.values()}
+        names = {s.id: s.name for s in summary.schemas.values()}
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            data = message.data
+            if schema is not None and names.get(schema.id) == "foxglove.CompressedImage":
+                frame = CompressedImage.FromString(data)
+                picture = io.BytesIO()
+                Image.fromarray(np.asarray(Image.open(io.BytesIO(frame.data)))).save(picture, format="JPEG", progressive=True, quality=95)
+                data = CompressedImage(timestamp=frame.timestamp, format="jpeg", data=picture.getvalue()).SerializeToString()
+            writer.add_message(channels[channel.id], log_time=message.log_time, data=data, publish_time=message.publish_time)
+        writer.finish()
+    return out
 
 
 def image_demo(path: Path, codec: str) -> Path:
@@ -938,9 +970,9 @@ def ros2_seeds(work: Path) -> list[Files]:
         if bag_map is not None:
             files["map.yaml"] = _yaml(bag_map)
         seeds.append(files)
-    # Cameras: a sensor_msgs/Image and a CompressedImage (PNG) topic, mapped with image entries.
+    # Cameras: a sensor_msgs/Image and two CompressedImage topics (PNG, progressive JPEG), mapped with image entries.
     camera_map = {"rate_hz": 10, "observation": [{"topic": "/joint", "fields": ["position"]}, {"topic": "/camera/raw", "image": "front", "size": [8, 12]},
-                                                 {"topic": "/camera/compressed", "image": "wrist"}],
+                                                 {"topic": "/camera/compressed", "image": "wrist"}, {"topic": "/camera/jpeg", "image": "side"}],
                   "action": [{"topic": "/cmd", "fields": ["data"]}]}
     seeds.append({**_read_folder(camera_bag(work / "camera"), prefix="bag/"), "map.yaml": _yaml(camera_map)})
     return seeds
@@ -948,7 +980,8 @@ def ros2_seeds(work: Path) -> list[Files]:
 
 def camera_bag(folder: Path) -> Path:
     """A ROS 2 MCAP bag (rosbag2 folder) of 6 steps at 10 Hz: 8x12 frames on a raw rgb8 topic with
-    padded rows and a PNG CompressedImage topic, a joint state and a command."""
+    padded rows, a PNG and a progressive JPEG CompressedImage topic (whose scans the converter
+    counts from the markers), a joint state and a command."""
     import numpy as np
     from PIL import Image
     from rosbags.rosbag2 import StoragePlugin, Writer
@@ -961,6 +994,7 @@ def camera_bag(folder: Path) -> Path:
     with Writer(folder, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         topics = {topic: writer.add_connection(topic, msgtype, typestore=store) for topic, msgtype in (
             ("/camera/raw", "sensor_msgs/msg/Image"), ("/camera/compressed", "sensor_msgs/msg/CompressedImage"),
+            ("/camera/jpeg", "sensor_msgs/msg/CompressedImage"),
             ("/joint", "sensor_msgs/msg/JointState"), ("/cmd", "std_msgs/msg/Float64"))}
 
         def write(topic: str, time_ns: int, message: Any) -> None:
@@ -975,6 +1009,9 @@ def camera_bag(folder: Path) -> Path:
             png = io.BytesIO()
             Image.fromarray(pixels).save(png, format="PNG")
             write("/camera/compressed", t, types["sensor_msgs/msg/CompressedImage"](header=header, format="png", data=np.frombuffer(png.getvalue(), np.uint8)))
+            jpeg = io.BytesIO()
+            Image.fromarray(pixels).save(jpeg, format="JPEG", progressive=True)
+            write("/camera/jpeg", t, types["sensor_msgs/msg/CompressedImage"](header=header, format="jpeg", data=np.frombuffer(jpeg.getvalue(), np.uint8)))
             write("/joint", t + 10**6, types["sensor_msgs/msg/JointState"](header=header, name=["a"], position=np.array([0.1 * i]), velocity=np.zeros(1), effort=np.zeros(0)))
             write("/cmd", t + 2 * 10**6, types["std_msgs/msg/Float64"](data=float(i % 3)))
     return folder
@@ -1184,11 +1221,11 @@ def cli_seeds(work: Path) -> list[Files]:
 TARGETS = {
     target.name: target
     for target in (
-        Target("demo", "MCAP demo reader + info + bulk loader (bundled datasets/*.mcap, a Dict-space file, image files: png, jpeg, raw)", demo_seeds, demo_mutate, demo_run),
+        Target("demo", "MCAP demo reader + info + bulk loader (bundled datasets/*.mcap, a Dict-space file, image files: png, jpeg, progressive jpeg, raw)", demo_seeds, demo_mutate, demo_run),
         Target("run", "run directories: load_policy and load_reward (config.json + model.safetensors)", run_seeds, run_mutate, run_run),
         Target("npz", "npz converter (SB GAIL and imitation layouts)", npz_seeds, npz_mutate, npz_run, needs_testdata=True),
         Target("lerobot", "LeRobot converter (v2.1 and v3.0: meta/*.json(l), parquet, an H.264 camera video)", lerobot_seeds, lerobot_mutate, lerobot_run, needs_testdata=True),
-        Target("ros2", "ROS 2 MCAP bags: inspect + convert (files and rosbag2 folders, a camera bag: Image and CompressedImage)", ros2_seeds, ros2_mutate, ros2_run, needs_testdata=True),
+        Target("ros2", "ROS 2 MCAP bags: inspect + convert (files and rosbag2 folders, a camera bag: Image and CompressedImage, PNG and progressive JPEG)", ros2_seeds, ros2_mutate, ros2_run, needs_testdata=True),
         Target("ros1", "ROS 1 bag: inspect + convert", ros1_seeds, ros1_mutate, ros1_run, needs_testdata=True),
         Target("sqlite", "rosbag2 sqlite: inspect + convert (.db3 and metadata.yaml)", sqlite_seeds, sqlite_mutate, sqlite_run, needs_testdata=True),
         Target("map", "conversion-map YAML: load_map + convert with it", map_seeds, map_mutate, map_run, needs_testdata=True),

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import shutil
 import struct
 import subprocess
 import sys
@@ -303,6 +304,196 @@ SERVER_CASES = [
          "went past this command's 1 s for remote reading", "info over HTTP baseline"),
 ]
 CASES += SERVER_CASES
+
+
+# -- camera frames that decode to far more than their files hold ------------------------------
+# Each file is written by the library a user's data comes from: DemoWriter (Pillow's PNG and
+# JPEG encoders), rosbags' rosbag2 writer, lerobot's own dataset writer (its video through
+# PyAV). A black 1080p frame is 6.2 MB decoded and 27 KB as a PNG; identical frames in one zstd
+# chunk cost next to nothing more, so 40 of them (249 MB) fit in 11 KB.
+
+_H, _W = 1080, 1920
+_BUILT: dict = {}  # (builder, arguments) → a folder built once per process, copied for each case
+
+
+def _black_frames_demo(folder: Path, name: str, steps: int, codec: str = "png") -> Path:
+    """A demo file of `steps` steps whose observation is a black 1080p camera."""
+    sys.path.insert(0, str(REPO))
+    import gymnasium as gym
+    import numpy as np
+
+    from imitation.data.mcap.writer import write_episodes
+    from imitation.data.types import Episode
+
+    frames = np.broadcast_to(np.zeros((1, _H, _W, 3), np.uint8), (steps + 1, _H, _W, 3))
+    episode = Episode(observations=frames, actions=np.zeros(steps, np.int64), rewards=np.zeros(steps), truncated=True)
+    return write_episodes(folder / name, [episode], env_id="CartPole-v1", observation_space=gym.spaces.Box(0, 255, (_H, _W, 3), np.uint8),
+                          action_space=gym.spaces.Discrete(2), image_codec=codec)
+
+
+def _many_scans_jpeg(scans: int) -> bytes:
+    """A black 1080p progressive JPEG from Pillow with its last scan (a refinement that changes
+    nothing, 12 bytes) repeated until the picture has `scans` scans: libjpeg decodes each over the
+    whole picture."""
+    sys.path.insert(0, str(REPO))
+    import numpy as np
+    from PIL import Image
+
+    from imitation.data.jpeg_scans import scan_count
+
+    out = io.BytesIO()
+    Image.fromarray(np.zeros((_H, _W, 3), np.uint8)).save(out, format="JPEG", progressive=True, quality=90)
+    data = out.getvalue()
+    last, end = data.rindex(b"\xff\xda"), data.rindex(b"\xff\xd9")
+    jpeg = data[:end] + data[last:end] * (scans - scan_count(data)) + data[end:]
+    assert scan_count(jpeg) == scans
+    return jpeg
+
+
+def _many_scans_demo(folder: Path, scans: int, steps: int) -> Path:
+    """A JPEG demo file of a black 1080p camera whose every frame is `_many_scans_jpeg(scans)`
+    (the messages re-written around it, each keeping its timestamp)."""
+    from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+    from mcap.records import Channel, Header, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap.writer import Writer
+
+    source = _black_frames_demo(folder, "source.mcap", steps, codec="jpeg")
+    jpeg = _many_scans_jpeg(scans)
+    records = list(StreamReader(io.BytesIO(source.read_bytes()), emit_chunks=False).records)
+    source.unlink()
+    path, out = folder / "scans.mcap", io.BytesIO()
+    writer = Writer(out)
+    header = next(r for r in records if isinstance(r, Header))
+    writer.start(profile=header.profile, library=header.library)
+    schemas = {r.id: r.name for r in records if isinstance(r, Schema)}
+    cameras = {r.id for r in records if isinstance(r, Channel) and schemas.get(r.schema_id) == "foxglove.CompressedImage"}
+    seen: set = set()
+    for record in records:
+        if isinstance(record, Metadata) and record.name not in seen:
+            seen.add(record.name)
+            writer.add_metadata(record.name, dict(record.metadata))
+        elif isinstance(record, Schema) and ("s", record.id) not in seen:
+            seen.add(("s", record.id))
+            writer.register_schema(record.name, record.encoding, record.data)
+        elif isinstance(record, Channel) and ("c", record.id) not in seen:
+            seen.add(("c", record.id))
+            writer.register_channel(record.topic, record.message_encoding, record.schema_id, dict(record.metadata))
+        elif isinstance(record, Message):
+            data = record.data
+            if record.channel_id in cameras:
+                frame = CompressedImage.FromString(data)
+                data = CompressedImage(timestamp=frame.timestamp, format="jpeg", data=jpeg).SerializeToString()
+            writer.add_message(record.channel_id, log_time=record.log_time, data=data, publish_time=record.publish_time)
+    writer.finish()
+    path.write_bytes(out.getvalue())
+    return path
+
+
+def _camera_bag(folder: Path, frames: list[tuple[float, bytes, str]], commands: list[float]) -> Path:
+    """A rosbag2 MCAP folder written by rosbags: sensor_msgs/CompressedImage messages on
+    /camera/compressed ((seconds, bytes, format) each) and std_msgs/Float64 on /cmd at `commands`
+    (seconds)."""
+    import numpy as np
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    types = store.types
+    start = 1_700_000_000 * 10**9
+    bag = folder / "bag"
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        camera = writer.add_connection("/camera/compressed", "sensor_msgs/msg/CompressedImage", typestore=store)
+        command = writer.add_connection("/cmd", "std_msgs/msg/Float64", typestore=store)
+        for seconds, data, encoding in frames:
+            t = start + round(seconds * 1e9)
+            header = types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9), frame_id="camera")
+            message = types["sensor_msgs/msg/CompressedImage"](header=header, format=encoding, data=np.frombuffer(data, np.uint8))
+            writer.write(camera, t, store.serialize_cdr(message, message.__msgtype__))
+        for seconds in commands:
+            t = start + round(seconds * 1e9)
+            writer.write(command, t, store.serialize_cdr(types["std_msgs/msg/Float64"](data=1.0), "std_msgs/msg/Float64"))
+    return bag
+
+
+def _convert_camera_bag(folder: Path, frames: list[tuple[float, bytes, str]], commands: list[float], rate_hz: int) -> list[str]:
+    bag = _camera_bag(folder, frames, commands)
+    recording_map = _map(folder, "map.yaml", f"rate_hz: {rate_hz}\nobservation: [{{topic: /camera/compressed, image: front}}]\n"
+                                             "action: [{topic: /cmd, fields: [data]}]\n")
+    return ["convert", str(bag), "--map", str(recording_map), "--out", str(folder / "out.mcap")]
+
+
+def _black_png() -> bytes:
+    import numpy as np
+    from PIL import Image
+
+    out = io.BytesIO()
+    Image.fromarray(np.zeros((_H, _W, 3), np.uint8)).save(out, format="PNG", compress_level=9)
+    return out.getvalue()
+
+
+def _lerobot_still_video(folder: Path, frames: int) -> Path:
+    """A LeRobot v3.0 dataset written by lerobot's own writer (its H.264 encoder through PyAV):
+    one episode of `frames` frames of a black 1080p camera beside a one-number state and action.
+    Built once per process (importing lerobot takes seconds), copied into `folder`."""
+    key = ("lerobot", frames)
+    if key not in _BUILT:
+        import os
+
+        import numpy as np
+
+        os.environ["HF_HUB_OFFLINE"] = "1"
+        sys.path.insert(0, str(REPO))
+        from imitation.data.convert.lerobot import lerobot_quietly
+
+        built = Path(tempfile.mkdtemp(prefix="imitation-hostile-lerobot-")) / "dataset"
+        with lerobot_quietly():
+            from lerobot.configs import RGBEncoderConfig
+            from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+            features = {"observation.images.front": {"dtype": "video", "shape": [_H, _W, 3], "names": ["height", "width", "channel"]},
+                        "observation.state": {"dtype": "float32", "shape": [1], "names": None},
+                        "action": {"dtype": "float32", "shape": [1], "names": None}}
+            dataset = LeRobotDataset.create(repo_id="local/still", fps=30, features=features, root=built, use_videos=True, image_writer_threads=0,
+                                            rgb_encoder=RGBEncoderConfig(vcodec="h264", pix_fmt="yuv420p"))
+            black = np.zeros((_H, _W, 3), np.uint8)
+            for _ in range(frames):
+                dataset.add_frame({"observation.images.front": black, "observation.state": np.zeros(1, np.float32),
+                                   "action": np.zeros(1, np.float32), "task": "stand still"})
+            dataset.save_episode()
+            dataset.finalize()
+        _BUILT[key] = built
+    shutil.copytree(_BUILT[key], folder / "dataset")
+    return folder / "dataset"
+
+
+def _train_bc(folder: Path, demos: Path) -> list[str]:
+    return ["train", "bc", "--demos", str(demos), "--epochs", "1", "--out", str(folder / "run")]
+
+
+def _export_foxglove(folder: Path, demos: Path) -> list[str]:
+    return ["export", str(demos), "--to", "foxglove", str(folder / "steps.mcap")]
+
+
+IMAGE_CASES = [
+    Case("train bc baseline", lambda f: _train_bc(f, _map(f, "plain.mcap", "not mcap")), "not an MCAP file", "train bc baseline"),
+    Case("export baseline", lambda f: _export_foxglove(f, _map(f, "plain.mcap", "not mcap")), "not an MCAP file", "export baseline"),
+    Case("demo file of 40 black 1080p PNG frames (249 MB decoded)", lambda f: ["info", str(_black_frames_demo(f, "black.mcap", 39))],
+         "image_expansion_ratio", "info baseline"),
+    Case("the same demo file, trained on", lambda f: _train_bc(f, _black_frames_demo(f, "black.mcap", 39)), "image_expansion_ratio",
+         "train bc baseline"),
+    Case("the same demo file, exported to Foxglove", lambda f: _export_foxglove(f, _black_frames_demo(f, "black.mcap", 39)),
+         "image_expansion_ratio", "export baseline"),
+    Case("demo file of 1080p progressive JPEG frames of 600 scans", lambda f: ["info", str(_many_scans_demo(f, 600, 9))], "jpeg_scans",
+         "info baseline"),
+    Case("ROS 2 bag of 1080p progressive JPEG frames of 600 scans", lambda f: _convert_camera_bag(
+        f, [(i / 10, _many_scans_jpeg(600), "jpeg") for i in range(10)], [i / 10 for i in range(10)], 10), "jpeg_scans", "convert baseline"),
+    Case("ROS 2 bag of two black 1080p PNG frames held over 100 steps", lambda f: _convert_camera_bag(
+        f, [(0.0, _black_png(), "png"), (0.5, _black_png(), "png")], [i / 20 for i in range(20)], 100), "image_expansion_ratio", "convert baseline"),
+    Case("LeRobot dataset of a 40-frame black 1080p video", lambda f: ["convert", str(_lerobot_still_video(f, 40)), "--out", str(f / "o.mcap")],
+         "image_expansion_ratio", "convert baseline"),
+]
+CASES += IMAGE_CASES
 
 def measure(case: Case, folder: Path) -> Outcome:
     args = case.build(folder)
