@@ -584,7 +584,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if args.cpus is not None and args.cpus < 1:
         raise ImitationError(f"--cpus must be at least 1, got {args.cpus}")
     out = args.out or str(Path("sweeps") / Path(args.config).stem)
-    result = sweep_job(config, out, _run_train, ray_address=args.ray_address, cpus=args.cpus)
+    # The trials' runner by its module's name, which Tune's process and Ray's workers import: run
+    # as `python cli.py`, this file is __main__, a name no other process can import.
+    import cli
+
+    result = sweep_job(config, out, cli._run_train, ray_address=args.ray_address, cpus=args.cpus)
     if args.json:
         _print_json({key: value for key, value in result.items() if key != "table"})
         return 0

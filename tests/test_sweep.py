@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -136,6 +137,54 @@ def test_an_interrupted_sweep_continues_without_running_finished_trials_again(tm
     assert (out / "best" / "model.safetensors").is_file()
     for run in continued:  # continued from its checkpoint: the second process added its own events
         assert len(list((run / "tb").iterdir())) == 2
+
+
+def descendant(pid: int, name: str, timeout: float = 120) -> int:
+    """The first process below `pid` whose command line holds `name`, once one runs."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        children = {pid}
+        for _ in range(6):  # Ray's processes sit a few generations below the sweep
+            for entry in Path("/proc").iterdir():
+                try:
+                    parent = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+                    command = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+                except (OSError, ValueError, IndexError):
+                    continue
+                if parent in children:
+                    if name in command:
+                        return int(entry.name)
+                    children.add(int(entry.name))
+        time.sleep(0.2)
+    raise AssertionError(f"no process {name!r} below {pid} within {timeout} s")
+
+
+@needs_tune
+def test_a_sweep_outlives_ray_and_says_what_became_of_its_trials(tmp_path: Path) -> None:
+    """A trial whose Ray worker is killed fails in a short line; Ray's node killed under the sweep
+    (its dashboard agent, which Ray's raylet shares its fate with, and the driver with that)
+    ends the sweep with one line and the table, rather than exit 1 with neither."""
+    args = yaml.safe_load(EXAMPLE.read_text())["args"] | {"epochs": 400, "patience": 400}
+    config = write_config(tmp_path, "long", args=args, trials=3, scheduler="none")
+    out = tmp_path / "sweep"
+    process = subprocess.Popen([sys.executable, str(REPO / "cli.py"), *sweep_argv(out, config=config)], cwd=REPO,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        os.kill(descendant(process.pid, "ray::ImplicitFunc"), signal.SIGKILL)  # a trial's worker
+        assert process.stderr is not None
+        failed = process.stderr.readline()
+        os.kill(descendant(process.pid, "ray::DashboardAgent"), signal.SIGKILL)
+        _, rest = process.communicate(timeout=120)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert failed.startswith("[sweep] trial 1/3 ") and failed.endswith(" failed: its Ray worker process died (killed, or out of memory)\n")
+    *_, last = rest.strip().splitlines()
+    assert process.returncode == 1 and last.startswith("error: Ray stopped in the middle of the sweep (its process ended with "), rest
+    assert f"trials ended (table: {out / 'results.md'}); run the same command again to continue the sweep" in last
+    rows = table(out)
+    assert len(rows) == 3 and "error: its Ray worker process died (killed, or out of memory)" in [row["status"] for row in rows]
+    assert "not finished" in [row["status"] for row in rows] and (out / "ray.log").stat().st_size > 0
 
 
 def plant_tune_state(folder: Path) -> Path:

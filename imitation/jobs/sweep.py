@@ -4,6 +4,7 @@ Ray Tune (random search or Optuna, ASHA early stopping), into one folder:
     OUT/
       sweep.json      the sweep's settings: a rerun with other settings is refused
       trials.json     each trial's flags' values, how it ended and its figures (what a rerun continues from)
+      ray.log         what Ray and Tune printed (imitation.jobs.sweep_process)
       runs/TRIAL/     each trial's run directory, as `train` writes it
       results.csv     one row per trial: its flags, its metric, steps run, how it ended, its run
       results.md      the same, aligned, with the best trial marked
@@ -18,7 +19,6 @@ checkpoint where they saved one). Continuing reads only the sweep's JSON and the
 from __future__ import annotations
 
 import json
-import logging
 import math
 import os
 import shutil
@@ -29,6 +29,7 @@ from typing import Any
 
 from imitation.errors import ImitationError
 from imitation.jobs.sweep_config import SweepConfig
+from imitation.jobs.sweep_process import INTERRUPTED, run_apart
 from imitation.jobs.sweep_results import (
     FAILED,
     FINISHED,
@@ -44,7 +45,7 @@ from imitation.jobs.sweep_results import (
 )
 from imitation.jobs.sweep_trials import SweepTrials
 from imitation.output import OutputLock, check_target, os_error
-from imitation.ray_engine import INSTALL_HINT, LOCAL, ray_session
+from imitation.ray_engine import INSTALL_HINT, LOCAL
 from imitation.runs import write_json
 
 SETTINGS_FILE = "sweep.json"
@@ -72,16 +73,10 @@ def sweep_job(
     with OutputLock(out):
         resumed = _claim(out, config)
         trials = SweepTrials.open(out, config, resumed=resumed)
-        # Ray's own reporting (its experiment box, token notices, a traceback per failed trial)
-        # would bury the sweep's one line per trial, which says why a trial failed, as the
-        # table does.
-        os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")
-        logging.getLogger("ray").setLevel(logging.CRITICAL)
+        stopped = None
         if trials.unended() or len(trials.records) < config.total_trials:
-            with ray_session(ray_address, num_cpus=cpus):
-                from imitation.jobs.sweep_tune import run_trials
-
-                run_trials(config, out, run_train, trials)
+            stopped = run_apart(config, out, run_train, ray_address=ray_address, cpus=cpus)
+            trials = SweepTrials.open(out, config, resumed=True)  # as Tune's process left it
         outcomes = _outcomes(trials, config, out / RUNS_DIR)
         best = choose_best(outcomes, mode=config.mode)
         counts = {status: sum(outcome.status == status for outcome in outcomes) for status in (FINISHED, STOPPED, FAILED)}
@@ -89,6 +84,11 @@ def sweep_job(
         table = write_results(out, outcomes, metric=config.metric, heading=_heading(config, outcomes, best, missing))
         if best is not None:
             copy_best(out, best)
+    if stopped not in (None, INTERRUPTED):
+        raise ImitationError(
+            f"{stopped}; {config.total_trials - missing} of {config.total_trials} trials ended (table: {out / 'results.md'}); "
+            "run the same command again to continue the sweep"
+        )
     if missing > 0:
         raise KeyboardInterrupt(
             f"the sweep stopped with {config.total_trials - missing} of {config.total_trials} trials ended (table: "

@@ -39,6 +39,11 @@ FINISHED_KEY = "run_finished"  # in a trial's last report: its command ran to it
 PLANNED = "planned_trial"  # the one parameter of a trial the sweep named: its name
 UNBOUNDED_STEPS = 2**31  # ASHA needs a longest trial; unset, each trial ends where its command ends it
 ERROR_CHARACTERS = 200  # a failed trial's line and table cell: Ray's messages run to pages
+# Ray's account of a trial whose process died, and what it means for the trial.
+RAY_DEATHS = {
+    "because its worker process has died": "its Ray worker process died (killed, or out of memory)",
+    "because its owner has died": "Ray stopped while it ran",
+}
 
 
 @dataclass(frozen=True)
@@ -103,8 +108,8 @@ class TrialRecorder(tune.Callback):
     """Keeps the sweep's record of each trial as Tune runs it (started, its figures, how it
     ended), and prints one line on stderr per trial that ends, terminal or log alike."""
 
-    def __init__(self, config: SweepConfig, trials: SweepTrials) -> None:
-        self.config, self.trials = config, trials
+    def __init__(self, config: SweepConfig, trials: SweepTrials, lines: int) -> None:
+        self.config, self.trials, self.lines = config, trials, lines  # a descriptor: Tune pickles its callbacks
 
     def on_trial_start(self, iteration: int, trials: list[Trial], trial: Trial, **info: Any) -> None:
         self.trials.started(_name(trial), _params(trial, self.trials))
@@ -144,7 +149,7 @@ class TrialRecorder(tune.Callback):
             for key, value in _params(trial, self.trials).items()
         )
         total = self.config.total_trials
-        print(f"[sweep] trial {ended}/{total} {_name(trial)} ({params}) {what}", file=sys.stderr, flush=True)
+        os.write(self.lines, f"[sweep] trial {ended}/{total} {_name(trial)} ({params}) {what}\n".encode())
 
 
 def _name(trial: Trial) -> str:
@@ -156,10 +161,13 @@ def _params(trial: Trial, trials: SweepTrials) -> dict[str, Any]:
     return dict(trials.records[planned].params) if planned else dict(trial.config)
 
 
-def run_trials(config: SweepConfig, out: Path, run_train: Callable[[list[str]], None], trials: SweepTrials) -> None:
+def run_trials(
+    config: SweepConfig, out: Path, run_train: Callable[[list[str]], None], trials: SweepTrials, lines: int
+) -> None:
     """Run every trial of `trials` that has not ended (random search's are all planned), then,
-    for Optuna, sample the trials the sweep has not yet started, on the connected Ray. Returns
-    when every trial has ended, or when Ctrl-C stopped Tune (the unended ones stay so)."""
+    for Optuna, sample the trials the sweep has not yet started, on the connected Ray; a line to
+    file descriptor `lines` per trial that ends. Returns when every trial has ended, or when Ctrl-C stopped Tune
+    (the unended ones stay so)."""
     setup = TrialSetup(
         config=config,
         runs=out / RUNS_DIR,
@@ -169,16 +177,16 @@ def run_trials(config: SweepConfig, out: Path, run_train: Callable[[list[str]], 
     )
     again = trials.unended()
     if again:
-        _fit(setup, trials, {PLANNED: tune.grid_search(again)}, BasicVariantGenerator(), samples=1)
+        _fit(setup, trials, lines, {PLANNED: tune.grid_search(again)}, BasicVariantGenerator(), samples=1)
         if trials.unended():
             return
     new = config.total_trials - len(trials.records)
     if new > 0:
         space = {key: _domain(distribution) for key, distribution in config.space.items()}
-        _fit(setup, trials, space, _searcher(config, trials), samples=new)
+        _fit(setup, trials, lines, space, _searcher(config, trials), samples=new)
 
 
-def _fit(setup: TrialSetup, trials: SweepTrials, space: dict[str, Any], searcher: Any, *, samples: int) -> None:
+def _fit(setup: TrialSetup, trials: SweepTrials, lines: int, space: dict[str, Any], searcher: Any, *, samples: int) -> None:
     config = setup.config
     trainable = tune.with_resources(
         tune.with_parameters(trial, setup=setup), {"cpu": config.cpus_per_trial, "gpu": config.gpus_per_trial}
@@ -195,7 +203,9 @@ def _fit(setup: TrialSetup, trials: SweepTrials, space: dict[str, Any], searcher
                 scheduler=_scheduler(config),
                 reuse_actors=True,  # a worker keeps its imports (torch) from one trial to the next: 2x faster
             ),
-            run_config=tune.RunConfig(name="tune", storage_path=storage, verbose=0, callbacks=[TrialRecorder(config, trials)]),
+            run_config=tune.RunConfig(
+                name="tune", storage_path=storage, verbose=0, callbacks=[TrialRecorder(config, trials, lines)]
+            ),
         )
         tuner.fit()
 
@@ -240,11 +250,15 @@ def _scheduler(config: SweepConfig) -> Any:
 
 
 def _logged_error(trial: Trial) -> str:
-    """The last line of the error Tune has just logged for `trial`, without the error's class."""
+    """The error Tune has just logged for `trial` as one line: what became of its process when
+    Ray says it died (a page of ids and causes), else the error's last line without its class."""
     try:
         text = Path(trial.error_file).read_text() if trial.error_file else ""
     except OSError:
         text = ""
+    for cause, line in RAY_DEATHS.items():
+        if cause in text:
+            return line
     lines = [line.strip() for line in text.splitlines() if line.strip()]
     line = re.sub(r"^[\w.]+: ", "", lines[-1]) if lines else "no error was logged"
     return line if len(line) <= ERROR_CHARACTERS else line[: ERROR_CHARACTERS - 1] + "…"
