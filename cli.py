@@ -1100,8 +1100,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="convert a ROS bag, a LeRobot dataset or npz rollouts into an MCAP demo file",
         description="Convert recordings into an MCAP demo file. ROS bags (ROS 2 .mcap file or rosbag2 directory, ROS 1 .bag, "
         "rosbag2 sqlite directory) need a map (YAML: topics and fields for the observation and action, rate, alignment, "
-        "episodes; see docs/CONVERT.md); --inspect lists a bag's topics and numeric fields and --write-map writes a starter "
-        "map. LeRobot datasets (v3.0, v2.1) and npz rollouts (stable-baselines GAIL, HumanCompatibleAI/imitation) convert "
+        "episodes, what a laser's inf beams stand for; see docs/CONVERT.md); --inspect lists a bag's topics and numeric "
+        "fields and --write-map writes a starter map. LeRobot datasets (v3.0, v2.1) and npz rollouts (stable-baselines "
+        "GAIL, HumanCompatibleAI/imitation) convert "
         "without a map; a bare (episodes, steps, columns) array needs a layout (--layout). Video and image features are "
         "skipped with a warning. With --env, end flags that the source cannot tell apart (a time limit or a terminal "
         "state) are decided from the env's time limit.",
@@ -1133,7 +1134,12 @@ def build_parser() -> argparse.ArgumentParser:
     convert.add_argument(
         "--inspect", action="store_true", help="list a bag's topics, types, counts, rates and numeric fields; convert nothing"
     )
-    convert.add_argument("--write-map", metavar="MAP.yaml", help="with --inspect: also write a starter map to edit")
+    convert.add_argument(
+        "--write-map",
+        metavar="MAP.yaml",
+        help="with --inspect: also write a starter map to edit (it steps at the command's rate, leaves out observations "
+        "slower than one value per 10 steps, and takes a laser's ranges with nonfinite: range_max)",
+    )
     convert.add_argument(
         "--ros-distro",
         default="latest",

@@ -303,7 +303,7 @@ def test_husky_starter_map(tmp_path: Path, kind: str, name: str, cmd_vel: bool) 
     # Odometry is an observation whatever its topic says; the IMU too; nothing one-shot or latched.
     assert observation == ["/husky_velocity_controller/odom", "/imu/data"]
     assert action == (["/cmd_vel"] if cmd_vel else [])
-    assert chosen["rate_hz"] == 50  # the odometry's rate, with or without a command topic
+    assert chosen["rate_hz"] == (20 if cmd_vel else 50)  # the command's rate; without one, the odometry's (the slowest observation)
     roles = {e["topic"]: (e["role"], e["note"]) for e in report["topics"]}
     assert roles["/initialpose"] == (None, "one-shot: 1 message") and roles["/tf_static"] == (None, "transforms")
     assert next(e for e in report["topics"] if e["topic"] == "/tf_static")["latched"]
@@ -319,8 +319,8 @@ def test_husky_starter_map(tmp_path: Path, kind: str, name: str, cmd_vel: bool) 
     # The starter converts as written: 13 odometry values and 10 IMU values, float64 as declared.
     result = convert(bag, tmp_path / "husky.mcap", map_path=tmp_path / "starter.yaml", progress=False)
     assert result["observation_space"] == "Box(float64, (23,))" and result["action_space"] == "Box(float64, (6,))"
-    # From the first command (3 ms in) to the last IMU message (9.99 s), at 50 Hz.
-    assert result["transitions"] == math.floor((9.99 - 0.003) * 50) + 1 == 500
+    # From the first odometry (1 ms in; the command has a default) to the last IMU message (9.99 s), at the command's 20 Hz.
+    assert result["transitions"] == math.floor((9.99 - 0.001) * 20) + 1 == 200
 
 
 @pytest.mark.parametrize("kind", ["ros2 mcap", "ros1"])
@@ -340,7 +340,7 @@ def test_the_listing_summarises_tf_static(tmp_path: Path, kind: str) -> None:
     entry = next(e for e in report["topics"] if e["topic"] == "/tf_static")
     assert entry["arrays"] == [{"field": "transforms", "length": TRANSFORMS}]
     assert 0 < len(entry["fields"]) <= 12 and all(f["field"].startswith("transforms[0].") for f in entry["fields"])
-    assert "step at 50 Hz (the slowest observation stream, /husky_velocity_controller/odom)" in listing
+    assert "step at 20 Hz (the command stream, /cmd_vel)" in listing
     assert len(text.splitlines()) <= 50  # the starter map: its commented listing and the entries, velocity commands with their max_age
 
 
@@ -353,12 +353,13 @@ def test_turtlesim_starter_map(testdata: Path, tmp_path: Path) -> None:
     assert action["/turtle1/cmd_vel"] == ["linear.x", "linear.y", "linear.z", "angular.x", "angular.y", "angular.z"]
     assert set(observation) == {"/turtle1/pose", "/turtle2/pose", "/turtle1/color_sensor", "/turtle2/color_sensor"}
     assert observation["/turtle1/pose"] == ["x", "y", "theta", "linear_velocity", "angular_velocity"]
-    assert chosen["rate_hz"] == 62.5  # the poses' and colour sensors' rate
+    # The fastest command's average rate: the keyboard teleop's (bursts of about 33 Hz); the follower's is 10 Hz.
+    assert chosen["rate_hz"] == 21.4 and report["starter"]["rate_why"] == "the fastest command stream"
     left_out = {e["topic"]: e["note"] for e in report["topics"] if e["role"] is None}
     assert left_out == {"/rosout": "log", "/tf": "transforms", "/tf_static": "transforms"}
     convert(bag, tmp_path / "t.mcap", map_path=tmp_path / "starter.yaml", progress=False)
     demo = DemoFile(tmp_path / "t.mcap")
-    assert demo.observation_space.shape == (16,) and demo.action_space.shape == (12,) and demo.dt == pytest.approx(1 / 62.5)
+    assert demo.observation_space.shape == (16,) and demo.action_space.shape == (12,) and demo.dt == pytest.approx(1 / 21.4)
 
 
 def test_rosbag2_sqlite_starter_map(testdata: Path, tmp_path: Path) -> None:
@@ -418,7 +419,7 @@ def test_joint_commands_and_trajectories_are_the_action(tmp_path: Path) -> None:
         "/joint_commands": ["position", "velocity", "effort"],
         "/arm_controller/follow": ["points[0].positions", "points[0].velocities"],  # empty arrays and times left out
     }
-    assert chosen["rate_hz"] == 100
+    assert chosen["rate_hz"] == 50  # /joint_commands', the fastest command (the trajectory comes at 10 Hz)
     assert next(e for e in report["topics"] if e["topic"] == "/joy")["note"] == "joystick input behind the command topic"
     result = convert(tmp_path / "arm", tmp_path / "arm.mcap", map_path=tmp_path / "starter.yaml", progress=False)
     assert result["observation_space"] == "Box(float64, (21,))" and result["action_space"] == "Box(float64, (35,))"

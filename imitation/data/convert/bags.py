@@ -11,6 +11,13 @@ A topic whose schema cannot be parsed (rosbag2's `*/_service_event` topics carry
 text) or whose messages do not decode is kept in the listing with a `problem` and skipped by
 `messages()`, so the rest of the bag still converts.
 
+ROS 1's own tools read a message's fields and ignore bytes after them; rosbags refuses a record
+longer than its message. librealsense writes 4 bytes after a sensor_msgs/Image's `data`, so a
+ROS 1 message whose type ends with a `uint8[]` field (Image, CompressedImage) is read as ROS 1
+reads it: decoded with rosbags' own deserialiser for its type (the public `get_msgdef` of its
+type store, which gives the length it consumed), the bytes after a complete message left out
+and reported (`extra_bytes`, `extra_bytes_warnings`). Every other type must fill its record.
+
 `field_type` reads a field's declared primitive type (`float64`, `int32`, ...) from the bag's
 own definitions, parsed by rosbags for every format, so that conversion keeps float64 fields
 float64 (decoded messages hold plain Python floats whatever the field's width).
@@ -119,7 +126,25 @@ class Bag(Protocol):
         """The primitive type the topic's definition declares for `field` (an array's element
         type), e.g. `float64`; None where the definitions do not say."""
 
+    @property
+    def extra_bytes(self) -> dict[str, set[int]]:
+        """Topic: the numbers of bytes found after a complete message on it and left out (ROS 1)."""
+
     def close(self) -> None: ...
+
+
+def extra_bytes_warnings(bag: Bag, topics: Iterable[str]) -> list[str]:
+    """A line for each of `topics` whose messages carried bytes after their end."""
+    lines = []
+    for topic in topics:
+        sizes = sorted(bag.extra_bytes.get(topic, ()))
+        if sizes:
+            amount = f"{sizes[0]}" if len(sizes) == 1 else f"{sizes[0]} to {sizes[-1]}"
+            lines.append(
+                f"{bag.path}: {topic}: messages carry {amount} bytes after a complete {bag.topics()[topic].type} "
+                "(librealsense writes 4 after an Image's data); read without them, as ROS 1's tools do"
+            )
+    return lines
 
 
 def open_bag(path: str | Path, kind: str, *, ros_distro: str = "latest") -> Bag:
@@ -235,6 +260,10 @@ class McapBag:
         self._topics: dict[str, TopicInfo] | None = None
         self._schemas: dict[str, tuple[str, bytes]] = {}  # topic: (type name, ros2msg text)
         self._fielddefs: dict[str, dict[str, Any] | None] = {}  # topic: rosbags' parse of its schema
+
+    @property
+    def extra_bytes(self) -> dict[str, set[int]]:
+        return {}  # CDR messages are read by mcap-ros2-support, which accepts CDR's padding only
 
     def topics(self) -> dict[str, TopicInfo]:
         if self._topics is not None:
@@ -369,11 +398,43 @@ class RosbagsBag:
                 self._problems[str(connection.topic)] = f"its definition of {connection.msgtype} cannot be parsed ({error})"
         self._connections = connections
         self._topics: dict[str, TopicInfo] | None = None
+        self._extra_bytes: dict[str, set[int]] = {}
 
-    def _deserialize(self, raw: bytes, msgtype: str) -> Any:
-        if self._ros1:
+    @property
+    def extra_bytes(self) -> dict[str, set[int]]:
+        return self._extra_bytes
+
+    def _deserialize(self, raw: bytes, msgtype: str, topic: str) -> Any:
+        if not self._ros1:
+            return self._typestore.deserialize_cdr(raw, msgtype)
+        from rosbags.serde import SerdeError
+
+        try:
             return self._typestore.deserialize_ros1(raw, msgtype)
-        return self._typestore.deserialize_cdr(raw, msgtype)
+        except SerdeError as error:
+            if not self._ends_with_bytes(msgtype):
+                raise
+            refusal = error
+        # Decoded again by the same generated function, which says how many bytes the message took.
+        msgdef = self._typestore.get_msgdef(msgtype)
+        try:
+            message, end = msgdef.deserialize_ros1(raw, 0, msgdef.cls, self._typestore)
+        except Exception:
+            raise refusal from None
+        if not 0 < end < len(raw):
+            raise refusal
+        self._extra_bytes.setdefault(topic, set()).add(len(raw) - end)
+        return message
+
+    def _ends_with_bytes(self, msgtype: str) -> bool:
+        """Whether the type's last field is a uint8[] (an Image's or CompressedImage's data)."""
+        from rosbags.interfaces import Nodetype
+
+        fields = self._typestore.fielddefs.get(msgtype, ((), ()))[1]
+        if not fields:
+            return False
+        kind, detail = fields[-1][1]
+        return kind == Nodetype.SEQUENCE and detail[0] == (Nodetype.BASE, ("uint8", 0))
 
     def topics(self) -> dict[str, TopicInfo]:
         if self._topics is not None:
@@ -389,7 +450,7 @@ class RosbagsBag:
                 info = topics[str(connection.topic)]
                 if info.count == 0 and info.problem is None:
                     try:
-                        self._deserialize(raw, connection.msgtype)
+                        self._deserialize(raw, connection.msgtype, str(connection.topic))
                     except Exception as error:
                         info.problem = f"its messages do not decode as {connection.msgtype} ({type(error).__name__}: {error})"
                 info.count += 1
@@ -407,7 +468,7 @@ class RosbagsBag:
             listing = self._reader.messages(connections=connections)
             for connection, time_ns, raw in listing:
                 try:
-                    decoded = self._deserialize(raw, connection.msgtype)
+                    decoded = self._deserialize(raw, connection.msgtype, str(connection.topic))
                 except Exception as error:
                     raise ImitationError(
                         f"{self.path}: a message on {connection.topic} at {time_ns} ns does not decode ({error})"

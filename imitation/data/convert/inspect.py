@@ -8,8 +8,13 @@ stop the inspection.
 
 The starter map guesses from message types and rates before names: velocity, joint and
 trajectory *commands* are the action, measurements the observation, and logging, transforms,
-parameters and one-shot topics (an initial pose, a goal, a latched message) are left out;
-`rate_hz` is the slowest observation stream's rate.
+parameters and one-shot topics (an initial pose, a goal, a latched message) are left out.
+`rate_hz` is the command's rate (the fastest command stream's), so that each command is a step;
+an observation that would give a new value less than once every `SLOW_STEPS` steps at that rate
+(AMCL's pose at 0.6 Hz beside a 20 Hz command) is left out with the reason, unless no faster
+observation is left. Without a command with a rate, `rate_hz` is the slowest observation's.
+A laser scan (and a sensor_msgs/Range) is offered whole, `ranges` with `nonfinite: range_max`,
+as its beams with no return are +inf.
 """
 
 from __future__ import annotations
@@ -21,9 +26,9 @@ from typing import Any
 
 import yaml
 
-from imitation.data.convert.bags import Bag
+from imitation.data.convert.bags import Bag, extra_bytes_warnings
 from imitation.data.convert.fields import message_arrays, numeric_fields
-from imitation.data.convert.maps import MAX_RATE_HZ, MIN_RATE_HZ
+from imitation.data.convert.maps import MAX_RATE_HZ, MIN_RATE_HZ, RANGE_MAX
 from imitation.errors import ImitationError
 from imitation.output import create_exclusive, os_error
 
@@ -102,6 +107,9 @@ VELOCITY_COMMAND_TIMEOUT = 1.0  # seconds: turtlesim's, and about what velocity 
 # Fields a starter leaves out: headers, covariances, times and sequence numbers.
 _NOT_A_SIGNAL = re.compile(r"(^|\.)header\.|covariance|(^|\.)(sec|secs|nanosec|nsec|nsecs|seq|stamp)$")
 _STARTER_WIDTH = 32  # longest array a starter takes (a 32-joint state); images and covariances are wider
+# Range sensors, whose readings are ±inf out of range (REP 117): the field a starter takes, whatever its length.
+_RANGE_FIELDS = {"sensor_msgs/LaserScan": "ranges", "sensor_msgs/Range": "range"}
+SLOW_STEPS = 10  # an observation slower than one value per this many command steps is left out of a starter
 
 
 def _short_type(name: str) -> str:
@@ -141,6 +149,7 @@ def inspect_bag(bag: Bag) -> dict[str, Any]:
             entry["fields_left_out"] = max(0, len(fields) - _FIELD_LIMIT)
             entry["arrays"] = [{"field": name, "length": length} for name, length in message_arrays(first)]
         listing.append(entry)
+    warnings += extra_bytes_warnings(bag, topics)
     firsts = [i.first_ns for i in topics.values() if i.first_ns is not None]
     lasts = [i.last_ns for i in topics.values() if i.last_ns is not None]
     report = {
@@ -218,16 +227,50 @@ def _guess(listing: list[dict[str, Any]]) -> dict[str, Any]:
     for e in streams:
         if e["note"] is None:
             e["role"] = "action" if e in actions else "observation"
-    rated = [e for e in streams if e["role"] == "observation" and e["rate_hz"]] or [e for e in actions if e["rate_hz"]]
+    commands = [e for e in actions if e["role"] == "action" and e["rate_hz"]]
+    if commands:
+        fastest = max(commands, key=lambda e: e["rate_hz"])
+        rate = _round_rate(fastest["rate_hz"])
+        why = "the command stream" if len(commands) == 1 else "the fastest command stream"
+        return {**_rate(rate), "rate_from": fastest["topic"], "rate_why": why, "held": _leave_out_slow(streams, rate)}
+    rated = [e for e in streams if e["role"] == "observation" and e["rate_hz"]]
     if not rated:
-        return {"rate_hz": 10, "rate_from": None, "rate_why": "no topic has a rate"}
+        return {"rate_hz": 10, "rate_from": None, "rate_why": "no topic has a rate", "held": []}
     slowest = min(rated, key=lambda e: e["rate_hz"])
-    measured = slowest["rate_hz"]  # an average over the bag: 49.97 Hz is a 50 Hz publisher
+    return {
+        **_rate(_round_rate(slowest["rate_hz"])),
+        "rate_from": slowest["topic"],
+        "rate_why": "the slowest observation stream",
+        "held": [],
+    }
+
+
+def _round_rate(measured: float) -> float:
+    """A measured rate as a map writes it: an average over the bag (49.97 Hz is a 50 Hz publisher)
+    rounded to an integer within 0.5%, else to 3 digits, and within what a map accepts."""
     rate = float(round(measured)) if abs(measured - round(measured)) <= 0.005 * measured else float(f"{measured:.3g}")
-    rate = min(max(rate, MIN_RATE_HZ), MAX_RATE_HZ)  # damaged timestamps must not make a map that cannot load
-    observed = slowest["role"] == "observation"
-    why = "the slowest observation stream" if observed else "no observation has a rate; the slowest command"
-    return {"rate_hz": int(rate) if rate.is_integer() else rate, "rate_from": slowest["topic"], "rate_why": why}
+    return min(max(rate, MIN_RATE_HZ), MAX_RATE_HZ)  # damaged timestamps must not make a map that cannot load
+
+
+def _rate(rate: float) -> dict[str, Any]:
+    return {"rate_hz": int(rate) if rate.is_integer() else rate}
+
+
+def _leave_out_slow(streams: list[dict[str, Any]], rate: float) -> list[str]:
+    """Leave out the observations that give a new value less than once every `SLOW_STEPS` steps
+    at `rate` (the episode would also wait for their first message), unless none faster is left:
+    then they stay, held between their messages, and their topics are returned."""
+    observations = [e for e in streams if e["role"] == "observation"]
+    slow = [e for e in observations if e["rate_hz"] and e["rate_hz"] * SLOW_STEPS < rate]
+    if len(slow) == len(observations):
+        return [e["topic"] for e in slow]
+    for e in slow:
+        e["role"] = None
+        e["note"] = (
+            f"slow: {e['rate_hz']:.2g} Hz, a new value every {rate / e['rate_hz']:.0f} steps at {rate:g} Hz "
+            "(add it back to hold its last value between messages)"
+        )
+    return []
 
 
 def _field_names(entry: dict[str, Any], limit: int) -> tuple[list[str], int]:
@@ -278,11 +321,23 @@ def format_report(report: dict[str, Any]) -> str:
 
 
 def _starter_fields(entry: dict[str, Any]) -> list[str]:
-    """Scalar and short-array fields, without headers, covariances, times and empty arrays."""
+    """A range sensor's ranges; otherwise scalar and short-array fields, without headers,
+    covariances, times and empty arrays."""
+    ranges = _RANGE_FIELDS.get(_short_type(entry["type"]))
+    if any(f["field"] == ranges and f["values"] for f in entry["fields"]):
+        return [str(ranges)]
     fields = [
         f["field"] for f in entry["fields"] if 0 < f["values"] <= _STARTER_WIDTH and not _NOT_A_SIGNAL.search(f["field"])
     ]
     return (fields or [next((f["field"] for f in entry["fields"] if f["values"]), entry["fields"][0]["field"])])[:24]
+
+
+def _observation_entry(entry: dict[str, Any]) -> dict[str, Any]:
+    """A measurement's map entry; a range sensor's out-of-range readings (±inf) are clipped to its limits."""
+    observation: dict[str, Any] = {"topic": entry["topic"], "fields": _starter_fields(entry)}
+    if observation["fields"] == [_RANGE_FIELDS.get(_short_type(entry["type"]))]:
+        observation["nonfinite"] = RANGE_MAX
+    return observation
 
 
 def _action_entry(entry: dict[str, Any]) -> dict[str, Any]:
@@ -297,7 +352,7 @@ def _action_entry(entry: dict[str, Any]) -> dict[str, Any]:
 
 def starter_map(report: dict[str, Any]) -> str:
     """YAML text of a map to edit: the guessed action and observation topics with their signal
-    fields, `rate_hz` from the slowest observation stream; every topic in a comment."""
+    fields, `rate_hz` from the command (or the slowest observation); every topic in a comment."""
     starter = report.get("starter") or _guess(report["topics"])
     actions = [e for e in report["topics"] if e.get("role") == "action"]
     observations = [e for e in report["topics"] if e.get("role") == "observation"]
@@ -305,7 +360,7 @@ def starter_map(report: dict[str, Any]) -> str:
         "rate_hz": starter["rate_hz"],
         "time": "log",
         "align": "hold",
-        "observation": [{"topic": e["topic"], "fields": _starter_fields(e)} for e in observations],
+        "observation": [_observation_entry(e) for e in observations],
         "action": [_action_entry(e) for e in actions],
         "episodes": {"split": "file"},
         "env_id": None,
@@ -320,6 +375,17 @@ def starter_map(report: dict[str, Any]) -> str:
         "# are the action, measurements the observation; logging, transforms, parameters and one-shot topics",
         f"# are left out; {rate_note}.",
     ]
+    if any("nonfinite" in entry for entry in body["observation"]):
+        header.append(
+            "# A range sensor's readings out of range are inf (REP 117): nonfinite: range_max clips them to its limits."
+        )
+    if starter.get("held"):
+        header.append(
+            f"# {', '.join(starter['held'])}: slower than one value per {SLOW_STEPS} steps, held between messages (no "
+            "faster observation)."
+        )
+    if any((e.get("note") or "").startswith("slow:") for e in report["topics"]):
+        header.append(f"# Observations slower than one value per {SLOW_STEPS} steps are left out (the note says so).")
     if any("max_age" in entry for entry in body["action"]):
         header.append(
             f"# Velocity commands revert to 0 after {VELOCITY_COMMAND_TIMEOUT:g} s without a message, as their controllers do."

@@ -7,6 +7,7 @@
     observation:                # concatenated in this order
       - {topic: /turtle1/pose, fields: [x, y, theta, linear_velocity, angular_velocity]}
       - {topic: /camera/image_raw, image: front, size: [480, 640]}   # an image leaf; size optional
+      - {topic: /scan, fields: [ranges], nonfinite: range_max}      # what inf and NaN stand for
     action:
       - {topic: /turtle1/cmd_vel, fields: [linear.x, angular.z], default: 0, max_age: 1.0}
     reward: {topic: /score, field: data}     # optional; zero rewards without it
@@ -16,6 +17,12 @@
 An `image` entry (observation only) makes a sensor_msgs/Image or CompressedImage topic a leaf
 of a Dict observation under the key it names, beside `state` (the numeric entries); its frames
 are held, never interpolated, and `size: [height, width]` refuses frames of any other size.
+
+`nonfinite` says what a numeric entry's NaN and ±inf values stand for, since a demo file holds
+finite numbers only (a sensor_msgs/LaserScan reports a beam with no return as +inf, REP 117):
+`range_max` (+inf and NaN become the message's own maximum range, -inf its minimum range), a
+number (every one becomes it), or `mask` (each becomes 0, and the entry gains a 0/1 column per
+value, 1 where the message held a finite reading). Without it a non-finite value is refused.
 
 `load_map` checks the map's own shape (keys, types, values); whether its topics and fields exist
 in a bag is checked against the bag in `ros.py`. Errors name the map file and the entry.
@@ -40,7 +47,8 @@ ALIGNMENTS = ("hold", "interpolate")
 CLOCKS = ("log", "header")
 SPLITS = ("file", "gap", "topic")
 _TOP_KEYS = {"rate_hz", "time", "align", "observation", "action", "reward", "episodes", "env_id"}
-_ENTRY_KEYS = {"topic", "fields", "field", "align", "default", "max_age", "image", "size"}
+_ENTRY_KEYS = {"topic", "fields", "field", "align", "default", "max_age", "nonfinite", "image", "size"}
+RANGE_MAX, MASK = "range_max", "mask"  # the named `nonfinite` choices; a number is the third
 STATE_KEY = "state"  # the Dict observation's leaf for the numeric entries, beside the images
 _IMAGE_KEY = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}")
 MAX_IMAGE_SIDE = 2**16  # pixels: a larger declared size is a typo
@@ -61,6 +69,7 @@ class Stream:
     default: tuple[float, ...] | None  # one value per field, or one value for all
     max_age_s: float | None
     image: str | None = None  # an image entry: the key of its leaf in the Dict observation
+    nonfinite: str | float | None = None  # RANGE_MAX, MASK, a number, or None (refused)
     size: tuple[int, int] | None = None  # an image entry's declared (height, width)
 
 
@@ -188,7 +197,8 @@ def _stream(entry: Any, where: str, align: str, fail: Any, *, images: bool = Fal
     unknown = sorted(set(entry) - _ENTRY_KEYS)
     if unknown:
         raise fail(
-            f"{where}: unknown key {unknown[0]!r} (an entry has topic, fields, align, default, max_age; or topic, image, size)"
+            f"{where}: unknown key {unknown[0]!r} (an entry has topic, fields, align, default, max_age, nonfinite; or topic, "
+            "image, size)"
         )
     topic = entry.get("topic")
     if not isinstance(topic, str) or not topic:
@@ -222,7 +232,25 @@ def _stream(entry: Any, where: str, align: str, fail: Any, *, images: bool = Fal
             raise fail(f"{where} ({topic}): max_age must be a positive number of seconds, got {max_age!r}")
         if default is None:
             raise fail(f"{where} ({topic}): max_age needs a default (the value once the last message is too old)")
-    return Stream(where, topic, tuple(fields), entry_align, default, float(max_age) if max_age is not None else None)
+    nonfinite = _nonfinite(entry.get("nonfinite"), f"{where} ({topic})", entry_align, fail)
+    return Stream(
+        where, topic, tuple(fields), entry_align, default, float(max_age) if max_age is not None else None, nonfinite=nonfinite
+    )
+
+
+def _nonfinite(value: Any, prefix: str, align: str, fail: Any) -> str | float | None:
+    if value is None:
+        return None
+    if value in (RANGE_MAX, MASK):
+        if value == MASK and align == "interpolate":
+            raise fail(f"{prefix}: nonfinite: mask gives 0/1 columns, which interpolation would blend; use align: hold")
+        return str(value)
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+        return float(value)
+    raise fail(
+        f"{prefix}: nonfinite must be range_max (the message's own range limits), a finite number, or mask (0 and a "
+        f"0/1 column per value); got {str(value)[:40]!r}"
+    )
 
 
 def _image_stream(entry: dict[str, Any], where: str, topic: str, fail: Any, allowed: bool) -> Stream:
@@ -236,9 +264,13 @@ def _image_stream(entry: dict[str, Any], where: str, topic: str, fail: Any, allo
             f"{prefix}: image must be the key of its leaf in the observation, letters, digits, _ . - (not {STATE_KEY!r}, "
             f"the numeric entries' leaf); got {str(key)[:40]!r}"
         )
-    extra = sorted(set(entry) & {"fields", "field", "default", "max_age"})
+    extra = sorted(set(entry) & {"fields", "field", "default", "max_age", "nonfinite"})
     if extra:
-        why = "the image is the whole message" if extra[0].startswith("field") else "the episode starts at its first frame"
+        why = {
+            "default": "the episode starts at its first frame",
+            "max_age": "the episode starts at its first frame",
+            "nonfinite": "its pixels are whole numbers",
+        }.get(extra[0], "the image is the whole message")
         raise fail(f"{prefix}: an image entry takes no {extra[0]} ({why})")
     if entry.get("align", "hold") != "hold":
         raise fail(f"{prefix}: images are held (the latest frame at each step), never interpolated; drop align")

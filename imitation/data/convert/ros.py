@@ -16,6 +16,11 @@ observation beside `state`, the numeric entries: each grid time holds the latest
 before it, decoded once however many steps hold it. The steps' frames together may decode to at
 most `image_expansion_ratio` times the bag's bytes, counted before each episode's are allocated.
 
+A demo file holds finite numbers only. An entry's `nonfinite` (maps.py) says what its NaN and
+±inf values stand for, and is applied to each message as it is read; the replacements are counted
+in a warning. Without it, a non-finite value that reaches the grid is refused, naming the entry,
+its topic, the column and the message that holds it.
+
 Values keep their precision: each field's dtype is the float that holds every value of the type
 its definition declares (float32 for float32 and small integers, float64 for float64 and wider
 integers), and the observation (action) space is float64 as soon as one of its fields is.
@@ -32,10 +37,17 @@ import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
-from imitation.data.convert.bags import Bag, TopicInfo
+from imitation.data.convert.bags import Bag, TopicInfo, extra_bytes_warnings
 from imitation.data.convert.converted import Converted
-from imitation.data.convert.fields import FieldError, parse_field, read_field, resolve_numbers, value_dtype
-from imitation.data.convert.maps import STATE_KEY, RecordingMap, Stream
+from imitation.data.convert.fields import (
+    FieldError,
+    message_fields,
+    parse_field,
+    read_field,
+    resolve_numbers,
+    value_dtype,
+)
+from imitation.data.convert.maps import MASK, RANGE_MAX, STATE_KEY, RecordingMap, Stream
 from imitation.data.convert.resample import NS, hold_index, regular_grid, sample, split_at_gaps, split_at_markers
 from imitation.data.convert.ros_images import Frame, ImageError, decode, frame_of, image_kind
 from imitation.data.types import Episode, Tree
@@ -45,6 +57,8 @@ from imitation.limits import LIMITS, ImageBudget, input_bytes, over_limit
 _STAMP = parse_field("header.stamp")
 
 MAX_EPISODE_STEPS = 100_000_000  # a day at 1 kHz: more means damaged timestamps, not a recording
+# The fields holding a message's range limits, (minimum, maximum), for `nonfinite: range_max`.
+_RANGE_LIMITS = (("range_min", "range_max"), ("min_range", "max_range"))  # sensor_msgs/LaserScan, sensor_msgs/Range
 
 
 @dataclass
@@ -57,6 +71,18 @@ class _Column:
     default: np.ndarray | None
     times: list[int]
     rows: list[np.ndarray]
+    bag_path: Path | None = None  # for errors
+    limits: tuple[str, str] | None = None  # `nonfinite: range_max`: the message's (minimum, maximum) range fields
+    replaced: int = 0  # non-finite values that `nonfinite` replaced
+
+    @property
+    def mask(self) -> bool:
+        return self.stream.nonfinite == MASK
+
+    @property
+    def width(self) -> int:
+        """Columns per row: the fields' values, and with `nonfinite: mask` a 0/1 column for each."""
+        return sum(self.widths) * (2 if self.mask else 1)
 
     @property
     def names(self) -> list[str]:
@@ -64,7 +90,7 @@ class _Column:
         for text, width in zip(self.stream.fields, self.widths):
             base = f"{self.stream.topic}.{text}"
             names += [base] if width == 1 else [f"{base}[{i}]" for i in range(width)]
-        return names
+        return names + [f"finite({name})" for name in names] if self.mask else names
 
     def add(self, message: Any, time_ns: int, log_ns: int) -> None:
         self.times.append(time_ns)
@@ -175,7 +201,7 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
     arrays = {id(c): _sorted_samples(c) for c in columns}
     spans = _spans(recording_map, [arrays[id(c)][0] for c in columns], np.sort(np.asarray(markers, dtype=np.int64)))
     episodes: list[Episode] = []
-    warnings: list[str] = []
+    warnings = extra_bytes_warnings(bag, sorted(by_topic))
     n_obs = len(recording_map.observation)
     n_act = len(recording_map.action)
     state = [c for c in columns[:n_obs] if isinstance(c, _Column)]
@@ -216,6 +242,8 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
             )
             for c in numeric
         }
+        for c in numeric:
+            _refuse_nonfinite(bag, c, values[id(c)], *arrays[id(c)])
         vector = np.concatenate([values[id(c)] for c in state], axis=1).astype(observation_dtype) if state else None
         observations: Tree
         if images:
@@ -241,6 +269,7 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
         )
     if not episodes:
         raise ImitationError(f"{bag.path}: no episode: the mapped topics never all have a value at the same time")
+    warnings += [_replaced_warning(c) for c in numeric if c.replaced]
     first = episodes[0]
     assert isinstance(first.actions, np.ndarray)  # built as an array above
     return Converted(
@@ -261,6 +290,41 @@ def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = T
             **({"reward_name": reward.names[0]} if reward else {}),
         },
         warnings=warnings,
+    )
+
+
+def _refuse_nonfinite(bag: Bag, column: _Column, on_grid: np.ndarray, times: np.ndarray, rows: np.ndarray) -> None:
+    """Refuse a NaN or ±inf that reached the grid (an entry without `nonfinite`), naming the
+    column and the first message that holds one in it."""
+    bad = ~np.isfinite(on_grid)
+    if not bad.any():
+        return
+    j = int(np.flatnonzero(bad[np.flatnonzero(bad.any(axis=1))[0]])[0])  # the first column of the first step with one
+    held = ~np.isfinite(rows[:, j])
+    # A non-finite grid value comes from a message's (interpolation too: its neighbours'): there is one.
+    first = int(np.flatnonzero(held)[0])
+    stream = column.stream
+    count = f"; {int(held.sum())} of the topic's {len(rows)} messages hold one there" if held.sum() > 1 else ""
+    raise ImitationError(
+        f"{bag.path}: {stream.where} ({stream.topic}): column {column.names[j]} is {rows[first, j]} in the message at "
+        f"{int(times[first])} ns{count}; a demo file holds finite numbers: say what it stands for with nonfinite: "
+        "range_max, a number or mask on the entry (docs/CONVERT.md)"
+    )
+
+
+def _replaced_warning(column: _Column) -> str:
+    """What `nonfinite` did to the entry's values, for the conversion's warnings."""
+    stream, choice = column.stream, column.stream.nonfinite
+    if column.limits is not None:
+        became = f"the message's {column.limits[1]} (+inf, NaN) or {column.limits[0]} (-inf)"
+    elif choice == MASK:
+        became = "0, with 0 in their finite(...) columns"
+    else:
+        became = f"{choice:g}"
+    total = len(column.rows) * sum(column.widths)
+    return (
+        f"{stream.where} ({stream.topic}): {column.replaced} of the {total} values read were NaN or ±inf; "
+        f"nonfinite: {choice} made them {became}"
     )
 
 
@@ -370,7 +434,18 @@ def _compile(bag: Bag, stream: Stream, recording_map: RecordingMap) -> _Column |
         if len(stream.default) not in (1, width):
             raise ImitationError(f"{prefix}: default has {len(stream.default)} values; the fields hold {width}")
         default = np.broadcast_to(np.asarray(stream.default, dtype=np.float64), (width,)).copy()
-    return _Column(stream, widths, dtype, default, [], [])
+        if stream.nonfinite == MASK:  # before the first message, or once it is stale, there is no reading
+            default = np.concatenate([default, np.zeros(width)])
+    limits = None
+    if stream.nonfinite == RANGE_MAX:
+        names = message_fields(first) or []
+        limits = next((pair for pair in _RANGE_LIMITS if set(pair) <= set(names)), None)
+        if limits is None:
+            raise ImitationError(
+                f"{prefix}: nonfinite: range_max takes the message's range_max and range_min (sensor_msgs/LaserScan) or "
+                f"max_range and min_range (sensor_msgs/Range); a {msgtype} has neither: give a number or mask"
+            )
+    return _Column(stream, widths, dtype, default, [], [], bag.path, limits)
 
 
 def _time_of(message: Any, log_ns: int, recording_map: RecordingMap, topic: str) -> int:
@@ -400,7 +475,31 @@ def _row(message: Any, column: _Column, log_ns: int) -> np.ndarray:
                 f"first message and {len(values)} now (a variable-length array: index it, e.g. {text}[0])"
             )
         parts.append(values)
-    return np.concatenate(parts)
+    row = np.concatenate(parts)
+    return row if column.stream.nonfinite is None else _replace_nonfinite(row, message, column, log_ns)
+
+
+def _replace_nonfinite(row: np.ndarray, message: Any, column: _Column, log_ns: int) -> np.ndarray:
+    """`row` with its NaN and ±inf replaced as the entry's `nonfinite` says (with `mask`, followed
+    by a 0/1 column per value); the replacements are counted on `column`."""
+    finite = np.isfinite(row)
+    if finite.all():
+        return np.concatenate([row, np.ones(len(row))]) if column.mask else row
+    column.replaced += int(len(row) - finite.sum())
+    choice = column.stream.nonfinite
+    if column.limits is not None:
+        low, high = (float(getattr(message, name)) for name in column.limits)
+        if not (math.isfinite(low) and math.isfinite(high)):
+            stream = column.stream
+            raise ImitationError(
+                f"{column.bag_path}: {stream.where} ({stream.topic}) at {log_ns} ns: nonfinite: range_max, but the message's "
+                f"{column.limits[0]} is {low:g} and {column.limits[1]} {high:g}; give a number or mask"
+            )
+        return np.where(finite, row, np.where(np.isneginf(row), low, high))
+    if choice == MASK:
+        return np.concatenate([np.where(finite, row, 0.0), finite.astype(np.float64)])
+    assert isinstance(choice, float)  # maps.py admits range_max, mask or a finite number
+    return np.where(finite, row, choice)
 
 
 def _sorted_samples(column: _Column | _ImageColumn) -> tuple[np.ndarray, np.ndarray]:
@@ -410,13 +509,13 @@ def _sorted_samples(column: _Column | _ImageColumn) -> tuple[np.ndarray, np.ndar
     order = np.argsort(times, kind="stable")
     if isinstance(column, _ImageColumn):
         return times[order], order
-    rows = np.asarray(column.rows, dtype=np.float64).reshape(len(times), sum(column.widths))
+    rows = np.asarray(column.rows, dtype=np.float64).reshape(len(times), column.width)
     return times[order], rows[order]
 
 
 def _observation_space(bag: Bag, state: list[_Column], images: list[_ImageColumn], dtype: np.dtype) -> gym.Space:
     """Box(-inf, inf) of the numeric entries; with images, a Dict of `state` and one Box per camera."""
-    width = sum(sum(c.widths) for c in state)
+    width = sum(c.width for c in state)
     vector = gym.spaces.Box(-np.inf, np.inf, shape=(width,), dtype=dtype)
     if not images:
         return vector
