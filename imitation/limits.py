@@ -44,9 +44,9 @@ class Limits:
     # Bytes of decoded camera frames per byte of the file or folder that holds them (beyond the
     # first 64 MiB): PNG and JPEG frames of a demo file, a ROS bag's camera messages on the
     # resampled grid, a LeRobot dataset's images and video frames. Measured on real data, the
-    # most compressible are CartPole rendered at 400x600 (PNG 373, JPEG 467) and LeRobot's
-    # AV1 and H.264 videos (SO-101 337, ALOHA sim 350); cameras' own PNG and JPEG frames stay
-    # near 20. A 34 KB file of identical compressed frames decoding to 3 GB is 90,000.
+    # most compressible are CartPole rendered at 400x600 (PNG 373, JPEG 467) and LeRobot's AV1
+    # and H.264 videos (SO-101 344, ALOHA sim 326 to 359); SO-101's wrist camera as PNG frames
+    # is 18, as JPEG (quality 95) 65. A 34 KB file of identical frames decoding to 3 GB is 90,000.
     image_expansion_ratio: int = 2000
     # Scans of one JPEG frame. A progressive JPEG's scans each pass over the whole picture, and a
     # scan of "nothing changed" takes 12 bytes: 600 of them made an 8 KB 1080p frame take 0.6 s

@@ -4,7 +4,9 @@ libjpeg decodes a progressive JPEG scan by scan, and each scan is a pass over ev
 picture however few bytes it holds: a scan that refines nothing is 12 bytes, so an 8 KB frame of
 600 of them costs as much as 600 frames. The count of scans, not the file's size, bounds that
 work, and reading it costs a walk over the segment headers (the scans' data is skipped by a
-search for the next marker)."""
+search for the next marker). A sequential JPEG whose first scan holds every component (what
+cameras and Pillow write) is one scan: libjpeg refuses any scan after it, so the walk stops
+there without searching its data."""
 
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ import re
 from imitation.limits import LIMITS, over_limit
 
 _SOI, _EOI, _SOS = 0xD8, 0xD9, 0xDA
+_SEQUENTIAL = {0xC0, 0xC1, 0xC9}  # SOF markers of sequential DCT (baseline, extended, arithmetic)
 _WITHOUT_LENGTH = {0x01, *range(0xD0, 0xD8)}  # TEM and the restart markers RST0-7
 # In a scan's data 0xFF is followed by 0x00 (a stuffed byte) or a restart marker; a marker that
 # ends the scan is 0xFF followed by anything else (0xFF itself is fill before a marker).
@@ -28,6 +31,7 @@ def scan_count(data: bytes | memoryview) -> int:
     if size < 2 or view[0] != 0xFF or view[1] != _SOI:
         return 0
     scans, position = 0, 2
+    sequential_components = 0  # components of a sequential frame's SOF; 0 for any other frame
     while position + 4 <= size:
         if view[position] != 0xFF:
             break
@@ -40,9 +44,14 @@ def scan_count(data: bytes | memoryview) -> int:
         if marker in _WITHOUT_LENGTH:
             position += 2
             continue
+        segment = position + 4
         position += 2 + ((view[position + 2] << 8) | view[position + 3])
+        if marker in _SEQUENTIAL and segment + 5 < size:
+            sequential_components = view[segment + 5]  # after precision, height and width
         if marker == _SOS:
             scans += 1
+            if scans == 1 and sequential_components and segment < size and view[segment] == sequential_components:
+                break  # every component in one sequential scan: the image is whole after it
             end = _END_OF_SCAN.search(view, position)
             if end is None:
                 break

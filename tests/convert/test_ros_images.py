@@ -384,7 +384,7 @@ def test_frames_held_over_many_steps_count_once_per_step(tmp_path: Path, monkeyp
 def test_a_640x480_camera_bag_converts_and_trains_within_the_image_bounds(tmp_path: Path) -> None:
     """Real data is not refused by the bounds on decoded frames: a 640x480 JPEG camera at 30 Hz
     (rendered CartPole with a sensor's noise) for 2 s, resampled at 50 Hz (each frame held over
-    one or two steps: 93 MB decoded from a 3 MB bag, past the free 64 MiB) and at 10 Hz, which
+    one or two steps: 92 MB decoded from a 2.4 MB bag, past the free 64 MiB) and at 10 Hz, which
     `train bc` loads whole, frames decoded, and learns from (the state alone: the Nature CNN on
     640x480 frames holds 139M weights, minutes of CPU per epoch)."""
     frames, states, _ = cartpole_frames(60)

@@ -434,6 +434,16 @@ def test_scans_are_counted_from_the_markers() -> None:
     Image.fromarray(frame).save(outer, format="JPEG", comment=inner)
     assert inner in outer.getvalue() and scan_count(outer.getvalue()) == 1
     assert scan_count(b"not a jpeg") == 0
+    # A sequential JPEG whose one scan holds every component is whole after it: libjpeg refuses
+    # any scan that follows, so the count stops there (and cameras' frames cost no search).
+    baseline = io.BytesIO()
+    Image.fromarray(frame).save(baseline, format="JPEG")
+    data = baseline.getvalue()
+    first, end = data.index(b"\xff\xda"), data.rindex(b"\xff\xd9")
+    repeated = data[:end] + data[first:end] * 50 + data[end:]
+    assert scan_count(repeated) == 1
+    with pytest.raises(OSError):
+        Image.open(io.BytesIO(repeated)).load()
 
 
 def test_a_jpeg_frame_of_more_scans_than_the_limit_is_refused_before_it_is_decoded(tmp_path) -> None:
