@@ -122,7 +122,7 @@ class _EpisodeAssembler:
         if keep is not None and not keep(facts):
             return facts, None
         if self.budget is not None:
-            _take(self.budget, (facts.length + 1) * image_row_bytes(self._observation_fields, self._channels))
+            _take(self.budget, (facts.length + 1) * image_row_bytes(self._channels))
         return facts, self._build(facts, blocks)
 
     def _build(self, facts: EpisodeFacts, blocks: dict[str, list[bytes | memoryview]]) -> Episode:
@@ -176,10 +176,10 @@ def _take(budget: ImageBudget, amount: int) -> None:
         raise DemoFileError(str(error)) from None
 
 
-def image_row_bytes(observation_fields: Sequence[Field], channels: dict[int, Field | None]) -> int:
-    """Bytes one observation's image leaves decode to (0 without any)."""
-    images = {c.topic for c in channels.values() if c is not None and c.codec is not None}
-    return sum(f.row_nbytes for f in observation_fields if f.topic in images)
+def image_row_bytes(channels: dict[int, Field | None]) -> int:
+    """Bytes one step's frames decode to, as the image channels declare them (0 without any). A
+    channel that declares other than its space's leaf is refused before a frame is decoded."""
+    return sum(f.row_nbytes for f in channels.values() if f is not None and f.codec is not None)
 
 
 def _interventions(
@@ -564,15 +564,7 @@ class DemoFile:
             if chunk.offset + chunk.length > footer.summary_start:
                 raise Damage("chunk index points past the data section")
         _check_episode_index(episodes, sum(chunk.uncompressed_size for chunk in chunks))
-        observations = [
-            f
-            for f in fields_for(space_from_json(dataset["observation_space"]), space_from_json(dataset["action_space"]))
-            if f.kind == "observation"
-        ]
-        _take(
-            ImageBudget(str(self.path), self.size),
-            sum(facts.length + 1 for facts in episodes) * image_row_bytes(observations, channels),
-        )
+        _take(ImageBudget(str(self.path), self.size), sum(facts.length + 1 for facts in episodes) * image_row_bytes(channels))
         chunks.sort(key=lambda c: (c.start_time, c.offset))
         return _Index(dataset, channels, chunks, episodes)
 
