@@ -1103,9 +1103,11 @@ def build_parser() -> argparse.ArgumentParser:
         "episodes, what a laser's inf beams stand for; see docs/CONVERT.md); --inspect lists a bag's topics and numeric "
         "fields and --write-map writes a starter map. LeRobot datasets (v3.0, v2.1) and npz rollouts (stable-baselines "
         "GAIL, HumanCompatibleAI/imitation) convert "
-        "without a map; a bare (episodes, steps, columns) array needs a layout (--layout). Video and image features are "
-        "skipped with a warning. With --env, end flags that the source cannot tell apart (a time limit or a terminal "
-        "state) are decided from the env's time limit.",
+        "without a map; a bare (episodes, steps, columns) array needs a layout (--layout). Cameras become image "
+        "observations: LeRobot video and image features, and ROS image topics a map names with image:. With --env, end "
+        "flags that the source cannot tell apart (a time limit or a terminal state) are decided from the env's time "
+        "limit, or, for a layout with ends: terminal_state, where the env's own termination rule first holds on the "
+        "recorded states (the steps after it are cut).",
     )
     convert.add_argument(
         "source",
@@ -1125,7 +1127,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--layout",
         metavar="LAYOUT.yaml",
         help="for bare arrays (.npy, or an npz member) of shape (episodes, steps, columns): which columns are observation "
-        "and action, what rows hold, the padding, the reward (see docs/CONVERT.md)",
+        "and action, what rows hold, the padding, the reward, how episodes end (see docs/CONVERT.md)",
     )
     convert.add_argument("--out", metavar="F.mcap", help="output demo file (written atomically)")
     convert.add_argument(

@@ -20,6 +20,13 @@ def test_help(command: list[str]) -> None:
     assert result.returncode == 0 and "usage: imitation" in result.stdout
 
 
+def test_convert_help_says_cameras_convert_and_how_a_layout_ends_episodes() -> None:
+    text = " ".join(run_cli("convert", "--help").stdout.split())
+    assert "skipped" not in text
+    assert "Cameras become image observations: LeRobot video and image features, and ROS image topics a map names" in text
+    assert "for a layout with ends: terminal_state, where the env's own termination rule first holds" in text
+
+
 def test_turtle_bag_to_demos_to_offline_bc(testdata: Path, tmp_path: Path) -> None:
     demos = tmp_path / "turtle.mcap"
     converted = last_json(run_cli("convert", str(testdata / "ros1/plotjuggler_example.bag"), "--from", "ros1",
@@ -111,6 +118,9 @@ def test_bad_sources_fail_in_one_line(testdata: Path, tmp_path: Path) -> None:
         (["convert", str(testdata / "ros1/plotjuggler_example.bag")], ["needs --map"]),
         (["convert", str(testdata / "ros1/plotjuggler_example.bag"), "--from", "ros2", "--map", str(write_map(tmp_path, TURTLE_MAP))], ["not an MCAP file"]),
         (["convert", str(tmp_path / "nothing.bag")], ["nothing.bag", "no such file"]),
+        # written by h5py (tools/hdf5_fixture.py): no --from reads it, so the message must not ask for one
+        (["convert", str(HDF5)], ["robomimic-layout.hdf5: an HDF5 file, which convert does not read (no --from does)",
+                                  "(episodes, steps, columns) array in an .npy file and convert that with --layout"]),
         (["convert", str(testdata / "experts/expert_cartpole.npz"), "--env", "Pendulum-v1"], ["for Pendulum-v1", "do not fit"]),
     ]
     for args, fragments in cases:
@@ -130,6 +140,7 @@ def test_lerobot_round_trip_from_the_command_line(tmp_path: Path) -> None:
 
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures" / "imitation"
+HDF5 = Path(__file__).resolve().parent / "fixtures" / "formats" / "robomimic-layout.hdf5"
 
 
 def test_info_says_how_the_end_flags_were_decided(tmp_path: Path) -> None:
@@ -157,6 +168,19 @@ def test_info_says_how_the_end_flags_were_decided(tmp_path: Path) -> None:
     assert "end flags:     the env's own terminated/truncated signals" in run_cli("info", str(recorded)).stdout
     # A file written before end flags were recorded still reads, and says it does not know.
     assert last_json(run_cli("info", str(DATASETS / "CartPole-v1.mcap"), "--json"))["end_flags"] is None
+
+
+def test_info_says_a_bags_episodes_are_recordings(testdata: Path, tmp_path: Path) -> None:
+    """A ROS bag's episodes stop where the recorder stopped: `info` says so, not that the file is
+    too old to tell."""
+    demos = tmp_path / "turtle.mcap"
+    converted = last_json(run_cli("convert", str(testdata / "ros1/plotjuggler_example.bag"), "--map",
+                                  str(write_map(tmp_path, TURTLE_MAP)), "--out", str(demos), "--json"))
+    assert converted["end_flags"] == {"decided": "recording", "terminated": 0, "truncated": 1}
+    assert last_json(run_cli("info", str(demos), "--json"))["end_flags"] == converted["end_flags"]
+    text = run_cli("info", str(demos)).stdout
+    assert "end flags:     all 1 truncated: a recording stops where its recorder stopped, not in a terminal state" in text
+    assert "not recorded" not in text
 
 
 def test_a_bare_array_from_the_command_line(tmp_path: Path) -> None:

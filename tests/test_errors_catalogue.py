@@ -422,6 +422,14 @@ def _array_case(name: str, *extra, data: np.ndarray | None = None, layout: dict 
     return build
 
 
+def _pendulum_terminal_state(i: Inputs) -> list:
+    """Pendulum keeps (θ, θ') and observes (cos θ, sin θ, θ'): its state cannot be set to an observation."""
+    path = i.path("ts-pendulum.npy")
+    np.save(path, np.zeros((2, 4, 4)))
+    layout = {"observation": [0, 1, 2], "action": [3], "rows": "state", "reward": -1, "ends": "terminal_state"}
+    return _convert(path, "--layout", i.text("ts-pendulum.yaml", yaml.safe_dump(layout)), "--env", "Pendulum-v1")
+
+
 def _cut_npy(i: Inputs) -> list:
     path = i.path("cut.npy")
     np.save(path, ARRAY)
@@ -802,6 +810,7 @@ CASE_LIST = [
     # convert
     case("conv-1", lambda i: _convert(i.root / "absent.npz")),
     case("conv-2", lambda i: _convert(i.text("notes.txt", "hello"))),
+    case("conv-hdf5", lambda i: _convert(shutil.copy(REPO / "tests" / "fixtures" / "formats" / "robomimic-layout.hdf5", i.root))),
     case("conv-3", lambda i: _convert(i.folder("plain-folder"))),
     case("conv-4", lambda i: _convert((i.folder("half-lerobot/meta") and i.root / "half-lerobot"))),
     case("conv-6", lambda i: _convert(i.sb_npz("c6.npz"), "--from", "hdf5")),
@@ -826,6 +835,9 @@ CASE_LIST = [
     case("ends-1", _npz_case("imitation_npz", "long.npz", "--env", "CartPole-v1", obs=np.zeros((504, 4), np.float32), acts=np.zeros(502, np.int64),
                              indices=np.array([1]), terminal=np.array([True, True]), rews=np.ones(502))),
     case("ends-2", _array_case("no-env", "--no-env")),
+    case("ends-3", _array_case("ts-no-env", "--no-env", ends="terminal_state")),
+    case("ends-4", _pendulum_terminal_state),
+    case("ends-5", _array_case("ts-not-env", ends="terminal_state")),  # ARRAY's rows are not MountainCar's steps
     case("map-1", lambda i: _convert(i.npz("a1.npz", demos=ARRAY), "--layout", i.root / "absent.yaml"), variant="layout"),
     case("map-3", _array_case("deep", layout="[" * 5000 + "]" * 5000), variant="layout"),
     case("arr-3", _array_case("list", layout="- observation\n- action\n")),

@@ -11,6 +11,7 @@ member, whose meaning a small YAML layout states (docs/CONVERT.md, "Bare arrays"
     padding: nan            # after an episode's end: nan | a number | repeat (its last row again) | none
     reward: -1              # a number paid every step | {column: NAME} | none (zeros)
     ends: time_limit        # time_limit (from --env's time limit) | terminated | truncated
+                            # | terminal_state (cut where --env's termination rule first holds)
     array: demos            # .npz only: the member holding the array
 
 Nothing is guessed: an episode's end is where its padding starts (rows of padding must run to the
@@ -39,7 +40,7 @@ from imitation.inputs import open_input
 
 ROWS = ("state", "next_state")
 FINAL_STATES = ("row", "none")
-ENDS = ("time_limit", "terminated", "truncated")
+ENDS = ("time_limit", "terminated", "truncated", "terminal_state")
 _KEYS = {"columns", "observation", "action", "discrete_action", "rows", "final_state", "padding", "reward", "ends", "array"}
 
 
@@ -263,6 +264,7 @@ def array_to_episodes(path: str | Path, layout: Layout) -> Converted:
     action_space = infer_action_space(all_actions[:, 0] if layout.discrete_action else all_actions)
     ends: SourceEnds | None = None
     end_flags: dict[str, Any] | None = None
+    terminated = False  # ends: terminal_state: decided once the env is known (terminal_states.py)
     if layout.ends == "time_limit":  # decided once the env is known (endings.settle_ends)
         terminated = final_observation
         ends = SourceEnds(
@@ -272,7 +274,7 @@ def array_to_episodes(path: str | Path, layout: Layout) -> Converted:
             final_observation=final_observation,
             needs_limit="the layout's ends: time_limit",
         )
-    else:
+    elif layout.ends != "terminal_state":
         terminated = layout.ends == "terminated" and final_observation
         end_flags = {"decided": "layout", "layout_ends": layout.ends}
         if not final_observation:
@@ -300,6 +302,7 @@ def array_to_episodes(path: str | Path, layout: Layout) -> Converted:
         warnings=warnings,
         ends=ends,
         end_flags=end_flags,
+        end_at_terminal_state="the layout's ends: terminal_state" if layout.ends == "terminal_state" else None,
     )
 
 

@@ -42,6 +42,9 @@ class Converted:
     ends: SourceEnds | None = None
     max_episode_steps: int | None = None  # the env's time limit, once fitted to an env
     end_flags: dict[str, Any] | None = None  # how the flags were decided: the demo file's `end_flags`
+    # What asks for each episode to end at its first terminal state by the env's rule
+    # (terminal_states.py), for messages; None when nothing does.
+    end_at_terminal_state: str | None = None
 
 
 def box_for(rows: np.ndarray) -> gym.spaces.Box:

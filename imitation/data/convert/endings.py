@@ -39,6 +39,8 @@ TIME_LIMIT = "time_limit"  # from the env's time limit
 SOURCE = "source"  # the source's flag, kept: it may count a time limit as a termination
 UNKNOWN = "unknown"  # the source does not say why episodes ended
 LAYOUT = "layout"  # stated by the layout of a bare array (`ends: terminated` or `truncated`)
+TERMINAL_STATE = "terminal_state"  # cut where the env's termination rule first holds (terminal_states.py)
+RECORDING = "recording"  # a recording (a ROS bag) stops where its recorder stopped: every episode truncated
 
 
 @dataclass(frozen=True)
@@ -121,6 +123,17 @@ def settle_ends(converted: Converted) -> Converted:
     return dataclasses.replace(converted, episodes=episodes, warnings=warnings, end_flags=flags, ends=None)
 
 
+def recording_end_flags(converted: Converted) -> Converted:
+    """`converted`, a recording whose episodes stop where the recorder stopped, with `end_flags` saying so."""
+    episodes = converted.episodes
+    flags = {
+        "decided": RECORDING,
+        "terminated": sum(e.terminated for e in episodes),
+        "truncated": sum(e.truncated for e in episodes),
+    }
+    return dataclasses.replace(converted, end_flags=flags)
+
+
 def describe_end_flags(flags: dict[str, Any] | None) -> str:
     """One line for `imitation info`: how the file's terminated/truncated flags were decided."""
     if flags is None:
@@ -153,6 +166,14 @@ def describe_end_flags(flags: dict[str, Any] | None) -> str:
                 f"ended {flags.get('layout_ends')} (episode metadata source_end)"
             )
         return f"as the conversion's layout states (ends: {flags.get('layout_ends')})"
+    if decided == RECORDING:
+        return f"all {flags.get('truncated')} truncated: a recording stops where its recorder stopped, not in a terminal state"
+    if decided == TERMINAL_STATE:
+        return (
+            f"each episode ends where {flags.get('env_id')}'s termination rule first holds on its recorded states "
+            f"({flags.get('terminated')} terminated there, {flags.get('steps_cut')} steps recorded after it cut; "
+            f"{flags.get('truncated')} truncated, never reaching one)"
+        )
     if decided == UNKNOWN:
         return (
             "the source does not say why episodes ended; all truncated: each demo stops one step before its episode ended "

@@ -8,16 +8,20 @@ from typing import Any
 
 from imitation.data.convert.bags import MCAP_MAGIC, ROS1_MAGIC
 from imitation.data.convert.converted import fit_to_env, write_converted
-from imitation.data.convert.endings import settle_ends
+from imitation.data.convert.endings import recording_end_flags, settle_ends
 from imitation.data.mcap.source import refuse_url
 from imitation.errors import ImitationError
 from imitation.inputs import check_input, open_input
 
 SOURCES = ("ros2", "ros1", "lerobot", "npz", "array")
+# HDF5's signature, at the start of the file or after a user block of 512 bytes times a power of two.
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+HDF5_OFFSETS = (0, 512, 1024, 2048)
 
 
 def detect_source(path: str | Path) -> str:
-    """ros2, ros1, lerobot or npz, from the path's layout and first bytes."""
+    """ros2, ros1, lerobot, npz or array, from the path's layout and first bytes; HDF5 files are
+    refused with a way to convert their arrays."""
     path = Path(path)
     if not path.exists():
         raise ImitationError(f"{path}: no such file or directory")
@@ -34,7 +38,7 @@ def detect_source(path: str | Path) -> str:
         )
     try:
         with open_input(path) as stream:
-            head = stream.read(16)
+            head = stream.read(HDF5_OFFSETS[-1] + len(HDF5_MAGIC))
     except OSError as error:
         raise ImitationError(f"{path}: cannot read: {error.strerror or error}") from None
     if head.startswith(MCAP_MAGIC) or path.suffix == ".db3":
@@ -45,6 +49,11 @@ def detect_source(path: str | Path) -> str:
         return "npz"
     if head.startswith(b"\x93NUMPY"):
         return "array"
+    if any(head[offset : offset + len(HDF5_MAGIC)] == HDF5_MAGIC for offset in HDF5_OFFSETS):
+        raise ImitationError(
+            f"{path}: an HDF5 file, which convert does not read (no --from does); save its episodes with h5py as one "
+            "(episodes, steps, columns) array in an .npy file and convert that with --layout (docs/CONVERT.md, Bare arrays)"
+        )
     raise ImitationError(f"{path}: cannot tell its format (not MCAP, a ROS 1 bag or an npz archive); say it with --from")
 
 
@@ -95,7 +104,7 @@ def convert(
         env_id = env_id or recording_map.env_id
         bag = open_bag(path, kind, ros_distro=ros_distro)
         try:
-            converted = bag_to_episodes(bag, recording_map, progress=progress)
+            converted = recording_end_flags(bag_to_episodes(bag, recording_map, progress=progress))
         finally:
             bag.close()
     else:
@@ -117,6 +126,10 @@ def convert(
     # An env named by --env or the map supplies the spaces; a LeRobot sidecar's are exact already.
     if env_id:
         converted = fit_to_env(converted, env_id)
+    if converted.end_at_terminal_state is not None:
+        from imitation.data.convert.terminal_states import end_at_terminal_states
+
+        converted = end_at_terminal_states(converted, converted.end_at_terminal_state)
     # Sources that cannot tell a time limit from a termination: decide from the env's limit, or say so.
     converted = settle_ends(converted)
     return {"from": kind, **write_converted(converted, out, progress=progress)}
