@@ -760,6 +760,8 @@ CASE_LIST = [
     case("search-8", lambda i: ["train", "cem", "--env", "CartPole-v1", "--steps", "100", "--quiet", "--out", i.root / "s8"], expect="--steps 100 is less"),
     # run directories
     case("run-1", lambda i: ["eval", "policy", i.root / "no-run", "--env", "CartPole-v1"]),
+    case("run-sb3", lambda i: ["eval", "policy", f"sb3:{TESTDATA / 'experts' / 'sb3_ppo_cartpole' / 'CartPole-v1.zip'}", "--env", "CartPole-v1"],
+         testdata=True),
     case("run-2", lambda i: ["eval", "policy", i.folder("empty-run"), "--env", "CartPole-v1"]),
     case("run-3", lambda i: ["eval", "policy", _edit(i.policy_run("r3"), "config.json", b"{\xff"), "--env", "CartPole-v1"]),
     case("run-4", lambda i: ["eval", "policy", _edit(i.policy_run("r4"), "config.json", b"[1]"), "--env", "CartPole-v1"]),

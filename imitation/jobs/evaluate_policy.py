@@ -7,7 +7,7 @@ import os
 from contextlib import closing
 from typing import Any
 
-from imitation.errors import ConfigError
+from imitation.errors import ConfigError, ImitationError
 from imitation.evaluation.policy import evaluate_policy, normalized_return
 from imitation.evaluation.video import record_video
 from imitation.jobs.run_config import RunConfig
@@ -39,6 +39,7 @@ def eval_policy_job(
     .mp4 or .gif."""
     if episodes < 1:
         raise ConfigError("episodes", f"must be at least 1, got {episodes}", owner="eval policy")
+    _refuse_sb3_zip(run, env_id, episodes, seed)
     policy = load_policy(run)
     config, _ = read_run(run)
     actor = SingleObservationPolicy(policy, deterministic=not stochastic)
@@ -61,3 +62,15 @@ def eval_policy_job(
             ),
         }
     return {"run": str(run), "env_id": env_id, "deterministic": not stochastic, **result}
+
+
+def _refuse_sb3_zip(run: str | os.PathLike, env_id: str, episodes: int, seed: int) -> None:
+    """A stable-baselines3 zip is scored by `record`, which acts with it as an expert: say so."""
+    spec = str(run)
+    zip_path = spec.removeprefix("sb3:")
+    if spec.startswith("sb3:") or (zip_path.endswith(".zip") and os.path.isfile(zip_path)):
+        raise ImitationError(
+            f"{spec}: eval policy scores a run directory; a stable-baselines3 zip is scored by recording its episodes: "
+            f"imitation record --env {env_id} --expert sb3:{zip_path} --episodes {episodes} --seed {seed} --out F.mcap "
+            "(it prints their mean, min and max return)"
+        )

@@ -177,3 +177,17 @@ def test_record_with_sb3_expert(cartpole_zip: Path, tmp_path: Path) -> None:
 def test_sb3_expert_for_another_env_is_refused(cartpole_zip: Path, tmp_path: Path) -> None:
     result = run_cli("record", "--env", "Pendulum-v1", "--expert", f"sb3:{cartpole_zip}", "--episodes", "1", "--out", str(tmp_path / "x.mcap"))
     assert_one_line_error(result, f"--expert sb3:{cartpole_zip}", "observation space")
+
+
+def test_eval_policy_of_a_zip_points_to_the_command_that_scores_it(cartpole_zip: Path, tmp_path: Path) -> None:
+    """`eval policy` reads run directories; given a stable-baselines3 zip (with or without sb3:)
+    it names the command that scores one, and that command, run as printed, does."""
+    for spec in (f"sb3:{cartpole_zip}", str(cartpole_zip)):
+        result = run_cli("eval", "policy", spec, "--env", "CartPole-v1", "--episodes", "2", "--seed", "3")
+        assert_one_line_error(result, f"{spec}: eval policy scores a run directory; a stable-baselines3 zip is scored by recording its episodes")
+        assert "not a run directory" not in result.stderr
+    command = result.stderr.split("recording its episodes: imitation ", 1)[1].split(" (it prints", 1)[0].split()
+    assert command == ["record", "--env", "CartPole-v1", "--expert", f"sb3:{cartpole_zip}", "--episodes", "2", "--seed", "3", "--out", "F.mcap"]
+    scored = run_cli(*command[:-1], str(tmp_path / "F.mcap"))
+    assert scored.returncode == 0, scored.stderr
+    assert "recorded 2 episodes of CartPole-v1" in scored.stdout and "mean return 500.00 (min 500.00, max 500.00)" in scored.stdout
