@@ -1313,7 +1313,8 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["auto", "on", "off"],
         help="condition the policy on the previous action and predict its change, as for a recorded command stream "
         "(default: auto: on offline when the actions have the observations' shape, set-points such as joint targets "
-        "beside joint positions; off otherwise and with --env)",
+        "beside joint positions, or are a recording's commands, demos that keep a real clock's times such as a ROS "
+        "bag's; off otherwise, with --env and with --stream-memory)",
     )
     bc.add_argument("--entropy", type=_finite, metavar="C", help="entropy bonus coefficient (default: 0.0)")
     bc.add_argument("--l2", type=_finite, metavar="C", help="L2 penalty on the policy weights (default: 0.0001)")

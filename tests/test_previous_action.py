@@ -13,7 +13,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from support import DATASETS, run_cli_many
+from support import DATASETS, TURTLE_MAP, run_cli_many, write_map
 from test_cli import assert_one_line_error, last_json
 
 from imitation.algorithms.bc import BCConfig, BehaviouralCloning
@@ -128,19 +128,42 @@ def test_the_baselines_see_the_states_the_input_was_built_from() -> None:
     assert torch.equal(alone.observations, torch.as_tensor(states))
 
 
-def test_auto_conditions_offline_set_points_only() -> None:
+def test_auto_conditions_offline_set_points_and_recordings() -> None:
+    """auto: on offline for set-points (the actions have the observations' shape) and for a
+    recording's command streams (demos that keep a real clock's times, as bags do), whatever their
+    shape; off with an env, for simulator demos of other shapes, and when streamed."""
     positions, targets = gym.spaces.Box(-1, 1, (26,)), gym.spaces.Box(-1, 1, (26,))
     pose, velocity = gym.spaces.Box(-1, 1, (5,)), gym.spaces.Box(-1, 1, (2,))
     auto, on, off = BCConfig(), BCConfig(previous_action="on"), BCConfig(previous_action="off")
     assert _conditions_on_previous_action(auto, positions, targets, offline=True)
     assert not _conditions_on_previous_action(auto, positions, targets, offline=False)
     assert not _conditions_on_previous_action(auto, pose, velocity, offline=True)
+    assert _conditions_on_previous_action(auto, pose, velocity, offline=True, recording=True)
+    assert not _conditions_on_previous_action(auto, pose, velocity, offline=False, recording=True)
+    assert not _conditions_on_previous_action(BCConfig(stream_memory=2**30), pose, velocity, offline=True, recording=True)
+    assert not _conditions_on_previous_action(auto, pose, gym.spaces.Discrete(2), offline=True, recording=True)
     assert _conditions_on_previous_action(on, pose, velocity, offline=False)
     assert not _conditions_on_previous_action(off, positions, targets, offline=True)
     with pytest.raises(ConfigError, match="previous_action is for Box observations and actions, not Box and Discrete"):
         _conditions_on_previous_action(on, pose, gym.spaces.Discrete(2), offline=True)
     with pytest.raises(ConfigError, match="previous_action must be one of auto, on, off, got 'yes'"):
         BCConfig(previous_action="yes").validate(continuous=True)
+
+
+def test_auto_tells_a_recording_from_a_simulators_demos(testdata: Path, tmp_path: Path) -> None:
+    """Offline, a bag's velocity commands (the demos keep its clock) get the previous action; the
+    bundled Pendulum demos, a simulator expert's actions of the state, do not (bench/RESULTS.md,
+    issue 51: it made their held-out scores worse)."""
+    bag, demos = testdata / "ros1" / "plotjuggler_example.bag", tmp_path / "turtle.mcap"
+    converted, turtle, pendulum = run_cli_many([
+        ["convert", bag, "--map", write_map(tmp_path, TURTLE_MAP), "--out", demos, "--quiet"],
+        ["train", "bc", "--demos", demos, "--epochs", "1", "--hidden", "16", "--quiet", "--json", "--out", tmp_path / "turtle"],
+        ["train", "bc", "--demos", DATASETS / "Pendulum-v1.mcap", "--epochs", "1", "--hidden", "16", "--quiet", "--json",
+         "--out", tmp_path / "pendulum"],
+    ])
+    assert converted.returncode == 0, converted.stderr
+    assert last_json(turtle)["previous_action"] is True and last_json(turtle)["offline"] is True
+    assert last_json(pendulum)["previous_action"] is False and last_json(pendulum)["offline"] is True
 
 
 def test_a_policy_of_the_previous_action_trains_evaluates_and_films_in_an_env_and_is_no_expert(tmp_path: Path) -> None:

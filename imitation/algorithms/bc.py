@@ -77,10 +77,12 @@ class BCConfig:
     activation: str = "auto"
     loss: str = "nll"
     # Condition on the previous action (policies.py: μ = a_{t-1} + f(s_t, a_{t-1})). "auto": on
-    # offline where Box actions have the observations' shape, a recorded stream of set-points
-    # (joint targets beside joint positions): the state lags the command, and the last target
-    # carries the motion the state cannot show. Off with an env, whose experts act on the state
-    # alone, and for other commands (a velocity command that the state explains).
+    # offline for Box actions that are a recorded stream of set-points, of the observations' shape
+    # (joint targets beside joint positions: the state lags the command, and the last target
+    # carries the motion the state cannot show), or a recording's command streams whatever their
+    # shape (demos that keep a real clock's times, as bags do: an operator's command persists).
+    # Off with an env, whose experts act on the state alone, for a simulator's demos of other
+    # shapes (an expert's action is a function of the state), and when streamed.
     previous_action: str = "auto"
     entropy_coef: float = 0.0
     l2_coef: float = 1e-4

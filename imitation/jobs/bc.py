@@ -25,6 +25,7 @@ from imitation.data.loader import (
     split_episodes,
     transitions_to_torch,
 )
+from imitation.data.mcap.format import TIME_FIELD
 from imitation.data.shards import Share, plan_shares
 from imitation.data.stream import StreamingLoader
 from imitation.data.types import Transitions
@@ -96,7 +97,11 @@ def _bc_job(
         raise ImitationError(f"{dataset.files[0].path}: the demos hold no transitions (no episode, or only empty ones)")
     spaces = env if env is not None else dataset
     previous_action = _conditions_on_previous_action(
-        config, spaces.observation_space, spaces.action_space, offline=env is None
+        config,
+        spaces.observation_space,
+        spaces.action_space,
+        offline=env is None,
+        recording=all(TIME_FIELD.topic in file.channels for file in dataset.files),
     )
     keys = image_keys(spaces.observation_space)
     if frames > 1 and not keys:
@@ -195,7 +200,16 @@ def _bc_job(
         run.save_weights(policy_tensors(learner.policy.cpu()))
         states = _states_alone(spaces.observation_space) if previous_action else _unchanged
         # Data-parallel: rank 0 holds its share alone, so no scores on the held-out transitions.
-        yardstick = _yardstick(learner, train, validation, config, spaces.action_space, states, scored=parallel is None)
+        yardstick = _yardstick(
+            learner,
+            train,
+            validation,
+            config,
+            spaces.action_space,
+            states,
+            scored=parallel is None,
+            previous_action=previous_action if _boxes(spaces.observation_space, spaces.action_space) else None,
+        )
         title = f"BC on {env_id or dataset.env_id or 'offline demos'}"
         plot_curve(
             run.file("loss_curve.png"),
@@ -239,12 +253,15 @@ def _yardstick(
     states: Callable[[TransitionTensors], TransitionTensors],
     *,
     scored: bool = True,
+    previous_action: bool | None = None,
 ) -> dict[str, Any]:
     """How the run ended, and the policy beside the trivial baselines on the held-out transitions
     (`imitation.evaluation.baselines`, on the `states` alone where the policy saw x_t): scores, which
     baselines it beats (lower NLL and lower squared error or error rate), the baselines' values
-    of the plotted loss, and what a user must be told. Streamed data is not scored, nor data not
-    all `scored` here: the scores take all the held-out transitions in memory."""
+    of the plotted loss, and what a user must be told: a baseline not beaten is quoted by the
+    scores on which BC lost, and where that is hold, the other `previous_action` setting (None
+    where the spaces cannot take one) is suggested. Streamed data is not scored, nor data not all
+    `scored` here: the scores take all the held-out transitions in memory."""
     warnings = []
     if learner.stopped:
         stopped = f"no better validation loss for {config.patience} epochs (best at epoch {learner.best_epoch})"
@@ -264,9 +281,25 @@ def _yardstick(
     loss = "mse" if config.loss == "mse" else "nll"
     references = {name: baseline[loss] for name, baseline in baselines.items() if loss in baseline}
     if beaten := [name for name, won in beats.items() if not won]:
+        lost = "; ".join(
+            (f"{name}: " if len(beaten) > 1 else "")
+            + ", ".join(
+                f"{_SCORE_NAMES.get(key, key)} {scores[key]:.4g} against {value:.4g}"
+                for key, value in baselines[name].items()
+                if not scores[key] < value
+            )
+            for name in beaten
+        )
+        advice = ""
+        if "hold" in beaten and previous_action is not None:
+            advice = (
+                "; try --previous-action off: the policy then sees the state alone"
+                if previous_action
+                else "; try --previous-action on: the policy then sees the previous action, as the hold baseline does"
+            )
         warnings.append(
             f"BC does not beat the {', '.join(beaten)} baseline{'s' if len(beaten) > 1 else ''} on the held-out transitions "
-            f"(NLL {scores['nll']:.4g} against {', '.join(f'{baselines[name]["nll"]:.4g}' for name in beaten)})"
+            f"({lost}){advice}"
         )
     return {
         "stopped": stopped,
@@ -278,19 +311,31 @@ def _yardstick(
     }
 
 
+_SCORE_NAMES = {"nll": "NLL", "mse": "MSE", "error_rate": "error rate"}
+
+
+def _boxes(observation_space: gym.Space, action_space: gym.Space) -> bool:
+    """Whether a policy of these spaces can take the previous action as an input."""
+    return isinstance(observation_space, gym.spaces.Box) and isinstance(action_space, gym.spaces.Box)
+
+
 def _conditions_on_previous_action(
-    config: BCConfig, observation_space: gym.Space, action_space: gym.Space, *, offline: bool
+    config: BCConfig, observation_space: gym.Space, action_space: gym.Space, *, offline: bool, recording: bool = False
 ) -> bool:
-    """Whether the policy is one of (s_t, a_{t-1}): config.previous_action, "auto" resolved."""
-    boxes = isinstance(observation_space, gym.spaces.Box) and isinstance(action_space, gym.spaces.Box)
+    """Whether the policy is one of (s_t, a_{t-1}): config.previous_action, "auto" resolved (on
+    offline, not streamed, for Box set-points, actions of the observations' shape, and for a
+    `recording`: demos that keep a real clock's times, a ROS bag's command streams)."""
+    boxes = _boxes(observation_space, action_space)
     if config.previous_action == "on" and not boxes:
         raise ConfigError(
             "previous_action",
             f"is for Box observations and actions, not {type(observation_space).__name__} and {type(action_space).__name__}",
             owner="BCConfig",
         )
-    set_points = boxes and observation_space.shape == action_space.shape
-    return config.previous_action == "on" or (config.previous_action == "auto" and offline and set_points)
+    if config.previous_action != "auto":
+        return config.previous_action == "on"
+    set_points = observation_space.shape == action_space.shape
+    return boxes and offline and config.stream_memory is None and (set_points or recording)
 
 
 def _with_previous_actions(transitions: Transitions) -> Transitions:
