@@ -145,14 +145,24 @@ def test_acceptance_cartpole_100k(objective: str, needed: int) -> None:
     assert sum(r >= 475 for r in results) >= needed, results
 
 
+def pendulum_return(steps: int, seed: int) -> float:
+    """`train ppo --env Pendulum-v1 --steps STEPS --seed SEED`'s policy over the run's evaluation episodes."""
+    config = PPOConfig(env_id="Pendulum-v1", total_steps=steps, seed=seed, device="cpu", **ppo_settings("Pendulum-v1"))
+    policy = run_ppo(config)[0].policy
+    return evaluate_policy(SingleObservationPolicy(policy), make_env("Pendulum-v1"), episodes=10, seed=0)["mean_return"]
+
+
 @pytest.mark.slow
 def test_acceptance_pendulum_200k() -> None:
-    results = []
-    for seed in (0, 1, 2):
-        config = PPOConfig(env_id="Pendulum-v1", total_steps=200_000, seed=seed, device="cpu", **ppo_settings("Pendulum-v1"))
-        policy = run_ppo(config)[0].policy
-        results.append(evaluate_policy(SingleObservationPolicy(policy), make_env("Pendulum-v1"), episodes=10, seed=0)["mean_return"])
-    assert sum(r >= -250 for r in results) >= 2, results
+    """The README's "about −150 after 200k steps (seed 1: −430)": measured −147.1, −429.9, −146.6."""
+    results = [pendulum_return(200_000, seed) for seed in (0, 1, 2)]
+    assert sum(r >= -200 for r in results) >= 2, results
+
+
+def test_pendulum_swings_better_than_random_within_49k_steps() -> None:
+    """The 200k-step run above, a quarter of the way: measured −855, −495, −768 at seeds 0, 1, 2
+    (uniform random actions: −1112)."""
+    assert pendulum_return(49_152, 0) >= -950
 
 
 def test_async_envs_give_the_same_rollouts_as_sync() -> None:
