@@ -40,6 +40,17 @@ SCOPE = (
     "imitation.algorithms.gcl.",
     "imitation.rewards.",
     "imitation.data.columns.",
+    "imitation.algorithms.policy_gradient.",
+    "imitation.algorithms.policy_search.",
+    "imitation.algorithms.apprenticeship.",
+    "imitation.algorithms.adversarial.",
+    "imitation.algorithms.gail.",
+    "imitation.algorithms.airl.",
+    "imitation.algorithms.ray_rollouts.",
+    "imitation.algorithms.ray_dagger.",
+    "imitation.envs.true_rewards.",
+    "imitation.data.convert.resample.",
+    "imitation.data.mcap.images.",
 )
 # imitation.algorithms.ppo.x_compute_gae__mutmut_17, imitation.policies.xǁActorCriticǁsample__mutmut_3
 _NAME = re.compile(r"^(?P<module>[\w.]+)\.x(?:_|ǁ)")

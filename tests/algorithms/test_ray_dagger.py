@@ -111,14 +111,6 @@ def test_a_worker_sent_no_learner_lets_the_expert_drive_every_step(tmp_path: Pat
 ray = pytest.importorskip("ray", reason="the Ray tests need the optional extra: pip install 'imitation-mcap[ray]'")
 
 
-@pytest.fixture(scope="module")
-def local_ray():
-    from imitation.ray_engine import ray_session
-
-    with ray_session(num_cpus=2) as session:
-        yield session
-
-
 def test_the_round_on_two_ray_workers_is_each_workers_seeds_learner_and_draws(tmp_path: Path, local_ray) -> None:
     """`RayRounds`: π̂_i reaches both workers, each shard is its worker's seeds and its own draws
     (seeded with the worker's index), with β as given; a round without a learner is the expert's."""

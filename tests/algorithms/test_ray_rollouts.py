@@ -127,14 +127,6 @@ def test_split_copies_keeps_order_and_gives_the_first_workers_the_extra_copies()
     assert split_copies(3, 1) == [(0, 3)]
 
 
-@pytest.fixture(scope="module")
-def local_ray():
-    from imitation.ray_engine import ray_session
-
-    with ray_session(num_cpus=2) as session:
-        yield session
-
-
 @pytest.mark.parametrize("hidden", [[8], [128, 128]], ids=["inline", "put"])
 def test_two_ray_workers_return_pi_ks_values_and_bootstraps(hidden: list[int], local_ray) -> None:
     """Weights small enough travel inside the call, large ones through one put: either way the
