@@ -3,12 +3,16 @@
 The core is every function of the modules SCOPE names (mutmut's own names, matched as
 prefixes): PPO (its formulas, update, rollout collection, state and config), the policies, BC,
 DAgger, tabular MaxEnt IRL and its planning, EPIC, GCL, the reward models and the loader's
-column placement. Each of their mutants is counted as killed (a test failed, or it ran past
+column placement; and since issue 50 policy gradient, policy search, apprenticeship learning,
+GAIL/AIRL and their discriminator loop, PPO's rollouts and DAgger's rounds on Ray workers, the
+envs' true rewards, the converters' resampling and image frames as messages. `--modules` runs
+only some of them (their prefixes; mutmut's results for the others are kept). Each of their mutants is counted as killed (a test failed, or it ran past
 mutmut's time limit), equivalent (it survived, and bench/mutation_equivalents.toml says why no
 test can tell it from the original) or surviving; the score is killed / (generated -
 equivalent). Survivors are listed by name: `mutmut show NAME` prints the change.
 
     python tools/mutation_report.py --run      # mutmut run over SCOPE (results kept in mutants/), then the table
+    python tools/mutation_report.py --run --modules imitation.algorithms.gail. imitation.algorithms.airl.
     python tools/mutation_report.py --survivors  # run the last run's survivors again, then the table
     python tools/mutation_report.py            # the table of the last run, then the survivors
     python tools/mutation_report.py --json     # one JSON object
@@ -103,9 +107,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--survivors", action="store_true", help="run mutmut again over the last run's survivors only (after adding tests)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="mutants tested at once (default: the CPU count)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--modules", nargs="+", choices=SCOPE, metavar="PREFIX", help="with --run: only these of SCOPE")
     args = parser.parse_args(argv)
     if args.run:
-        run_mutmut(args.workers, [f"{prefix}*" for prefix in SCOPE])
+        run_mutmut(args.workers, [f"{prefix}*" for prefix in args.modules or SCOPE])
     elif args.survivors:
         run_mutmut(args.workers, [name for name, status in mutant_statuses().items() if status not in DETECTED])
     equivalents = tomllib.loads(EQUIVALENTS.read_text()) if EQUIVALENTS.exists() else {}

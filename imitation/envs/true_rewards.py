@@ -92,27 +92,32 @@ def _constant(value: float) -> RewardFn:
     return reward
 
 
-_KNOWN: dict[str, RewardFn] = {
-    "Pendulum-v1": _pendulum,
-    "imitation/CartPoleFixedHorizon-v0": _cartpole_fixed_horizon,
-    "CartPole-v1": _constant(1.0),
-    "MountainCar-v0": _constant(-1.0),
-    "imitation/HalfCheetahFixedHorizon-v0": _locomotion(8, control_weight=0.1),
-    "imitation/HopperFixedHorizon-v0": _locomotion(5, control_weight=1e-3, healthy=_hopper_healthy),
-    "imitation/Walker2dFixedHorizon-v0": _locomotion(8, control_weight=1e-3, healthy=_walker_healthy),
-    "imitation/SwimmerFixedHorizon-v0": _locomotion(3, control_weight=1e-4),
-    "imitation/AntFixedHorizon-v0": _locomotion(
-        13, control_weight=0.5, healthy=_ant_healthy, contact_forces=slice(27, None), contact_weight=5e-4
-    ),
-}
+def _known_rewards() -> dict[str, RewardFn]:
+    """The listed envs' rewards by id. Built on each lookup (a few closures) rather than once at
+    import, so that the reward `true_reward` returns is made by the code as it is at call time:
+    mutation testing swaps functions in at run time, and a closure built at import would escape it."""
+    return {
+        "Pendulum-v1": _pendulum,
+        "imitation/CartPoleFixedHorizon-v0": _cartpole_fixed_horizon,
+        "CartPole-v1": _constant(1.0),
+        "MountainCar-v0": _constant(-1.0),
+        "imitation/HalfCheetahFixedHorizon-v0": _locomotion(8, control_weight=0.1),
+        "imitation/HopperFixedHorizon-v0": _locomotion(5, control_weight=1e-3, healthy=_hopper_healthy),
+        "imitation/Walker2dFixedHorizon-v0": _locomotion(8, control_weight=1e-3, healthy=_walker_healthy),
+        "imitation/SwimmerFixedHorizon-v0": _locomotion(3, control_weight=1e-4),
+        "imitation/AntFixedHorizon-v0": _locomotion(
+            13, control_weight=0.5, healthy=_ant_healthy, contact_forces=slice(27, None), contact_weight=5e-4
+        ),
+    }
 
 
 def true_reward(env_id: str, env: gym.Env) -> RewardFn | None:
     """The env's reward as a batched R(s, a, s'), or None when it is not known.
 
     Tabular envs pay r(s_t) for the state a step starts in."""
-    if env_id in _KNOWN:
-        return _KNOWN[env_id]
+    known = _known_rewards()
+    if env_id in known:
+        return known[env_id]
     if not isinstance(env.unwrapped, TabularEnv):
         return None
     state_reward = np.asarray(env.unwrapped.mdp.reward, dtype=np.float64)

@@ -323,6 +323,16 @@ def test_reward_to_go_and_trajectory_returns_by_hand() -> None:
     )
 
 
+def test_trajectory_returns_of_a_stream_that_stops_inside_an_episode() -> None:
+    """An episode still running where the stream stops is summed as far as it goes: its first step
+    starts it, whatever the stream's last step was."""
+    rewards = torch.tensor([[1.0, 1.0], [2.0, 2.0], [3.0, 3.0]])
+    terminated = torch.tensor([[False, True], [False, False], [False, False]])
+    returns = trajectory_returns(rewards, terminated, torch.zeros_like(terminated), gamma=0.5)
+    # Column 0: one episode 1 + ½·2 + ¼·3; column 1: 1, then an episode 2 + ½·3 still running.
+    assert returns.tolist() == [[2.75, 1.0], [2.75, 3.5], [2.75, 3.5]]
+
+
 @pytest.mark.parametrize(
     ("n", "expected"),
     [

@@ -40,6 +40,18 @@ def test_true_reward_matches_the_env_step(env_id: str) -> None:
         assert 0 < np.mean(rewards) < 1, "the rollout should both balance and fail"
 
 
+def test_pendulums_torque_is_clipped_to_its_limits_as_the_env_clips_it() -> None:
+    """Actions outside [−2, 2] (a learned policy's Gaussian samples) cost what the env charges."""
+    env = make_env("Pendulum-v1")
+    reward = true_reward("Pendulum-v1", env)
+    assert reward is not None
+    for torque in (-7.0, -2.5, -2.0, 1.5, 2.5, 9.0):
+        observation, _ = env.reset(seed=3)
+        next_observation, step_reward, *_ = env.unwrapped.step(np.array([torque], dtype=np.float32))
+        got = reward(observation[None], np.array([[torque]], dtype=np.float32), next_observation[None])
+        assert got[0] == pytest.approx(step_reward, rel=1e-6), torque
+
+
 def test_envs_without_a_known_reward_get_none() -> None:
     assert true_reward("Acrobot-v1", make_env("Acrobot-v1")) is None
 
