@@ -6,6 +6,8 @@ batches CartPole-v1 (which terminates) really produced, against a per-step resta
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 
@@ -111,3 +113,14 @@ def test_cartpole_batches_are_weighted_by_td0_of_the_state_each_step_reached(rol
             learner.step()
     finally:
         learner.close()
+
+
+def test_progress_shows_the_return_and_steps_and_a_config_reads_back_from_its_json() -> None:
+    learner = learner_with_critic_s0(n_step=2)
+    try:
+        assert learner.progress({"return": 12.345, "step": 1024.0}) == {"ret": "12.3", "steps": "1024"}
+    finally:
+        learner.close()
+    config = learner.config
+    saved = dataclasses.asdict(config) | {"written_by": "a later version"}
+    assert PGConfig.from_json(saved) == config

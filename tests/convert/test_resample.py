@@ -52,6 +52,9 @@ def test_regular_grid_includes_its_end_and_rounds_each_time_to_the_nanosecond() 
     # 1/3 s: the times round to the nearest nanosecond, none lost to a float's floor at the end.
     assert regular_grid(0, NS, 3.0).tolist() == [0, 333_333_333, 666_666_667, NS]
     assert regular_grid(7, 7 + NS - 1, 1.0).tolist() == [7]
+    # Times before the epoch are times too; the grid is int64 nanoseconds whatever the rate.
+    assert regular_grid(-NS, 0, 2.0).tolist() == [-NS, -NS // 2, 0]
+    assert regular_grid(10 * NS, 11 * NS, 3.0).dtype == np.int64
 
 
 def test_gaps_split_only_where_longer_than_the_limit() -> None:
@@ -68,3 +71,5 @@ def test_markers_begin_episodes_inside_the_span_only() -> None:
     assert split_at_markers(10, 30, np.array([5, 10, 20, 30, 40])) == [(10, 19), (20, 29), (30, 30)]
     assert split_at_markers(10, 30, np.array([], dtype=np.int64)) == [(10, 30)]
     assert split_at_markers(10, 30, np.array([11])) == [(10, 10), (11, 30)]
+    # Two markers at one time begin one episode there, not an empty one between them.
+    assert split_at_markers(10, 30, np.array([20, 20])) == [(10, 19), (20, 30)]
