@@ -136,6 +136,8 @@ def cmd_convert(args: argparse.Namespace) -> int:
         return 0
     if not args.out:
         args.parser.error("--out F.mcap is required (or --inspect to list a bag's topics)")
+    from imitation.data.image_resize import parse_image_size
+
     result = convert(
         args.source,
         args.out,
@@ -145,6 +147,10 @@ def cmd_convert(args: argparse.Namespace) -> int:
         env_id=args.env,
         ros_distro=args.ros_distro,
         progress=not args.quiet,
+        image_codec=args.image_codec,
+        image_quality=args.image_quality,
+        image_size=parse_image_size(args.image_size, "--image-size") if args.image_size is not None else None,
+        video_tolerance_s=args.video_tolerance,
     )
     _print_warnings(result["warnings"])
     if args.json:
@@ -256,6 +262,21 @@ def _finite(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got {text[:100]!r}") from None
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"expected a finite number, got {text[:100]!r}")
+    return value
+
+
+def _quality(text: str) -> int:
+    """An image codec's quality: a whole number from 1 to 100."""
+    if not text.strip().isdigit() or not 1 <= int(text) <= 100:
+        raise argparse.ArgumentTypeError(f"expected a whole number from 1 to 100, got {text[:100]!r}")
+    return int(text)
+
+
+def _seconds(text: str) -> float:
+    """A positive, finite number of seconds (below a million: beyond that it is a typo)."""
+    value = _finite(text)
+    if not 0 < value < 1e6:
+        raise argparse.ArgumentTypeError(f"expected a positive number of seconds, got {text[:100]!r}")
     return value
 
 
@@ -1039,9 +1060,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     record.add_argument(
         "--image-codec",
-        choices=["png", "jpeg", "raw"],
+        choices=["png", "jpeg", "webp", "raw"],
         default="png",
-        help="how frames are stored: png (lossless), jpeg (lossy, compact) or raw (lossless, chunk-compressed) (default: png)",
+        help="how frames are stored: png (lossless), jpeg (lossy, compact), webp (lossy, about a third of jpeg's bytes; "
+        "colour frames only) or raw (lossless, chunk-compressed) (default: png)",
     )
     record.add_argument(
         "--action-noise",
@@ -1141,6 +1163,35 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="MAP.yaml",
         help="with --inspect: also write a starter map to edit (it steps at the command's rate, leaves out observations "
         "slower than one value per 10 steps, and takes a laser's ranges with nonfinite: range_max)",
+    )
+    convert.add_argument(
+        "--image-codec",
+        choices=["png", "jpeg", "webp", "raw"],
+        default="png",
+        help="how camera frames are stored: png (lossless), jpeg (lossy, quality 95), webp (lossy, quality 85: about "
+        "1.6 times the bytes of LeRobot's AV1 videos at 45 dB PSNR, where jpeg takes 6.4 times; colour frames only) or "
+        "raw (lossless, chunk-compressed). A bag's JPEG or PNG frames, and a LeRobot image feature's, are stored as "
+        "they are when the codec is theirs and they are not resized; video frames are decoded and encoded again "
+        "(default: png)",
+    )
+    convert.add_argument(
+        "--image-quality",
+        type=_quality,
+        metavar="Q",
+        help="quality of --image-codec jpeg or webp, 1 to 100 (default: 95 for jpeg, 85 for webp)",
+    )
+    convert.add_argument(
+        "--image-size",
+        metavar="HxW",
+        help="resize every camera's frames to H×W (area averaging) as they convert, e.g. 96x96; a bag's map entry may "
+        "give its own resize: [H, W]; the frames' own size is kept in the file's metadata (default: as recorded)",
+    )
+    convert.add_argument(
+        "--video-tolerance",
+        type=_seconds,
+        metavar="S",
+        help="LeRobot videos: find each row's frame by its timestamp, within S seconds (default: by timestamp within "
+        "1e-4 s, lerobot's tolerance, or by frame_index where the timestamps stray further, as a wall clock's do)",
     )
     convert.add_argument(
         "--ros-distro",

@@ -876,6 +876,8 @@ CASE_LIST = [
     case("lerobot-14", _lerobot_case("l14", episodes='{"episode_index": 0, "length": 3}\n'), testdata=True),
     case("lerobot-16", _lerobot_case("l16", info=lambda d: d | {"features": d["features"] | {"action": d["features"]["action"] | {"shape": [7]}}}), testdata=True),
     case("lerobot-19", _lerobot_case("l19", episodes=""), testdata=True),
+    case("lerobot-29", _lerobot_case("l29", info=lambda d: d | {"data_path": "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"}),
+         testdata=True),
     # bags
     case("bag-1", lambda i: _convert(i.sb_npz("b1.npz"), "--from", "ros1", "--inspect", out=None)),
     case("bag-4", _sqlite_without_metadata),

@@ -212,7 +212,7 @@ def test_files_without_images_are_version_1_byte_for_byte(tmp_path) -> None:
 
 def test_bad_writer_options_are_refused_before_the_file_exists(tmp_path) -> None:
     for options, message in [
-        ({"image_codec": "gif"}, "image_codec must be one of png, jpeg, raw or None"),
+        ({"image_codec": "gif"}, "image_codec must be one of png, jpeg, raw, webp or None"),
         ({"image_codec": "jpeg", "jpeg_quality": 0}, "jpeg_quality must be an integer from 1 to 100"),
         ({"image_codec": "jpeg"}, "/observation/rgba: JPEG has no alpha channel"),
     ]:

@@ -4,7 +4,10 @@ A camera becomes a uint8 Box(0, 255) of shape (H, W, C), channels last, whatever
 declares its shape in (lerobot writes (H, W, C) with names height/width/channel; older datasets
 (C, H, W) with names channels/height/width). Video features are decoded from their mp4 files
 (`imitation.data.convert.video`); image features hold one PNG (or JPEG) per frame in the
-parquet, decoded with Pillow.
+parquet, decoded with Pillow. A camera given a `size` stores its frames resized to it, each
+resized once as it is decoded (`imitation.data.image_resize`). An image feature's frames that
+are not resized keep their pictures (`KeptFrames`) where Pillow opens them in the mode the leaf
+holds (RGB, L, RGBA), so a demo file of their codec stores the parquet's bytes.
 """
 
 from __future__ import annotations
@@ -18,24 +21,34 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from imitation.data.image_resize import resized
 from imitation.data.jpeg_scans import excess_scans
+from imitation.data.kept_frames import KeptFrames
 from imitation.errors import ImitationError
 from imitation.limits import LIMITS, over_limit
 
 _MODES = {1: "L", 3: "RGB", 4: "RGBA"}  # Pillow's mode for each channel count
+_PICTURES = {"PNG": "png", "JPEG": "jpeg"}  # formats a demo file's image channel stores as they are
 
 
 @dataclass(frozen=True)
 class Camera:
-    """One camera feature: its LeRobot name, "video" or "image", and its frames' (H, W, C)."""
+    """One camera feature: its LeRobot name, "video" or "image", its frames' (H, W, C), and the
+    (height, width) they are stored at when not their own."""
 
     key: str
     dtype: str
     shape: tuple[int, int, int]
+    size: tuple[int, int] | None = None
+
+    @property
+    def frame_shape(self) -> tuple[int, int, int]:
+        """A stored frame's (H, W, C)."""
+        return (*self.size, self.shape[2]) if self.size is not None else self.shape
 
     @property
     def space(self) -> gym.spaces.Box:
-        return gym.spaces.Box(0, 255, shape=self.shape, dtype=np.uint8)
+        return gym.spaces.Box(0, 255, shape=self.frame_shape, dtype=np.uint8)
 
 
 def camera_for(info_path: Path, key: str, feature: dict[str, Any]) -> Camera | str:
@@ -65,7 +78,8 @@ def decoded_images(blobs: list[Any], camera: Camera, what: str) -> np.ndarray:
     parquet row has none). `what` names the dataset and episode in errors."""
     from PIL import Image, UnidentifiedImageError
 
-    out = np.empty((len(blobs), *camera.shape), dtype=np.uint8)
+    out = np.empty((len(blobs), *camera.frame_shape), dtype=np.uint8)
+    pictures: list[tuple[str, bytes] | None] = []
     for row, blob in enumerate(blobs):
         try:
             if not isinstance(blob, bytes):
@@ -76,12 +90,19 @@ def decoded_images(blobs: list[Any], camera: Camera, what: str) -> np.ndarray:
                     raise ValueError(f"the image is {image.size[0]}x{image.size[1]}")
                 if image.format in ("JPEG", "MPO") and (problem := excess_scans(blob)) is not None:
                     raise ImitationError(f"{what}: image feature {camera.key!r}, frame {row}: {problem}")
+                codec = _PICTURES.get(str(image.format)) if image.mode == _MODES[camera.shape[2]] else None
                 pixels = np.asarray(image.convert(_MODES[camera.shape[2]]))
-            out[row] = pixels.reshape(pixels.shape[:2] + (-1,))
+            pixels = pixels.reshape(pixels.shape[:2] + (-1,))
+            out[row] = resized(pixels, camera.size) if camera.size is not None else pixels
+            pictures.append((codec, blob) if codec is not None else None)
         except (OSError, ValueError, UnidentifiedImageError, Image.DecompressionBombError) as error:
             raise ImitationError(
                 f"{what}: image feature {camera.key!r}, frame {row}: cannot decode it as a "
                 f"{camera.shape[1]}x{camera.shape[0]} image with {camera.shape[2]} channels "
                 f"({type(error).__name__}: {str(error)[:120]})"
             ) from None
-    return out
+    codecs = {picture[0] for picture in pictures if picture is not None}
+    if camera.size is not None or len(codecs) != 1:
+        return out
+    codec = codecs.pop()
+    return KeptFrames.of(out, codec, [picture[1] if picture and picture[0] == codec else None for picture in pictures])

@@ -19,6 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from imitation.data.convert.endings import SourceEnds
+from imitation.data.mcap.images import DEFAULT_JPEG_QUALITY, DEFAULT_WEBP_QUALITY
 from imitation.data.mcap.writer import DemoWriter
 from imitation.data.spaces import describe_space
 from imitation.data.types import Episode, first_nonfinite
@@ -119,10 +120,19 @@ def fit_to_env(converted: Converted, env_id: str) -> Converted:
     )
 
 
-def write_converted(converted: Converted, out: str | Path, *, progress: bool = True) -> dict[str, Any]:
+def write_converted(
+    converted: Converted,
+    out: str | Path,
+    *,
+    progress: bool = True,
+    image_codec: str = "png",
+    image_quality: int | None = None,
+) -> dict[str, Any]:
     """Write the episodes to demo file `out` (atomically) and describe what was written. Each
     episode is flushed as it is written, so a killed conversion leaves every finished one in
-    `out`.partial, readable with `DemoFile(..., salvage=True)`."""
+    `out`.partial, readable with `DemoFile(..., salvage=True)`. Camera frames are stored with
+    `image_codec` (png, jpeg, webp or raw; DemoWriter), lossy ones at `image_quality` (default:
+    each codec's); frames the source kept as pictures of that codec are stored as they are."""
     out = Path(out)
     if out.is_dir():
         raise ImitationError(f"--out {out}: is a directory; give a file name such as {out / 'demos.mcap'}")
@@ -150,6 +160,9 @@ def write_converted(converted: Converted, out: str | Path, *, progress: bool = T
         metadata=converted.metadata,
         end_flags=converted.end_flags,
         flush_episodes=True,
+        image_codec=image_codec,
+        jpeg_quality=DEFAULT_JPEG_QUALITY if image_quality is None else image_quality,
+        webp_quality=DEFAULT_WEBP_QUALITY if image_quality is None else image_quality,
     )
     with writer:
         for episode in _bar(converted.episodes, progress):

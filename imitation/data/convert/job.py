@@ -78,10 +78,21 @@ def convert(
     env_id: str | None = None,
     ros_distro: str = "latest",
     progress: bool = True,
+    image_codec: str = "png",
+    image_quality: int | None = None,
+    image_size: tuple[int, int] | None = None,
+    video_tolerance_s: float | None = None,
 ) -> dict[str, Any]:
-    """Convert `path` into demo file `out`; returns what `imitation convert --json` prints."""
+    """Convert `path` into demo file `out`; returns what `imitation convert --json` prints.
+    `image_codec` and `image_quality` say how camera frames are stored (write_converted),
+    `image_size` (height, width) resizes them (a bag's map entry may say its own `resize`),
+    `video_tolerance_s` places a LeRobot dataset's video frames by timestamp (lerobot.py)."""
     refuse_url(out)
     kind = _source_kind(path, source)
+    if image_size is not None and kind in ("npz", "array"):
+        raise ImitationError(f"--image-size resizes the cameras of bags and LeRobot datasets; {path} is a {kind} source")
+    if video_tolerance_s is not None and kind != "lerobot":
+        raise ImitationError(f"--video-tolerance places a LeRobot dataset's video frames; {path} is a {kind} source")
     if kind == "npz" and layout_path is not None and source is None:
         kind = "array"  # an npz member described by a layout
     if kind == "array" and layout_path is None:
@@ -104,7 +115,7 @@ def convert(
         env_id = env_id or recording_map.env_id
         bag = open_bag(path, kind, ros_distro=ros_distro)
         try:
-            converted = recording_end_flags(bag_to_episodes(bag, recording_map, progress=progress))
+            converted = recording_end_flags(bag_to_episodes(bag, recording_map, progress=progress, image_size=image_size))
         finally:
             bag.close()
     else:
@@ -113,7 +124,9 @@ def convert(
         if kind == "lerobot":
             from imitation.data.convert.lerobot import lerobot_to_episodes
 
-            converted = lerobot_to_episodes(path, progress=progress)
+            converted = lerobot_to_episodes(
+                path, progress=progress, video_tolerance_s=video_tolerance_s, image_size=image_size
+            )
         elif kind == "array":
             from imitation.data.convert.arrays import array_to_episodes, load_layout
 
@@ -132,7 +145,10 @@ def convert(
         converted = end_at_terminal_states(converted, converted.end_at_terminal_state)
     # Sources that cannot tell a time limit from a termination: decide from the env's limit, or say so.
     converted = settle_ends(converted)
-    return {"from": kind, **write_converted(converted, out, progress=progress)}
+    return {
+        "from": kind,
+        **write_converted(converted, out, progress=progress, image_codec=image_codec, image_quality=image_quality),
+    }
 
 
 def inspect(

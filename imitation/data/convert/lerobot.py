@@ -21,14 +21,22 @@ with `--env`, each episode's `source_end` says whether it ended at the env's tim
 warning.
 
 Cameras (`observation.images.*`, dtype "video" or "image") become uint8 (H, W, C) leaves
-(`imitation.data.convert.cameras`), decoded one episode at a time; the frames the episodes hold,
+(`imitation.data.convert.cameras`), decoded one episode at a time, each frame resized once to
+`image_size` when one is given (the frames' own size is in the metadata, `cameras`); the frames
+the episodes hold (at that size),
 and every video frame decoded on the way to them, may come to at most `image_expansion_ratio`
 times the dataset folder's bytes (counted before the first frame is decoded, and as the videos
-are). A video frame is found as
-lerobot finds it: at the episode's `videos/<key>/from_timestamp` (v3.0; 0 in v2.1's one file per
-episode) plus the row's `timestamp`, within lerobot's default tolerance of 1e-4 s. A video
-feature some of whose files the folder lacks is skipped with a warning naming them, and the
-other features convert.
+are). A row's video frame is the one at the episode's `videos/<key>/from_timestamp` (v3.0; 0 in
+v2.1's one file per episode) plus an offset, within lerobot's default tolerance of 1e-4 s
+(`video_tolerance_s` to widen it). The offset is the row's `timestamp`, as lerobot finds it,
+when every row's timestamp lies within the tolerance of `frame_index / fps` (a LeRobot writer's
+stamps do), or when a tolerance is given; otherwise, for stamps a wall clock wrote (jittered by a
+few ms while the video runs at a constant fps), it is `frame_index / fps`, and a frame must lie
+within 1e-4 s of it: the video's own clock confirms it runs at the constant fps. Which one was
+used is in the demo file's metadata (`video_frames`), with a warning when it is frame_index. The
+`timestamp` and `frame_index` columns are read whether or not info.json declares them. A video
+feature some of whose files the folder lacks, or whose `video_path` has placeholders the
+version does not fill, is skipped with a warning naming them, and the other features convert.
 
 Datasets written by `imitation export --to lerobot` carry `meta/imitation.json`, which restores
 the env id, the exact spaces and each episode's flags and metadata.
@@ -36,6 +44,7 @@ the env id, the exact spaces and each episode's flags and metadata.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -55,6 +64,7 @@ from imitation.data.convert.cameras import Camera, camera_for, decoded_images
 from imitation.data.convert.converted import Converted, box_for, cast_rows, infer_action_space
 from imitation.data.convert.endings import SourceEnds
 from imitation.data.convert.video import frames_at
+from imitation.data.image_resize import RESIZE_FILTER
 from imitation.data.spaces import space_from_json, space_leaves
 from imitation.data.types import Episode, Tree
 from imitation.errors import ImitationError
@@ -65,6 +75,14 @@ _INDEX_FEATURES = {"timestamp", "frame_index", "episode_index", "index", "task_i
 _VISUAL = {"image", "video"}
 # lerobot's default `tolerance_s`: how far a video frame may lie from the timestamp asked for.
 TOLERANCE_S = 1e-4
+# The columns a row's video frame is found by, read whether or not info.json declares them.
+_PLACING = ("timestamp", "frame_index")
+# The placeholders each version fills in data_path and video_path.
+_TEMPLATE_FIELDS = {
+    ("v2.1", "data_path"): ("episode_chunk", "episode_index"),
+    ("v2.1", "video_path"): ("episode_chunk", "video_key", "episode_index"),
+    ("v3.0", "video_path"): ("video_key", "chunk_index", "file_index"),
+}
 
 
 @dataclass
@@ -78,9 +96,32 @@ class _Read:
     videos: dict[str, dict[int, tuple[str | None, float | None]]]
 
 
-def lerobot_to_episodes(root: str | Path, *, episodes: Collection[int] | None = None, progress: bool = True) -> Converted:
+@dataclass(frozen=True)
+class _Placement:
+    """How rows find their video frames: by `timestamp` within `tolerance_s`, or by
+    `frame_index` / fps; `gap_s` is how far the timestamps stray from frame_index / fps (None
+    without both columns)."""
+
+    by: str
+    tolerance_s: float
+    gap_s: float | None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"placed_by": self.by, "tolerance_s": self.tolerance_s, "timestamp_gap_s": self.gap_s}
+
+
+def lerobot_to_episodes(
+    root: str | Path,
+    *,
+    episodes: Collection[int] | None = None,
+    progress: bool = True,
+    video_tolerance_s: float | None = None,
+    image_size: tuple[int, int] | None = None,
+) -> Converted:
     """Read the LeRobot dataset at `root` (v3.0 or v2.1); `episodes` keeps only the episodes of
-    those `episode_index` values."""
+    those `episode_index` values; `video_tolerance_s` places video frames by the rows'
+    timestamps within that many seconds (default: see the module's docstring); `image_size`
+    (height, width) resizes every camera's frames."""
     root = Path(root)
     info_path = root / "meta" / "info.json"
     if not info_path.is_file():
@@ -107,27 +148,37 @@ def lerobot_to_episodes(root: str | Path, *, episodes: Collection[int] | None = 
     if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 0 < fps < 1e6:
         raise ImitationError(f"{info_path}: 'fps' must be a positive number of frames per second, got {str(fps)[:40]}")
     observation_keys, cameras, action_key, warnings = _choose_features(root, info_path, features)
-    # A video frame is found by its row's timestamp: without that column no video converts.
-    if "timestamp" not in features:
-        warnings += [
-            f"{root}: video feature {c.key!r} skipped (no timestamp feature to find its frames by)"
-            for c in cameras
-            if c.dtype == "video"
-        ]
+    if image_size is not None:
+        cameras = [dataclasses.replace(camera, size=image_size) for camera in cameras]
+    if version not in ("v3.0", "v2.1"):
+        raise ImitationError(f"{root}: LeRobot codebase version {version!r} is not supported (v3.0 or v2.1)")
+    if video_tolerance_s is not None and not 0 < video_tolerance_s < 1e6:
+        raise ImitationError(f"video_tolerance_s must be a positive number of seconds below 1e6, got {video_tolerance_s}")
+    videos = [camera.key for camera in cameras if camera.dtype == "video"]
+    if videos and (problem := _template_problem(info.get("video_path"), version, "video_path")) is not None:
+        shown = str(info["video_path"])[:120]
+        warnings.append(f"{info_path}: video_path {shown!r} {problem}; video features {', '.join(map(repr, videos))} skipped")
         cameras = [camera for camera in cameras if camera.dtype != "video"]
     wanted = [*observation_keys, action_key, *(k for k in ("next.reward", "next.done") if k in features), "episode_index"]
-    wanted += ["timestamp"] if any(camera.dtype == "video" for camera in cameras) else []
+    # Read where the data has them, declared in info.json or not: video frames are found by them.
+    optional = list(_PLACING) if any(camera.dtype == "video" for camera in cameras) else []
     image_keys = [camera.key for camera in cameras if camera.dtype == "image"]
     video_keys = [key for key, feature in features.items() if feature.get("dtype") == "video"]
     if version == "v3.0":
-        read = _read_v30(root, info, wanted, image_keys, video_keys, progress)
-    elif version == "v2.1":
-        read = _read_v21(root, info, wanted, image_keys, video_keys, progress)
+        read = _read_v30(root, info, wanted, optional, image_keys, video_keys, progress)
     else:
-        raise ImitationError(f"{root}: LeRobot codebase version {version!r} is not supported (v3.0 or v2.1)")
-    columns = {key: _shaped(root, key, values, features.get(key, {})) for key, values in read.columns.items()}
+        read = _read_v21(root, info, wanted, optional, image_keys, video_keys, progress)
+    columns = {
+        key: _shaped(root, key, values, features.get(key, {})) if key not in _PLACING else values.reshape(-1)
+        for key, values in read.columns.items()
+    }
     if len(columns["episode_index"]) == 0:
         raise ImitationError(f"{root}: the dataset holds no frames")
+    placement = None
+    if any(camera.dtype == "video" for camera in cameras):
+        placement = _placement(root, fps, columns, video_tolerance_s, warnings)
+        if placement is None:
+            cameras = [camera for camera in cameras if camera.dtype != "video"]
     files = {
         key: list(dict.fromkeys(name for name, _ in where.values() if name is not None)) for key, where in read.videos.items()
     }
@@ -145,6 +196,7 @@ def lerobot_to_episodes(root: str | Path, *, episodes: Collection[int] | None = 
         cameras,
         action_key,
         _Read(columns, read.blobs, read.videos),
+        placement,
         episodes,
         warnings,
         progress,
@@ -193,6 +245,61 @@ def _video_usable(root: Path, key: str, read: _Read, warnings: list[str]) -> boo
     return True
 
 
+def _placement(
+    root: Path, fps: float, columns: dict[str, np.ndarray], tolerance_s: float | None, warnings: list[str]
+) -> _Placement | None:
+    """How the rows find their video frames (module docstring); None, with a warning, when the
+    data has neither a timestamp nor a frame_index column."""
+    stamps, indices = columns.get("timestamp"), columns.get("frame_index")
+    if indices is not None and (indices.dtype.kind not in "iu" or (len(indices) and indices.min() < 0)):
+        warnings.append(f"{root}: the frame_index column does not hold whole numbers from 0; it places no video frame")
+        indices = None
+    if stamps is not None and stamps.dtype.kind != "f":
+        stamps = stamps.astype(np.float64)
+    if stamps is None and indices is None:
+        warnings.append(
+            f"{root}: video features skipped (the data has neither a timestamp nor a frame_index column to find their "
+            "frames by)"
+        )
+        return None
+    tolerance = TOLERANCE_S if tolerance_s is None else tolerance_s
+    gap = None
+    if stamps is not None and indices is not None:
+        gap = float(np.max(np.abs(stamps.astype(np.float64) - indices / float(fps)), initial=0.0))
+    if stamps is not None and (indices is None or tolerance_s is not None or (gap is not None and gap <= tolerance)):
+        return _Placement("timestamp", tolerance, gap)
+    if stamps is None:
+        warnings.append(f"{root}: no timestamp column; video frames are placed by frame_index at the videos' {fps:g} fps")
+    else:
+        assert gap is not None
+        warnings.append(
+            f"{root}: the rows' timestamps stray from frame_index / fps by up to {gap * 1e3:.1f} ms, more than lerobot's "
+            f"{TOLERANCE_S} s (stamped by a wall clock?); video frames are placed by frame_index at the videos' {fps:g} fps "
+            "(--video-tolerance S places them by timestamp instead)"
+        )
+    return _Placement("frame_index", TOLERANCE_S, gap)
+
+
+def _template_problem(template: Any, version: str, name: str) -> str | None:
+    """What is wrong with info.json's data_path or video_path (`name`) for `version`, said after
+    the template: a placeholder the version does not fill (v3.0's chunk_index in a v2.1 set), or
+    no episode_index in a v2.1 one; None when it fits (or is absent, no text, or no pattern:
+    reading it says so)."""
+    if not isinstance(template, str):
+        return None
+    fills = _TEMPLATE_FIELDS[(version, name)]
+    try:
+        fields = [field for _, field, _, _ in string.Formatter().parse(template) if field is not None]
+    except ValueError:  # an unmatched brace: filling it in fails, and says so
+        return None
+    for field in fields:
+        if field not in fills:
+            return f"has the placeholder {field[:40]!r}, which {version} does not fill (it fills {', '.join(fills)})"
+    if version == "v2.1" and "episode_index" not in fields:
+        return "has no episode_index placeholder (v2.1 keeps one file per episode)"
+    return None
+
+
 def _numeric(dtype: Any) -> bool:
     try:
         return np.dtype(dtype).kind in "biuf"
@@ -231,11 +338,17 @@ def lerobot_quietly() -> Iterator[None]:
 
 
 def _read_v30(
-    root: Path, info: dict[str, Any], wanted: list[str], image_keys: list[str], video_keys: list[str], progress: bool
+    root: Path,
+    info: dict[str, Any],
+    wanted: list[str],
+    optional: list[str],
+    image_keys: list[str],
+    video_keys: list[str],
+    progress: bool,
 ) -> _Read:
-    """The `wanted` columns and the image features' frames of every frame in data/*/*.parquet (in
-    the order lerobot's loader reads them), and where each video feature keeps each episode's
-    frames (from meta/episodes)."""
+    """The `wanted` columns (and the `optional` ones every file has) and the image features'
+    frames of every frame in data/*/*.parquet (in the order lerobot's loader reads them), and
+    where each video feature keeps each episode's frames (from meta/episodes)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
     from tqdm import tqdm
@@ -244,12 +357,13 @@ def _read_v30(
     files = sorted((root / "data").glob("*/*.parquet"))
     if not files:
         raise ImitationError(f"{root / 'data'}: no frames (a v3.0 dataset keeps them in data/chunk-*/file-*.parquet)")
-    parts: dict[str, list[np.ndarray]] = {key: [] for key in wanted}
+    parts: dict[str, list[np.ndarray]] = {key: [] for key in [*wanted, *optional]}
     blobs: dict[str, list[Any]] = {key: [] for key in image_keys}
     for path in tqdm(files, desc="read", unit="file", disable=None if progress else True, dynamic_ncols=True):
         try:
-            table = pq.read_table(path, columns=[*wanted, *image_keys])
-            columns = {key: _column(table.column(key)) for key in wanted} if table.num_rows else {}
+            present = _present(path, optional)
+            table = pq.read_table(path, columns=[*wanted, *present, *image_keys])
+            columns = {key: _column(table.column(key)) for key in [*wanted, *present]} if table.num_rows else {}
             images = {key: _image_bytes(table.column(key)) for key in image_keys} if table.num_rows else {}
         except (OSError, ValueError, KeyError, TypeError, pa.ArrowException) as error:
             raise ImitationError(f"{path}: cannot read its frames ({type(error).__name__}: {str(error)[:200]})") from None
@@ -257,7 +371,7 @@ def _read_v30(
             parts[key].append(values)
         for key, array in images.items():
             blobs[key].append(array)
-    return _Read(_concatenated(root, parts), _joined(blobs), videos)
+    return _Read(_concatenated(root, _complete(parts, optional)), _joined(blobs), videos)
 
 
 def _v30_video_files(
@@ -359,7 +473,13 @@ def _totals_differ(info_path: Path, info: dict[str, Any], episode_index: np.ndar
 
 
 def _read_v21(
-    root: Path, info: dict[str, Any], wanted: list[str], image_keys: list[str], video_keys: list[str], progress: bool
+    root: Path,
+    info: dict[str, Any],
+    wanted: list[str],
+    optional: list[str],
+    image_keys: list[str],
+    video_keys: list[str],
+    progress: bool,
 ) -> _Read:
     """As `_read_v30`, from v2.1's one parquet (and one video file per video feature) per episode."""
     import pyarrow as pa
@@ -381,7 +501,9 @@ def _read_v21(
         RecursionError,
     ) as error:  # ValueError: JSON, UTF-8 or a number
         raise _unreadable_listing(episodes_path, "v2.1", error) from None
-    parts: dict[str, list[np.ndarray]] = {key: [] for key in wanted}
+    if (problem := _template_problem(template, "v2.1", "data_path")) is not None:
+        raise ImitationError(f"{root / 'meta' / 'info.json'}: data_path {template[:120]!r} {problem}")
+    parts: dict[str, list[np.ndarray]] = {key: [] for key in [*wanted, *optional]}
     blobs: dict[str, list[Any]] = {key: [] for key in image_keys}
     videos: dict[str, dict[int, tuple[str | None, float | None]]] = {key: {} for key in video_keys}
     for line, entry in enumerate(
@@ -402,20 +524,37 @@ def _read_v21(
                 f"({type(error).__name__}: {str(error)[:100]})"
             ) from None
         try:
-            table = pq.read_table(path, columns=[*wanted, *image_keys])
-            columns = {key: _column(table.column(key)) for key in wanted}
+            present = _present(path, optional)
+            table = pq.read_table(path, columns=[*wanted, *present, *image_keys])
+            columns = {key: _column(table.column(key)) for key in [*wanted, *present]}
             images = {key: _image_bytes(table.column(key)) for key in image_keys}
         except (OSError, ValueError, KeyError, TypeError, pa.ArrowException) as error:
             raise ImitationError(f"{path}: cannot read episode {index} ({type(error).__name__}: {str(error)[:200]})") from None
         if length >= 0 and table.num_rows != length:
             raise ImitationError(f"{path}: episode {index} has {table.num_rows} frames, meta/episodes.jsonl says {length}")
-        for key in wanted:
-            parts[key].append(columns[key])
+        for key, values in columns.items():
+            parts[key].append(values)
         for key in image_keys:
             blobs[key].append(images[key])
     if not listed:
         raise ImitationError(f"{episodes_path}: lists no episode")
-    return _Read(_concatenated(root, parts), _joined(blobs), videos)
+    return _Read(_concatenated(root, _complete(parts, optional)), _joined(blobs), videos)
+
+
+def _present(path: Path, optional: list[str]) -> list[str]:
+    """The `optional` columns the parquet file at `path` holds (its footer alone is read)."""
+    import pyarrow.parquet as pq
+
+    if not optional:
+        return []
+    names = set(pq.read_schema(path).names)
+    return [key for key in optional if key in names]
+
+
+def _complete(parts: dict[str, list[np.ndarray]], optional: list[str]) -> dict[str, list[np.ndarray]]:
+    """`parts` less the optional columns some file lacks (a row without one cannot be placed by it)."""
+    files = max(len(values) for key, values in parts.items() if key not in optional)
+    return {key: values for key, values in parts.items() if key not in optional or len(values) == files}
 
 
 def _concatenated(root: Path, parts: dict[str, list[np.ndarray]]) -> dict[str, np.ndarray]:
@@ -478,6 +617,7 @@ def _build(
     cameras: list[Camera],
     action_key: str,
     read: _Read,
+    placement: _Placement | None,
     selected: Collection[int] | None,
     warnings: list[str],
     progress: bool,
@@ -490,7 +630,7 @@ def _build(
     bounds = np.append(starts, len(episode_index))
     kept = _kept(root, episode_index[starts], selected)
     sidecar = _sidecar(root, [int(b - a) for a, b in zip(bounds[:-1], bounds[1:])], warnings)
-    leaves = _Leaves(root, features, observation_keys, cameras, read)
+    leaves = _Leaves(root, fps, features, observation_keys, cameras, read, placement)
     if sidecar is not None:
         observation_space = leaves.fitted(space_from_json(sidecar["observation_space"]), warnings)
         action_space = space_from_json(sidecar["action_space"])
@@ -512,7 +652,7 @@ def _build(
     if cameras:
         # The frames the episodes hold, counted before the first is decoded; `leaves.budget`
         # counts each video frame decoded on the way to them too.
-        frame_bytes = sum(math.prod(leaves.cameras[key].shape) for key in leaves.used.values() if key in leaves.cameras)
+        frame_bytes = sum(math.prod(leaves.cameras[key].frame_shape) for key in leaves.used.values() if key in leaves.cameras)
         rows = sum(int(bounds[k + 1] - bounds[k]) for k in kept)
         ImageBudget(str(root), leaves.budget.source_bytes).take(rows * frame_bytes)
     episodes = []
@@ -556,6 +696,13 @@ def _build(
     }
     if selected is not None:
         metadata["episodes"] = sorted(int(episode_index[bounds[k]]) for k in kept)
+    if placement is not None and any(leaves.cameras[key].dtype == "video" for key in observed if key in leaves.cameras):
+        metadata["video_frames"] = placement.to_json()
+    resized = {key: leaves.cameras[key] for key in observed if key in leaves.cameras and leaves.cameras[key].size is not None}
+    if resized:
+        metadata["cameras"] = {
+            key: {"resized_from": list(camera.shape[:2]), "filter": RESIZE_FILTER} for key, camera in resized.items()
+        }
     return Converted(
         episodes=episodes,
         observation_space=observation_space,
@@ -563,10 +710,16 @@ def _build(
         source=sidecar["source"] if sidecar else f"LeRobot {version} {root}",
         env_id=sidecar["env_id"] if sidecar else "",
         dt=sidecar["dt"] if sidecar else 1.0 / float(fps),
-        metadata=sidecar["user_metadata"] if sidecar else metadata,
+        metadata={**sidecar["user_metadata"], **_said(metadata)} if sidecar else metadata,
         warnings=warnings,
         ends=ends,
     )
+
+
+def _said(metadata: dict[str, Any]) -> dict[str, Any]:
+    """What the conversion itself decided (frames placed, cameras resized): kept beside a
+    sidecar's metadata, which otherwise replaces ours."""
+    return {key: metadata[key] for key in ("video_frames", "cameras") if key in metadata}
 
 
 def _kept(root: Path, indices: np.ndarray, selected: Collection[int] | None) -> list[int]:
@@ -586,8 +739,17 @@ class _Leaves:
     """The observation's leaves: each named after its feature, less `observation.`, in
     info.json's order; numeric features come from the columns, cameras are decoded per episode."""
 
-    def __init__(self, root: Path, features: dict[str, Any], numeric: list[str], cameras: list[Camera], read: _Read) -> None:
-        self.root, self.read = root, read
+    def __init__(
+        self,
+        root: Path,
+        fps: float,
+        features: dict[str, Any],
+        numeric: list[str],
+        cameras: list[Camera],
+        read: _Read,
+        placement: _Placement | None,
+    ) -> None:
+        self.root, self.fps, self.read, self.placement = root, fps, read, placement
         self.cameras = {camera.key: camera for camera in cameras}
         chosen = set(numeric) | set(self.cameras)
         self.features = {key.removeprefix("observation."): key for key in features if key in chosen}
@@ -621,15 +783,24 @@ class _Leaves:
             if missing:
                 raise ImitationError(f"{self.root}: {SIDECAR} names observation key {missing[0]!r}, which has no feature")
             self.used = {name: self.features[name] for name in names}
-            space = gym.spaces.Dict({name: space.spaces[name] for name in names})
+            space = gym.spaces.Dict({name: self._resized(space.spaces[name], self.used[name]) for name in names})
         else:
             # A bare space: the camera whose frames it holds, else the first numeric feature.
             fits = [key for key, camera in self.cameras.items() if (space.dtype, space.shape) == (np.uint8, camera.shape)]
             numeric = [key for key in self.features.values() if key not in self.cameras]
             self.used = {"": (fits or numeric or list(self.cameras))[0]}
+            space = self._resized(space, self.used[""])
         for key in sorted(set(self.cameras) - set(self.used.values())):
             warnings.append(f"{self.root}: camera feature {key!r} skipped (not in {SIDECAR}'s observation space)")
         return space
+
+    def _resized(self, space: gym.Space, key: str) -> gym.Space:
+        """The sidecar's space of feature `key`; a camera's, at its stored size when it is resized
+        (the sidecar says the frames' own)."""
+        camera = self.cameras.get(key)
+        if camera is None or camera.size is None or not isinstance(space, gym.spaces.Box) or space.shape != camera.shape:
+            return space
+        return camera.space
 
     def observations(self, space: gym.Space, episode: int, start: int, end: int) -> Tree:
         """Rows start..end (one episode) of every leaf, as `space` holds them."""
@@ -641,24 +812,35 @@ class _Leaves:
         camera = self.cameras.get(key)
         if camera is None:
             return cast_rows(self.read.columns[key][start:end], space, f"{self.root}: {key}")
-        if not (isinstance(space, gym.spaces.Box) and space.dtype == np.uint8 and space.shape == camera.shape):
+        if not (isinstance(space, gym.spaces.Box) and space.dtype == np.uint8 and space.shape == camera.frame_shape):
             raise ImitationError(
-                f"{self.root}: {SIDECAR} gives camera {key!r} a space other than its uint8 {list(camera.shape)} frames"
+                f"{self.root}: {SIDECAR} gives camera {key!r} a space other than its uint8 {list(camera.frame_shape)} frames"
             )
         if camera.dtype == "image":
             blobs = self.read.blobs[key].slice(start, end - start).to_pylist()
             return decoded_images(blobs, camera, f"{self.root}: episode {episode}")
         name, offset = self.read.videos[key][episode]
-        assert name is not None and offset is not None  # episodes whose frames cannot be found skip the camera
-        # lerobot's query: from_timestamp plus the row's timestamp (a float32, widened exactly).
-        seconds = offset + self.read.columns["timestamp"][start:end].reshape(-1).astype(np.float64)
+        placement = self.placement
+        # Episodes whose frames cannot be found, and data with neither column, skip the camera.
+        assert name is not None and offset is not None and placement is not None
+        what = f"video feature {key!r}, episode {episode}"
+        if placement.by == "timestamp":
+            # lerobot's query: from_timestamp plus the row's timestamp (a float32, widened exactly).
+            seconds = offset + self.read.columns["timestamp"][start:end].astype(np.float64)
+            hint = ""
+        else:
+            seconds = offset + self.read.columns["frame_index"][start:end] / float(self.fps)
+            what += f", placed by frame_index at {self.fps:g} fps"
+            hint = f"; the video does not run at a constant {self.fps:g} fps (--video-tolerance S places frames by timestamp)"
         return frames_at(
             self.root / name,
             seconds,
-            tolerance_s=TOLERANCE_S,
+            tolerance_s=placement.tolerance_s,
             shape=camera.shape,
-            what=f"video feature {key!r}, episode {episode}",
+            what=what,
             budget=self.budget,
+            hint=hint,
+            size=camera.size,
         )
 
 

@@ -6,7 +6,7 @@
     align: hold                 # hold (last value) | interpolate (linear); an entry may override it
     observation:                # concatenated in this order
       - {topic: /turtle1/pose, fields: [x, y, theta, linear_velocity, angular_velocity]}
-      - {topic: /camera/image_raw, image: front, size: [480, 640]}   # an image leaf; size optional
+      - {topic: /camera/image_raw, image: front, size: [480, 640], resize: [96, 128]}  # an image leaf
       - {topic: /scan, fields: [ranges], nonfinite: range_max}      # what inf and NaN stand for
     action:
       - {topic: /turtle1/cmd_vel, fields: [linear.x, angular.z], default: 0, max_age: 1.0}
@@ -16,7 +16,9 @@
 
 An `image` entry (observation only) makes a sensor_msgs/Image or CompressedImage topic a leaf
 of a Dict observation under the key it names, beside `state` (the numeric entries); its frames
-are held, never interpolated, and `size: [height, width]` refuses frames of any other size.
+are held, never interpolated. `size: [height, width]` refuses frames of any other size;
+`resize: [height, width]` stores every frame at that size (`imitation.data.image_resize`: area
+averaging), resized once as the bag converts; both are optional.
 
 `nonfinite` says what a numeric entry's NaN and ±inf values stand for, since a demo file holds
 finite numbers only (a sensor_msgs/LaserScan reports a beam with no return as +inf, REP 117):
@@ -47,7 +49,7 @@ ALIGNMENTS = ("hold", "interpolate")
 CLOCKS = ("log", "header")
 SPLITS = ("file", "gap", "topic")
 _TOP_KEYS = {"rate_hz", "time", "align", "observation", "action", "reward", "episodes", "env_id"}
-_ENTRY_KEYS = {"topic", "fields", "field", "align", "default", "max_age", "nonfinite", "image", "size"}
+_ENTRY_KEYS = {"topic", "fields", "field", "align", "default", "max_age", "nonfinite", "image", "size", "resize"}
 RANGE_MAX, MASK = "range_max", "mask"  # the named `nonfinite` choices; a number is the third
 STATE_KEY = "state"  # the Dict observation's leaf for the numeric entries, beside the images
 _IMAGE_KEY = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}")
@@ -71,6 +73,7 @@ class Stream:
     image: str | None = None  # an image entry: the key of its leaf in the Dict observation
     nonfinite: str | float | None = None  # RANGE_MAX, MASK, a number, or None (refused)
     size: tuple[int, int] | None = None  # an image entry's declared (height, width)
+    resize: tuple[int, int] | None = None  # an image entry's stored (height, width), when not its frames' own
 
 
 @dataclass(frozen=True)
@@ -198,15 +201,18 @@ def _stream(entry: Any, where: str, align: str, fail: Any, *, images: bool = Fal
     if unknown:
         raise fail(
             f"{where}: unknown key {unknown[0]!r} (an entry has topic, fields, align, default, max_age, nonfinite; or topic, "
-            "image, size)"
+            "image, size, resize)"
         )
     topic = entry.get("topic")
     if not isinstance(topic, str) or not topic:
         raise fail(f"{where}: no topic")
     if "image" in entry:
         return _image_stream(entry, where, topic, fail, images)
-    if "size" in entry:
-        raise fail(f"{where} ({topic}): size is for image entries ({{topic: {topic}, image: KEY, size: [height, width]}})")
+    for key in ("size", "resize"):
+        if key in entry:
+            raise fail(
+                f"{where} ({topic}): {key} is for image entries ({{topic: {topic}, image: KEY, {key}: [height, width]}})"
+            )
     fields = entry.get("fields", [entry["field"]] if "field" in entry else None)
     if isinstance(fields, str):
         fields = [fields]
@@ -274,16 +280,17 @@ def _image_stream(entry: dict[str, Any], where: str, topic: str, fail: Any, allo
         raise fail(f"{prefix}: an image entry takes no {extra[0]} ({why})")
     if entry.get("align", "hold") != "hold":
         raise fail(f"{prefix}: images are held (the latest frame at each step), never interpolated; drop align")
-    size = entry.get("size")
-    if size is not None:
-        if not (
+    sizes: dict[str, tuple[int, int] | None] = {}
+    for name in ("size", "resize"):
+        size = entry.get(name)
+        if size is not None and not (
             isinstance(size, list)
             and len(size) == 2
             and all(isinstance(side, int) and not isinstance(side, bool) and 0 < side <= MAX_IMAGE_SIDE for side in size)
         ):
-            raise fail(f"{prefix}: size must be [height, width] in pixels, got {str(size)[:40]}")
-        size = (size[0], size[1])
-    return Stream(where, topic, (), "hold", None, None, image=key, size=size)
+            raise fail(f"{prefix}: {name} must be [height, width] in pixels, got {str(size)[:40]}")
+        sizes[name] = (size[0], size[1]) if size is not None else None
+    return Stream(where, topic, (), "hold", None, None, image=key, size=sizes["size"], resize=sizes["resize"])
 
 
 def _split(spec: Any, fail: Any) -> EpisodeSplit:

@@ -13,8 +13,12 @@ refused before the grid is allocated: a damaged stamp stretching a few messages 
 
 Camera topics (`image` entries, ros_images.py) become uint8 or uint16 (H, W, C) leaves of a Dict
 observation beside `state`, the numeric entries: each grid time holds the latest frame at or
-before it, decoded once however many steps hold it. The steps' frames together may decode to at
-most `image_expansion_ratio` times the bag's bytes, counted before each episode's are allocated.
+before it, decoded once however many steps hold it, and resized once to the entry's `resize`
+(or the converter's `image_size`) when it has one (`imitation.data.image_resize`). The steps'
+frames together may decode to at most `image_expansion_ratio` times the bag's bytes, counted
+(at their stored size) before each episode's are allocated. A camera whose frames are all
+JPEG, or all PNG, that decode as they are (ros_images.py) and are not resized keeps them
+(`KeptFrames`): a demo file of that image codec stores the bag's bytes.
 
 A demo file holds finite numbers only. An entry's `nonfinite` (maps.py) says what its NaN and
 ±inf values stand for, and is applied to each message as it is read; the replacements are counted
@@ -50,6 +54,8 @@ from imitation.data.convert.fields import (
 from imitation.data.convert.maps import MASK, RANGE_MAX, STATE_KEY, RecordingMap, Stream
 from imitation.data.convert.resample import NS, hold_index, regular_grid, sample, split_at_gaps, split_at_markers
 from imitation.data.convert.ros_images import Frame, ImageError, decode, frame_of, image_kind
+from imitation.data.image_resize import RESIZE_FILTER, resized
+from imitation.data.kept_frames import KeptFrames
 from imitation.data.types import Episode, Tree
 from imitation.errors import ImitationError
 from imitation.limits import LIMITS, ImageBudget, input_bytes, over_limit
@@ -107,6 +113,7 @@ class _ImageColumn:
     times: list[int]
     frames: list[Frame]
     labels: list[str]  # where each frame is in the bag, for errors: "frame 3 (logged at … ns)"
+    resize: tuple[int, int] | None = None  # the (height, width) frames are stored at, when not their own
 
     @property
     def key(self) -> str:
@@ -143,38 +150,52 @@ class _ImageColumn:
         return ImitationError(f"{self.bag_path}: {self.stream.where} ({self.stream.topic}) {label}: {reason}")
 
     @property
-    def frame_bytes(self) -> int:
+    def shape(self) -> tuple[int, int, int]:
+        """A stored frame's (H, W, C)."""
         first = self.frames[0]
-        return first.height * first.width * first.channels * first.dtype.itemsize
+        return (*(self.resize or (first.height, first.width)), first.channels)
+
+    @property
+    def frame_bytes(self) -> int:
+        return math.prod(self.shape) * self.frames[0].dtype.itemsize
 
     def space(self) -> gym.spaces.Box:
-        first = self.frames[0]
-        return gym.spaces.Box(0, np.iinfo(first.dtype).max, shape=first.shape, dtype=first.dtype)
+        dtype = self.frames[0].dtype
+        return gym.spaces.Box(0, np.iinfo(dtype).max, shape=self.shape, dtype=dtype)
 
     def on_grid(self, times: np.ndarray, order: np.ndarray, grid: np.ndarray) -> np.ndarray:
         """The latest frame at or before each grid time, (len(grid), H, W, C); `order` sorts the
-        frames by `times`. Each frame is decoded once however many steps hold it."""
+        frames by `times`. Each frame is decoded (and resized) once however many steps hold it;
+        the rows keep their pictures where every frame has one (KeptFrames)."""
         index = hold_index(times, grid)
         assert index.min() >= 0  # image entries have no default: the grid starts at their first frame
-        first = self.frames[0]
-        out = np.empty((len(grid), *first.shape), dtype=first.dtype)
-        for row, i in enumerate(index):
-            if row > 0 and i == index[row - 1]:
+        out = np.empty((len(grid), *self.shape), dtype=self.frames[0].dtype)
+        held = [int(order[i]) for i in index]
+        for row, k in enumerate(held):
+            if row > 0 and k == held[row - 1]:
                 out[row] = out[row - 1]
                 continue
-            k = int(order[i])
             try:
-                out[row] = decode(self.frames[k])
+                pixels = decode(self.frames[k])
             except ImageError as error:
                 raise self.error(self.labels[k], str(error)) from None
-        return out
+            out[row] = resized(pixels, self.resize) if self.resize is not None else pixels
+        codecs = {picture for k in held if (picture := self.frames[k].picture) is not None}
+        if self.resize is not None or len(codecs) != 1:
+            return out
+        codec = codecs.pop()
+        pictures = {k: bytes(self.frames[k].data) for k in set(held) if self.frames[k].picture == codec}
+        return KeptFrames.of(out, codec, [pictures.get(k) for k in held])
 
 
-def bag_to_episodes(bag: Bag, recording_map: RecordingMap, *, progress: bool = True) -> Converted:
-    """Read the map's topics from `bag` and resample them into episodes."""
+def bag_to_episodes(
+    bag: Bag, recording_map: RecordingMap, *, progress: bool = True, image_size: tuple[int, int] | None = None
+) -> Converted:
+    """Read the map's topics from `bag` and resample them into episodes; `image_size` (height,
+    width) resizes the frames of every image entry without a `resize` of its own."""
     topics = bag.topics()
     _check_topics(bag, recording_map, topics)
-    columns = [_compile(bag, stream, recording_map) for stream in recording_map.streams]
+    columns = [_compile(bag, stream, recording_map, image_size) for stream in recording_map.streams]
     by_topic: dict[str, list[_Column | _ImageColumn]] = {}
     for column in columns:
         by_topic.setdefault(column.stream.topic, []).append(column)
@@ -393,7 +414,9 @@ def _listing(names: list[str], limit: int = 12) -> str:
     return ", ".join(names[:limit]) + (f", … ({len(names)} topics)" if len(names) > limit else "")
 
 
-def _compile(bag: Bag, stream: Stream, recording_map: RecordingMap) -> _Column | _ImageColumn:
+def _compile(
+    bag: Bag, stream: Stream, recording_map: RecordingMap, image_size: tuple[int, int] | None = None
+) -> _Column | _ImageColumn:
     """Check the entry's fields on the topic's first message and learn their widths."""
     messages = bag.messages([stream.topic])
     try:
@@ -413,7 +436,7 @@ def _compile(bag: Bag, stream: Stream, recording_map: RecordingMap) -> _Column |
             raise ImitationError(
                 f"{prefix}: an image entry needs a sensor_msgs/Image or CompressedImage topic; in {bag.path} it is a {msgtype}"
             )
-        return _ImageColumn(stream, kind, bag.path, [], [], [])
+        return _ImageColumn(stream, kind, bag.path, [], [], [], resize=stream.resize or image_size)
     if kind is not None and any(text.split(".")[0].split("[")[0] == "data" for text in stream.fields):
         raise ImitationError(
             f"{prefix}: a camera topic ({msgtype} in {bag.path}): map its frames as {{topic: {stream.topic}, image: KEY}}"
@@ -522,7 +545,7 @@ def _observation_space(bag: Bag, state: list[_Column], images: list[_ImageColumn
     leaves: dict[str, gym.Space] = {STATE_KEY: vector} if state else {}
     leaves.update({c.key: c.space() for c in images})
     # The demo file's reader refuses a space whose sample holds more (limits.py): refuse it here, before the grid.
-    elements = width + sum(math.prod(c.frames[0].shape) for c in images)
+    elements = width + sum(math.prod(c.shape) for c in images)
     if elements > LIMITS.sample_elements:
         raise over_limit(
             f"{bag.path}: numbers in one observation (every camera's pixels and the state)", elements, "sample_elements"
@@ -531,8 +554,16 @@ def _observation_space(bag: Bag, state: list[_Column], images: list[_ImageColumn
 
 
 def _image_metadata(images: list[_ImageColumn]) -> dict[str, dict[str, Any]]:
-    """Per camera leaf: its topic and what the bag sent (an encoding, or a compressed format)."""
-    return {c.key: {"topic": c.stream.topic, "sent_as": c.frames[0].source} for c in images}
+    """Per camera leaf: its topic, what the bag sent (an encoding, or a compressed format) and,
+    for a resized one, the frames' own size and the filter."""
+    return {
+        c.key: {
+            "topic": c.stream.topic,
+            "sent_as": c.frames[0].source,
+            **({"resized_from": [c.frames[0].height, c.frames[0].width], "filter": RESIZE_FILTER} if c.resize else {}),
+        }
+        for c in images
+    }
 
 
 def _spans(recording_map: RecordingMap, stream_times: list[np.ndarray], markers: np.ndarray) -> list[tuple[int, int]]:

@@ -11,7 +11,9 @@ Compressed frames are JPEG or PNG, image_transport's `compressed` formats ("jpeg
 "bgr8; jpeg compressed bgr8", "mono16; png compressed mono16"), decoded with Pillow. A decoder
 returns RGB whatever channel order the encoder was handed, so the format only names the codec;
 mono or colour is read from the file itself. compressedDepth (PNG behind a private header) is
-refused, as is a 16-bit colour PNG, which Pillow would narrow to 8 bits.
+refused, as is a 16-bit colour PNG, which Pillow would narrow to 8 bits. A JPEG or PNG that
+Pillow opens as RGB or 8-bit grey decodes, in a demo file's image channel of its codec, to the
+very pixels it decodes to here: its `picture` says so, and the bytes can be stored as they are.
 
 Checking a frame (`frame_of`) reads its header only — size, channels, that the bytes hold what
 the header claims, and a JPEG's count of scans (`jpeg_scans`) — and allocates nothing: the size
@@ -74,6 +76,8 @@ _MODES: dict[str, tuple[int, np.dtype]] = {
     "YCbCr": (3, _U8),
 }
 _PNG_COLOUR_TYPES = (2, 6)  # IHDR colour types RGB and RGBA
+# (Pillow's format, mode) of the pictures a demo file's image channel decodes as they are.
+_KEPT = {("JPEG", "RGB"): "jpeg", ("JPEG", "L"): "jpeg", ("PNG", "RGB"): "png", ("PNG", "L"): "png"}
 _DECODE_ERRORS = (OSError, ValueError, SyntaxError, EOFError, IndexError, MemoryError)
 
 
@@ -97,6 +101,7 @@ class Frame:
     step: int = 0  # raw frames: bytes per row
     big_endian: bool = False  # raw frames
     codec: str | None = None  # compressed frames: "JPEG" or "PNG"
+    picture: str | None = None  # "jpeg" or "png" where `data` can be stored as it is (see the module's docstring)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -192,7 +197,7 @@ def _compressed_frame(message: Any) -> Frame:
     if image.format in ("JPEG", "MPO") and (problem := excess_scans(data)) is not None:
         raise ImageError(problem)
     channels, dtype = layout
-    return Frame(height, width, channels, dtype, text, data, codec=image.format)
+    return Frame(height, width, channels, dtype, text, data, codec=image.format, picture=_KEPT.get((image.format, image.mode)))
 
 
 def _decode_compressed(frame: Frame) -> np.ndarray:

@@ -5,7 +5,8 @@ decode_video_frames_pyav`) chooses them: seek to the keyframe at or before the f
 decode forward until the last one is passed, and give each timestamp the decoded frame nearest
 to it, provided it lies within `tolerance_s`; pixels are PyAV's `rgb24` conversion, as there.
 Unlike lerobot's decoder, only the frames some timestamp wants are converted and kept, so a
-window of a long shared video costs memory for its wanted frames alone.
+window of a long shared video costs memory for its wanted frames alone; given a `size`, each is
+resized to it as it is converted (`imitation.data.image_resize`).
 """
 
 from __future__ import annotations
@@ -14,23 +15,33 @@ from pathlib import Path
 
 import numpy as np
 
+from imitation.data.image_resize import resized
 from imitation.errors import ImitationError
 from imitation.limits import ImageBudget
 
 
 def frames_at(
-    path: Path, timestamps: np.ndarray, *, tolerance_s: float, shape: tuple[int, int, int], what: str, budget: ImageBudget
+    path: Path,
+    timestamps: np.ndarray,
+    *,
+    tolerance_s: float,
+    shape: tuple[int, int, int],
+    what: str,
+    budget: ImageBudget,
+    hint: str = "",
+    size: tuple[int, int] | None = None,
 ) -> np.ndarray:
     """The frames of the video at `path` nearest to each of `timestamps` (seconds), of `shape`
     (H, W, 3). `what` names the frames in errors (the feature and episode); every failure is one
     ImitationError naming the file: a video PyAV cannot read or whose frames have another size
-    ("cannot decode"), or a timestamp no frame is near ("no video frame within"). Every frame
+    ("cannot decode"), or a timestamp no frame is near ("no video frame within", followed by
+    `hint`). `size` (height, width) resizes the frames returned. Every frame
     decoded, wanted or passed over on the way, is counted in `budget` (image_expansion_ratio) as
     it comes: a small video of thousands of frames that barely change stops at the bound."""
     import av
 
     wanted = np.asarray(timestamps, dtype=np.float64).reshape(-1)
-    out = np.empty((len(wanted), *shape), dtype=np.uint8)
+    out = np.empty((len(wanted), *(size or shape[:2]), shape[2]), dtype=np.uint8)
     if not len(wanted):
         return out
     order = np.argsort(wanted, kind="stable")
@@ -47,9 +58,9 @@ def frames_at(
             if stream.codec_context is None:
                 raise ValueError("the video stream names no codec PyAV can decode")
             stream.thread_type = "AUTO"  # frame threads: same pixels, faster where the codec has no threads of its own
-            size = (stream.codec_context.height, stream.codec_context.width)
-            if size != shape[:2]:
-                raise ValueError(f"frames are {size[1]}x{size[0]}, the dataset declares {shape[1]}x{shape[0]}")
+            decoded = (stream.codec_context.height, stream.codec_context.width)
+            if decoded != shape[:2]:
+                raise ValueError(f"frames are {decoded[1]}x{decoded[0]}, the dataset declares {shape[1]}x{shape[0]}")
             # As lerobot: the nearest keyframe at or before the first timestamp, with one tick of margin.
             container.seek(round(ordered[0] / base) - 1, backward=True, any_frame=False, stream=stream)
             for frame in container.decode(stream):
@@ -63,6 +74,7 @@ def frames_at(
                 closer = np.abs(ordered[near] - at) < best[near]
                 if closer.any():
                     pixels = frame.to_ndarray(format="rgb24")
+                    pixels = resized(pixels, size) if size is not None else pixels
                     rows = order[near][closer]
                     out[rows] = pixels
                     best[near.start : near.stop][closer] = np.abs(ordered[near][closer] - at)
@@ -75,5 +87,6 @@ def frames_at(
         raise ImitationError(
             f"{path}: {what}: no video frame within {tolerance_s} s of frame {missing[0]} (at {wanted[missing[0]]:.6f} s)"
             + (f" and {len(missing) - 1} more" if len(missing) > 1 else "")
+            + hint
         )
     return out

@@ -4,16 +4,18 @@ An *image leaf* is an observation leaf of dtype uint8 and shape (H, W) or (H, W,
 {1, 3, 4}. Its channel carries one protobuf message per frame (row) instead of blocks, so that
 Foxglove and other MCAP tools show it as a video:
 
-- codec `png` (lossless) and `jpeg` (lossy): `foxglove.CompressedImage` {timestamp, data,
-  format "png" | "jpeg"};
+- codec `png` (lossless), `jpeg` and `webp` (lossy; WebP's is VP8's intra coding, about a third
+  of JPEG's bytes at the same PSNR on camera frames): `foxglove.CompressedImage` {timestamp,
+  data, format "png" | "jpeg" | "webp"};
 - codec `raw` (lossless; the chunk compression does the work): `foxglove.RawImage` {timestamp,
   width, height, encoding "mono8" | "rgb8" | "rgba8", step = W × C, data: the rows, C order}.
 
 The schema record holds a serialized FileDescriptorSet of the message (and of
 google/protobuf/timestamp.proto, which it imports). Pillow encodes and decodes the pictures;
 decoding checks every frame's header against the channel's declared shape, and a JPEG's count of
-scans against the limit `jpeg_scans`, before any pixel is decoded, so a hostile frame costs no
-more memory or time than an honest one.
+scans against the limit `jpeg_scans` (a WebP's count of frames against 1), before any pixel is
+decoded, so a hostile frame costs no more memory or time than an honest one. Frames that come
+as `KeptFrames` with pictures of the channel's codec are stored as those pictures, unencoded.
 """
 
 from __future__ import annotations
@@ -30,12 +32,21 @@ from typing import Any
 import numpy as np
 
 from imitation.data.jpeg_scans import excess_scans
+from imitation.data.kept_frames import KeptFrames
 
 IMAGE_ENCODING = "protobuf"
-CODECS = ("png", "jpeg", "raw")
+CODECS = ("png", "jpeg", "raw", "webp")
 DEFAULT_JPEG_QUALITY = 95
-_SCHEMA_NAMES = {"png": "foxglove.CompressedImage", "jpeg": "foxglove.CompressedImage", "raw": "foxglove.RawImage"}
-_PIL_FORMATS = {"png": "PNG", "jpeg": "JPEG"}
+# WebP at 85 came to 1.6 times the bytes of lerobot's AV1 videos of 224x224 camera frames, at
+# 44.8 dB PSNR to their decoded frames; JPEG at 95, 6.4 times (bench/RESULTS.md, issue 51).
+DEFAULT_WEBP_QUALITY = 85
+_SCHEMA_NAMES = {
+    "png": "foxglove.CompressedImage",
+    "jpeg": "foxglove.CompressedImage",
+    "webp": "foxglove.CompressedImage",
+    "raw": "foxglove.RawImage",
+}
+_PIL_FORMATS = {"png": "PNG", "jpeg": "JPEG", "webp": "WEBP"}
 _PIL_MODES = {1: "L", 3: "RGB", 4: "RGBA"}
 _RAW_ENCODINGS = {1: "mono8", 3: "rgb8", 4: "rgba8"}
 _JPEG_FORMATS = ("JPEG", "MPO")  # Pillow opens a JPEG with a multi-picture segment as MPO
@@ -101,15 +112,32 @@ def _message_class(codec: str) -> Any:
     return CompressedImage
 
 
-def encode_frames(codec: str, frames: np.ndarray, times: np.ndarray, *, jpeg_quality: int) -> list[bytes]:
-    """The messages of `frames` (uint8, (N, H, W[, C])), frame i stamped `times[i]` ns."""
-    return _map(lambda i: encode_frame(codec, frames[i], int(times[i]), jpeg_quality=jpeg_quality), len(frames))
+def encode_frames(
+    codec: str, frames: np.ndarray, times: np.ndarray, *, jpeg_quality: int, webp_quality: int = DEFAULT_WEBP_QUALITY
+) -> list[bytes]:
+    """The messages of `frames` (uint8, (N, H, W[, C])), frame i stamped `times[i]` ns; a row of
+    `KeptFrames` with a picture of `codec` is stored as that picture."""
+    kept = frames if isinstance(frames, KeptFrames) else None
+
+    def message(i: int) -> bytes:
+        picture = kept.picture(i, codec) if kept is not None else None
+        if picture is not None:
+            return _message_class(codec)(timestamp=_timestamp(int(times[i])), format=codec, data=picture).SerializeToString()
+        return encode_frame(codec, frames[i], int(times[i]), jpeg_quality=jpeg_quality, webp_quality=webp_quality)
+
+    return _map(message, len(frames))
 
 
-def encode_frame(codec: str, frame: np.ndarray, time_ns: int, *, jpeg_quality: int) -> bytes:
+def _timestamp(time_ns: int) -> Any:
     from google.protobuf.timestamp_pb2 import Timestamp
 
-    timestamp = Timestamp(seconds=time_ns // 10**9, nanos=time_ns % 10**9)
+    return Timestamp(seconds=time_ns // 10**9, nanos=time_ns % 10**9)
+
+
+def encode_frame(
+    codec: str, frame: np.ndarray, time_ns: int, *, jpeg_quality: int, webp_quality: int = DEFAULT_WEBP_QUALITY
+) -> bytes:
+    timestamp = _timestamp(time_ns)
     height, width = frame.shape[:2]
     pixels = np.ascontiguousarray(frame.reshape(height, width, -1))
     channels = pixels.shape[2]
@@ -128,6 +156,8 @@ def encode_frame(codec: str, frame: np.ndarray, time_ns: int, *, jpeg_quality: i
     out = io.BytesIO()
     if codec == "png":
         picture.save(out, format="PNG", compress_level=_PNG_LEVEL)
+    elif codec == "webp":
+        picture.save(out, format="WEBP", quality=webp_quality)
     else:
         picture.save(out, format="JPEG", quality=jpeg_quality)
     return _message_class(codec)(timestamp=timestamp, format=codec, data=out.getvalue()).SerializeToString()
@@ -182,7 +212,7 @@ def decode_frame(codec: str, shape: tuple[int, ...], message: bytes | memoryview
 
 
 # The `bytes data` field of each codec's message (RawImage: 6, CompressedImage: 2).
-_DATA_FIELD = {"raw": 6, "png": 2, "jpeg": 2}
+_DATA_FIELD = {"raw": 6, "png": 2, "jpeg": 2, "webp": 2}
 
 
 def _split_data(message: bytes | memoryview, number: int) -> tuple[bytes, memoryview] | None:
@@ -273,6 +303,9 @@ def _compressed_pixels(codec: str, data: bytes | memoryview, height: int, width:
         )
     if picture.format in _JPEG_FORMATS and (problem := excess_scans(data)) is not None:
         raise FrameLimitError(problem)
+    frames = getattr(picture, "n_frames", 1)
+    if codec == "webp" and frames != 1:  # the writer stores one picture per step
+        raise FrameError(f"an animation of {frames} frames, not one picture")
     try:
         picture.load()  # here, not inside np.asarray, which would swallow its errors
         pixels = np.asarray(picture)

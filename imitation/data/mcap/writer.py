@@ -44,7 +44,16 @@ from imitation.data.mcap.format import (
     metadata_crc,
     to_json_text,
 )
-from imitation.data.mcap.images import CODECS, DEFAULT_JPEG_QUALITY, IMAGE_ENCODING, encode_frames, schema_data, schema_name
+from imitation.data.mcap.images import (
+    CODECS,
+    DEFAULT_JPEG_QUALITY,
+    DEFAULT_WEBP_QUALITY,
+    IMAGE_ENCODING,
+    channels_of,
+    encode_frames,
+    schema_data,
+    schema_name,
+)
 from imitation.data.mcap.reader import salvageable_episodes
 from imitation.data.mcap.source import refuse_url
 from imitation.data.spaces import space_to_json
@@ -106,8 +115,11 @@ class DemoWriter:
 
     Image observations (uint8 leaves of shape (H, W) or (H, W, C), C in {1, 3, 4}) are written one
     Foxglove image message per frame, which MCAP viewers show as video: `image_codec` "png"
-    (lossless, the default), "jpeg" (lossy and compact, at `jpeg_quality`; not for 4 channels) or
-    "raw" (lossless, left to the chunk compression). Such files are format version 2. With
+    (lossless, the default), "jpeg" (lossy and compact, at `jpeg_quality`; not for 4 channels),
+    "webp" (lossy and about a third of JPEG's bytes at the same PSNR, at `webp_quality`; not for
+    1 channel) or "raw" (lossless, left to the chunk compression); frames that come as
+    `KeptFrames` with pictures of that codec are stored as those pictures. Such files are format
+    version 2. With
     `image_codec=None` they are blocks of rows like any other leaf, and the file version 1.
     """
 
@@ -132,6 +144,7 @@ class DemoWriter:
         lock: bool = True,
         image_codec: str | None = "png",
         jpeg_quality: int = DEFAULT_JPEG_QUALITY,
+        webp_quality: int = DEFAULT_WEBP_QUALITY,
     ) -> None:
         refuse_url(path)
         self.path = Path(path)
@@ -141,15 +154,20 @@ class DemoWriter:
         self.action_space = action_space
         if image_codec is not None and image_codec not in CODECS:
             raise ImitationError(f"image_codec must be one of {', '.join(CODECS)} or None, got {image_codec!r}")
-        if not (isinstance(jpeg_quality, int) and 1 <= jpeg_quality <= 100):
-            raise ImitationError(f"jpeg_quality must be an integer from 1 to 100, got {jpeg_quality!r}")
-        self._jpeg_quality = jpeg_quality
+        for name, quality in (("jpeg_quality", jpeg_quality), ("webp_quality", webp_quality)):
+            if not (isinstance(quality, int) and 1 <= quality <= 100):
+                raise ImitationError(f"{name} must be an integer from 1 to 100, got {quality!r}")
+        self._jpeg_quality, self._webp_quality = jpeg_quality, webp_quality
         self._fields = fields_for(observation_space, action_space, image_codec)
         self._image_fields = [f for f in self._fields if f.codec is not None]
         for f in self._image_fields:
             if f.codec == "jpeg" and f.shape[2:] == (4,):
                 raise ImitationError(
                     f"{f.topic}: JPEG has no alpha channel for its shape {list(f.shape)}; use image_codec png or raw"
+                )
+            if f.codec == "webp" and channels_of(f.shape) == 1:
+                raise ImitationError(
+                    f"{f.topic}: WebP has no grey pictures for its shape {list(f.shape)}; use image_codec png, jpeg or raw"
                 )
         self._block_steps = block_steps
         self._durable = durable
@@ -237,7 +255,14 @@ class DemoWriter:
         for f in self._fields:
             if f.codec is not None:
                 pixels = dict(tree_leaves(episode.observations))[f.path]
-                frames.append((f, encode_frames(f.codec, pixels, times, jpeg_quality=self._jpeg_quality)))
+                frames.append(
+                    (
+                        f,
+                        encode_frames(
+                            f.codec, pixels, times, jpeg_quality=self._jpeg_quality, webp_quality=self._webp_quality
+                        ),
+                    )
+                )
             elif f.kind in ("observation", "action"):
                 tree = episode.observations if f.kind == "observation" else episode.actions
                 columns.append((f, dict(tree_leaves(tree))[f.path]))
