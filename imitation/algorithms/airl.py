@@ -91,8 +91,6 @@ class ShapedReward:
         self.reward = reward
         self.potential = potential
         self.gamma = gamma
-        self.observation_space = reward.observation_space
-        self.action_space = reward.action_space
 
     def relabel(self, rollout: Rollout) -> torch.Tensor:
         steps, n_envs = rollout.env_rewards.shape

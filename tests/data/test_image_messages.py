@@ -9,7 +9,7 @@ import pytest
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
-from imitation.data.mcap.images import decode_frame, encode_frame, encode_frames
+from imitation.data.mcap.images import FrameError, decode_frame, encode_frame, encode_frames
 
 TIMES = np.array([0, 999_999_999, 1_000_000_000, 1_700_000_123_456_789_012], dtype=np.int64)
 
@@ -57,3 +57,13 @@ def test_jpeg_quality_is_what_the_encoder_is_given() -> None:
     frame = frames((32, 32, 3))[0]
     sizes = [len(encode_frame("jpeg", frame, 0, jpeg_quality=quality)) for quality in (10, 95)]
     assert sizes[0] < sizes[1] / 2
+
+
+def test_a_raw_frame_of_another_geometry_is_refused_naming_both() -> None:
+    message = RawImage(width=4, height=2, encoding="y" * 50, step=12, data=bytes(24)).SerializeToString()
+    with pytest.raises(FrameError) as error:
+        decode_frame("raw", (3, 5, 3), message)
+    assert str(error.value) == f"a 4x2 {'y' * 40} image (step 12), but the channel declares 5x3 rgb8"
+    short = RawImage(width=5, height=3, encoding="mono8", step=5, data=bytes(14)).SerializeToString()
+    with pytest.raises(FrameError, match=r"^14 bytes of pixels, but a 5x3 mono8 image has 15$"):
+        decode_frame("raw", (3, 5), short)
