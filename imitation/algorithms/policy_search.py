@@ -361,7 +361,6 @@ class PolicySearch:
         self.generations = 0
         self.global_step = 0
         self.episodes = 0
-        self.best_score = -math.inf
         self.clock = TrainingClock()
         self.total = self._projected_total()
         load_actor_vector(self.policy, self.search.centre())
@@ -404,7 +403,6 @@ class PolicySearch:
         update = self.search.tell(candidates, centre_score, candidate_scores)
         load_actor_vector(self.policy, self.search.centre())
         self.generations += 1
-        self.best_score = max(self.best_score, float(scores.max()))
         self.total = self._projected_total()
         return {
             "step": float(self.global_step),
@@ -477,7 +475,6 @@ class PolicySearch:
             "generation": self.generations,
             "global_step": self.global_step,
             "episodes": self.episodes,
-            "best_score": self.best_score if math.isfinite(self.best_score) else None,
             "seconds": self.clock.seconds,
             "search": search_state,
         }
@@ -490,7 +487,6 @@ class PolicySearch:
             self.global_step = checked_counter(int(state["global_step"]), "env step", 0, self.config.total_steps)
             self.generations = checked_counter(int(state["generation"]), "next generation", 0, self.global_step)
             self.episodes = int(state["episodes"])
-            self.best_score = -math.inf if state["best_score"] is None else float(state["best_score"])
             self.clock.before = float(state["seconds"])
             self.total = self._projected_total()
             load_actor_vector(self.policy, self.search.centre())

@@ -105,3 +105,11 @@ def test_a_checkpoint_for_another_mdps_shape_is_refused_naming_both_shapes() -> 
     other.random_policy()
     with pytest.raises(ValueError, match=r"policies of shape \(3, 2, 2\), the MDP's are \(2, 2\)"):
         TabularSolver(two_state_mdp(None), 0.9).load_state_dict(snapshot(*other.state_dict()))
+
+
+def test_a_resumed_run_counts_its_training_time_on_from_the_checkpoints() -> None:
+    first = learned()
+    tensors, state = snapshot(*first.state_dict())
+    resumed = Apprenticeship(first.solver, first.mu_expert, first.config)
+    resumed.load_state_dict((tensors, state))
+    assert resumed.state_dict()[1]["seconds"] >= state["seconds"] > 0

@@ -1,0 +1,66 @@
+"""A policy search's checkpoint (imitation.algorithms.policy_search) at its edges: taken before the
+first generation, its counters refused by name when out of range, the projected total it resumes
+with, and CMA-ES's replayed history (its row's σ, and the history a resumed run saves again)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from imitation.algorithms.policy_search import PolicySearch, SearchConfig
+from imitation.checkpoints import snapshot
+from imitation.errors import ImitationError
+
+
+def search(method: str = "cmaes") -> PolicySearch:
+    return PolicySearch(SearchConfig(env_id="CartPole-v1", method=method, population=2, n_envs=3, total_steps=2_100, seed=5))
+
+
+def test_a_checkpoint_before_the_first_generation_resumes_from_the_start() -> None:
+    fresh, resumed, whole = search(), search(), search()
+    resumed.load_state_dict(snapshot(*fresh.state_dict()))
+    assert (resumed.generations, resumed.global_step, resumed.total) == (0, 0, fresh.total)
+    timeless = [{k: v for k, v in learner.step().items() if k != "steps_per_second"} for learner in (resumed, whole)]
+    assert timeless[0] == timeless[1]
+    for learner in (fresh, resumed, whole):
+        learner.close()
+
+
+def test_a_resumed_search_projects_the_total_the_interrupted_one_had() -> None:
+    first = search("cem")
+    for _ in range(2):
+        first.step()
+    resumed = search("cem")
+    resumed.load_state_dict(snapshot(*first.state_dict()))
+    assert resumed.total == first.total and resumed.total > resumed.generations
+    first.close()
+    resumed.close()
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"global_step": 2_101}, "the checkpoint's env step is 2101, outside 0..2100"),
+        ({"generation": 5, "global_step": 4}, "the checkpoint's next generation is 5, outside 0..4"),
+    ],
+)
+def test_a_checkpoints_counters_out_of_range_are_refused_by_name(changes: dict, message: str) -> None:
+    learner = search()
+    tensors, state = snapshot(*learner.state_dict())
+    with pytest.raises(ImitationError, match=message):
+        learner.load_state_dict((tensors, state | changes))
+    learner.close()
+
+
+def test_cmaes_reports_its_step_size_and_a_resumed_run_saves_the_history_it_replayed() -> None:
+    first = search()
+    rows = [first.step() for _ in range(2)]
+    assert rows[-1]["sigma"] == float(first.search.es.sigma) and rows[0]["sigma"] != rows[1]["sigma"]
+    tensors, state = snapshot(*first.state_dict())
+    resumed = search()
+    resumed.load_state_dict((tensors, state))
+    assert resumed.state_dict()[1]["search"] == state["search"]
+    assert len(state["search"]["told"]) == 2 and all(len(losses) == 2 for losses in state["search"]["told"])
+    assert torch.equal(torch.as_tensor(resumed.search.centre()), torch.as_tensor(first.search.centre()))
+    first.close()
+    resumed.close()
