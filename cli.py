@@ -1062,8 +1062,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--image-codec",
         choices=["png", "jpeg", "webp", "raw"],
         default="png",
-        help="how frames are stored: png (lossless), jpeg (lossy, compact), webp (lossy, about a third of jpeg's bytes; "
-        "colour frames only) or raw (lossless, chunk-compressed) (default: png)",
+        help="how frames are stored: png (lossless), jpeg (lossy, compact), webp (lossy, quality 85: about a third of "
+        "jpeg's bytes at its 95; colour frames only) or raw (lossless, chunk-compressed) (default: png)",
     )
     record.add_argument(
         "--action-noise",
@@ -1126,7 +1126,8 @@ def build_parser() -> argparse.ArgumentParser:
         "fields and --write-map writes a starter map. LeRobot datasets (v3.0, v2.1) and npz rollouts (stable-baselines "
         "GAIL, HumanCompatibleAI/imitation) convert "
         "without a map; a bare (episodes, steps, columns) array needs a layout (--layout). Cameras become image "
-        "observations: LeRobot video and image features, and ROS image topics a map names with image:. With --env, end "
+        "observations: LeRobot video and image features, and ROS image topics a map names with image:, stored as "
+        "--image-codec says and resized once by --image-size (or a map entry's resize:). With --env, end "
         "flags that the source cannot tell apart (a time limit or a terminal state) are decided from the env's time "
         "limit, or, for a layout with ends: terminal_state, where the env's own termination rule first holds on the "
         "recorded states (the steps after it are cut).",
@@ -1168,11 +1169,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--image-codec",
         choices=["png", "jpeg", "webp", "raw"],
         default="png",
-        help="how camera frames are stored: png (lossless), jpeg (lossy, quality 95), webp (lossy, quality 85: about "
-        "1.6 times the bytes of LeRobot's AV1 videos at 45 dB PSNR, where jpeg takes 6.4 times; colour frames only) or "
-        "raw (lossless, chunk-compressed). A bag's JPEG or PNG frames, and a LeRobot image feature's, are stored as "
-        "they are when the codec is theirs and they are not resized; video frames are decoded and encoded again "
-        "(default: png)",
+        help="how camera frames are stored: png (lossless), jpeg (lossy, quality 95), webp (lossy, quality 85; colour "
+        "frames only) or raw (lossless, chunk-compressed). Measured on LeRobot's AV1 videos of 224x224 cameras, the "
+        "demo file takes 13.8 times the videos' bytes as png, 5.5 as jpeg, 1.7 as webp (45 dB PSNR). A bag's JPEG or "
+        "PNG frames, and a LeRobot image feature's, are stored as they are when the codec is theirs and they are not "
+        "resized; video frames are decoded and encoded again (default: png)",
     )
     convert.add_argument(
         "--image-quality",

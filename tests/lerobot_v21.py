@@ -32,6 +32,7 @@ TASK = "insert the peg"
 
 
 def source_frames(testdata: Path, name: str, count: int) -> np.ndarray:
+    """The first `count` frames of a video of the test data (all of them, if it has fewer)."""
     import av
 
     frames = []
@@ -44,11 +45,12 @@ def source_frames(testdata: Path, name: str, count: int) -> np.ndarray:
 
 
 def panned(frames: np.ndarray, t: int, period: int) -> np.ndarray:
-    """A SIDE x SIDE window of frame t, moving around the frame once per `period` frames."""
+    """A SIDE x SIDE window of frame t (the footage repeats when it is shorter), moving around the
+    frame once per `period` frames."""
     height, width = frames.shape[1:3]
     x = int((width - SIDE) * (0.5 + 0.5 * np.sin(2 * np.pi * t / period)))
     y = int((height - SIDE) * (0.5 + 0.5 * np.cos(np.pi * t / period)))
-    return frames[t, y : y + SIDE, x : x + SIDE]
+    return frames[t % len(frames), y : y + SIDE, x : x + SIDE]
 
 
 def write_v21(

@@ -603,6 +603,7 @@ def demo_seeds(work: Path) -> list[Files]:
     write_episodes(path, episodes, env_id="Fuzz-v0", observation_space=observation_space, action_space=action_space, block_steps=3, compression="none")
     seeds.append({"demo.mcap": path.read_bytes()})
     seeds.extend({"demo.mcap": image_demo(work / f"images-{codec}.mcap", codec).read_bytes()} for codec in ("png", "jpeg", "raw"))
+    seeds.append({"demo.mcap": image_demo(work / "images-webp.mcap", "webp", grey=False).read_bytes()})
     seeds.append({"demo.mcap": progressive(image_demo(work / "images-jpeg.mcap", "jpeg"), work / "images-progressive.mcap").read_bytes()})
     return seeds
 
@@ -638,25 +639,28 @@ def progressive(path: Path, out: Path) -> Path:
     return out
 
 
-def image_demo(path: Path, codec: str) -> Path:
+def image_demo(path: Path, codec: str, *, grey: bool = True) -> Path:
     """Image observations, one Foxglove image message per frame (format version 2): an RGB
-    (16, 16, 3) and a mono (8, 8) leaf beside a float vector, frames written with `codec`,
-    uncompressed so that the mutations reach the frames' bytes."""
+    (16, 16, 3) and (if `grey`; WebP has none) a mono (8, 8) leaf beside a float vector, frames
+    written with `codec`, uncompressed so that the mutations reach the frames' bytes."""
     import gymnasium as gym
     import numpy as np
 
     from imitation.data.mcap.writer import write_episodes
     from imitation.data.types import Episode
 
-    observation_space = gym.spaces.Dict({"rgb": gym.spaces.Box(0, 255, (16, 16, 3), np.uint8), "mono": gym.spaces.Box(0, 255, (8, 8), np.uint8),
-                                         "vec": gym.spaces.Box(-1, 1, (3,), np.float32)})
+    leaves = {"rgb": gym.spaces.Box(0, 255, (16, 16, 3), np.uint8), "mono": gym.spaces.Box(0, 255, (8, 8), np.uint8),
+              "vec": gym.spaces.Box(-1, 1, (3,), np.float32)}
+    observation_space = gym.spaces.Dict({key: space for key, space in leaves.items() if grey or key != "mono"})
     rng = np.random.default_rng(1)
     episodes = []
     for i, steps in enumerate((4, 6)):
         ramp = np.linspace(0, 255, 16 * 16 * 3).reshape(16, 16, 3)  # smooth pictures, as cameras see them
         episodes.append(Episode(
-            observations={"rgb": np.stack([np.roll(ramp, t, axis=1) for t in range(steps + 1)]).astype(np.uint8),
-                          "mono": rng.integers(0, 256, (steps + 1, 8, 8), dtype=np.uint8), "vec": rng.uniform(-1, 1, (steps + 1, 3)).astype(np.float32)},
+            observations={key: value for key, value in {
+                "rgb": np.stack([np.roll(ramp, t, axis=1) for t in range(steps + 1)]).astype(np.uint8),
+                "mono": rng.integers(0, 256, (steps + 1, 8, 8), dtype=np.uint8), "vec": rng.uniform(-1, 1, (steps + 1, 3)).astype(np.float32),
+            }.items() if key in observation_space.spaces},
             actions=rng.integers(0, 2, steps), rewards=np.ones(steps), terminated=i == 0, truncated=i == 1,
         ))
     return write_episodes(path, episodes, env_id="FuzzPixels-v0", observation_space=observation_space, action_space=gym.spaces.Discrete(2),
@@ -1221,7 +1225,7 @@ def cli_seeds(work: Path) -> list[Files]:
 TARGETS = {
     target.name: target
     for target in (
-        Target("demo", "MCAP demo reader + info + bulk loader (bundled datasets/*.mcap, a Dict-space file, image files: png, jpeg, progressive jpeg, raw)", demo_seeds, demo_mutate, demo_run),
+        Target("demo", "MCAP demo reader + info + bulk loader (bundled datasets/*.mcap, a Dict-space file, image files: png, jpeg, progressive jpeg, raw, webp)", demo_seeds, demo_mutate, demo_run),
         Target("run", "run directories: load_policy and load_reward (config.json + model.safetensors)", run_seeds, run_mutate, run_run),
         Target("npz", "npz converter (SB GAIL and imitation layouts)", npz_seeds, npz_mutate, npz_run, needs_testdata=True),
         Target("lerobot", "LeRobot converter (v2.1 and v3.0: meta/*.json(l), parquet, an H.264 camera video)", lerobot_seeds, lerobot_mutate, lerobot_run, needs_testdata=True),

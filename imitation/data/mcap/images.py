@@ -37,8 +37,8 @@ from imitation.data.kept_frames import KeptFrames
 IMAGE_ENCODING = "protobuf"
 CODECS = ("png", "jpeg", "raw", "webp")
 DEFAULT_JPEG_QUALITY = 95
-# WebP at 85 came to 1.6 times the bytes of lerobot's AV1 videos of 224x224 camera frames, at
-# 44.8 dB PSNR to their decoded frames; JPEG at 95, 6.4 times (bench/RESULTS.md, issue 51).
+# WebP at 85: a demo file of 1.7 times the bytes of lerobot's AV1 videos of 224x224 cameras, at
+# 45.5 dB PSNR to their decoded frames; JPEG at 95 takes 5.5 times (bench/RESULTS.md, issue 51).
 DEFAULT_WEBP_QUALITY = 85
 _SCHEMA_NAMES = {
     "png": "foxglove.CompressedImage",
