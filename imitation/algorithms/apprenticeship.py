@@ -420,7 +420,15 @@ class Apprenticeship:
             "mu_bar": torch.as_tensor(self.mu_bar),
         }
         solver_tensors, solver_state = self.solver.state_dict()
-        state = {"iteration": self.iterations + 1, "seconds": self.clock.seconds, "solver": solver_state}
+        state = {
+            "iteration": self.iterations + 1,
+            "seconds": self.clock.seconds,
+            "solver": solver_state,
+            # Why the run stopped before its budget, if it did: a run resumed after its last step
+            # (from a Ctrl-C in its final evaluation) must not iterate on.
+            "converged": self.converged,
+            "stalled": self.stalled,
+        }
         return tensors | prefixed("solver", solver_tensors), state
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
@@ -433,6 +441,7 @@ class Apprenticeship:
             self.mu_bar = tensors["mu_bar"].double().numpy().reshape(len(self.mu_expert))
             self.solver.load_state_dict((unprefixed("solver", tensors), state["solver"]))
             self.clock.before = float(state["seconds"])
+            self.converged, self.stalled = bool(state.get("converged", False)), bool(state.get("stalled", False))
 
 
 def mixture_summary(learner: Apprenticeship) -> dict[str, Any]:

@@ -14,6 +14,8 @@ from imitation.algorithms.apprenticeship import (
     ApprenticeshipConfig,
     TabularSolver,
     mixture_summary,
+    projection_step,
+    reward_weights,
     set_reward_weights,
     tabular_feature_reward,
 )
@@ -113,3 +115,33 @@ def test_a_resumed_run_counts_its_training_time_on_from_the_checkpoints() -> Non
     resumed = Apprenticeship(first.solver, first.mu_expert, first.config)
     resumed.load_state_dict((tensors, state))
     assert resumed.state_dict()[1]["seconds"] >= state["seconds"] > 0
+
+
+def test_small_distances_and_steps_are_normalised_and_projected_too() -> None:
+    weights, distance = reward_weights(np.array([0.3, 0.4]), np.zeros(2))
+    assert distance == pytest.approx(0.5) and weights.tolist() == pytest.approx([0.6, 0.8])
+    # μ̄ = 0, μ = (0.1, 0), μ_E = (0.05, 1): α = (0.1 · 0.05) / 0.01 = 0.5.
+    mu_bar, alpha = projection_step(np.zeros(2), np.array([0.1, 0.0]), np.array([0.05, 1.0]))
+    assert alpha == pytest.approx(0.5) and mu_bar.tolist() == pytest.approx([0.05, 0.0])
+    ApprenticeshipConfig(iterations=1).validate()
+
+
+@pytest.mark.parametrize("why", ["converged", "stalled"])
+def test_a_run_stopped_early_stays_stopped_when_resumed_from_its_last_checkpoint(why: str) -> None:
+    """A run that converged (or stalled) before its iteration budget, interrupted after its last
+    checkpoint (during the final evaluation): the resumed run is done, as the uninterrupted one
+    was, and reports the same reason."""
+    if why == "converged":
+        mdp = tabular_mdp_of(make_env(ENV_ID), where="test")
+        episodes = DemoDataset([DATASETS / "GridWorld8x8Slippery-v0.mcap"]).read_episodes()
+        mu_expert = demo_visitation(episodes, n_states=mdp.n_states, horizon=mdp.horizon, discount=1.0) @ mdp.features
+        config = ApprenticeshipConfig(iterations=50, tolerance=0.05)
+    else:  # μ_E = (0, 3) in the two-state MDP: the policy that stays in state 0 is all a reward can ask for
+        mdp, mu_expert, config = two_state_mdp(3), np.array([0.0, 3.0]), ApprenticeshipConfig(iterations=50, tolerance=0.0)
+    whole = Apprenticeship(TabularSolver(mdp, 1.0), mu_expert, config)
+    while not whole.done:
+        whole.step()
+    assert whole.iterations < 50 and (whole.converged, whole.stalled) == (why == "converged", why == "stalled")
+    resumed = Apprenticeship(TabularSolver(mdp, 1.0), mu_expert, config)
+    resumed.load_state_dict(snapshot(*whole.state_dict()))
+    assert resumed.done and (resumed.converged, resumed.stalled) == (whole.converged, whole.stalled)

@@ -29,7 +29,10 @@ def random_steps(env, steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     return np.array(observations), np.array(actions), np.array(next_observations), np.array(rewards), infos
 
 
-@pytest.mark.parametrize("env_id", ["Pendulum-v1", "imitation/CartPoleFixedHorizon-v0", "CartPole-v1", "MountainCar-v0", "imitation/GridWorld8x8Slippery-v0"])
+@pytest.mark.parametrize(
+    "env_id",
+    ["Pendulum-v1", "imitation/CartPoleFixedHorizon-v0", "CartPole-v1", "MountainCar-v0", "imitation/GridWorld8x8Slippery-v0"],
+)
 def test_true_reward_matches_the_env_step(env_id: str) -> None:
     env = make_env(env_id)
     reward = true_reward(env_id, env)
@@ -103,3 +106,37 @@ def test_mujoco_healthy_bonus_is_the_envs_own_on_poses_at_its_limits(name, z_ind
         expected.append(float(model.is_healthy))
     np.testing.assert_allclose(bonus, expected, atol=1e-9)
     assert 0 < np.mean(expected) < 1
+
+
+def test_ants_healthy_bonus_holds_at_both_height_limits_and_is_lost_only_by_a_non_finite_state() -> None:
+    """Ant-v5 is healthy with z in [0.2, 1] inclusive and every coordinate finite, state by state:
+    a non-finite coordinate in one state costs that state its bonus, not the batch's others."""
+    env_id = "imitation/AntFixedHorizon-v0"
+    env = make_env(env_id)
+    reward = true_reward(env_id, env)
+    assert reward is not None
+    env.reset(seed=0)
+    model = env.unwrapped
+    poses = []
+    for z in (0.2, 1.0):
+        position = model.init_qpos.copy()
+        position[2] = z
+        model.set_state(position, model.init_qvel)
+        assert model.is_healthy
+        poses.append(model._get_obs())
+    states = np.stack(poses + [poses[0].copy()])
+    states[2, 20] = np.nan  # a velocity, not z or the forward speed
+    still = np.zeros((3, *env.action_space.shape))
+    bonus = reward(states, still, states) - states[:, SPEED_INDEX["Ant"]] + 5e-4 * np.sum(states[:, 27:] ** 2, axis=1)
+    assert bonus[:2].tolist() == pytest.approx([1.0, 1.0])
+
+
+def test_a_tabular_reward_reads_states_given_as_a_column_or_as_floats() -> None:
+    env_id = "imitation/GridWorld8x8-v0"
+    env = make_env(env_id)
+    reward = true_reward(env_id, env)
+    assert reward is not None
+    expected = np.asarray(env.unwrapped.mdp.reward)[[0, 5, 63]]
+    column = np.array([[0], [5], [63]])
+    assert reward(column, np.zeros(3), column).tolist() == expected.tolist()
+    assert reward(column.astype(np.float32).ravel(), np.zeros(3), column.ravel()).tolist() == expected.tolist()
