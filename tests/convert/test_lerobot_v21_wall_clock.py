@@ -159,3 +159,21 @@ def test_the_set_is_lerobots_own(wall_clock_set: Path) -> None:
             assert (stream.codec_context.width, stream.codec_context.height) == (224, 224)
             times = [float(frame.pts * stream.time_base) for frame in container.decode(stream)]
         assert times == pytest.approx(list(np.arange(len(times)) / FPS), abs=1e-9)
+
+
+def test_damaged_timestamps_leave_frames_to_frame_index(wall_clock_set: Path, tmp_path: Path) -> None:
+    import pyarrow as pa
+
+    root = copy_of(wall_clock_set, tmp_path)
+    path = root / "data/chunk-000/episode_000001.parquet"
+    table = pq.read_table(path)
+    stamps = table.column("timestamp").to_numpy().copy()
+    stamps[3] = np.nan
+    pq.write_table(table.set_column(table.schema.get_field_index("timestamp"), "timestamp", pa.array(stamps)), path)
+    converted = lerobot_to_episodes(root, progress=False)
+    assert (
+        f"{root}: the rows' timestamps are not all finite numbers; video frames are placed by frame_index at the videos' "
+        f"{FPS} fps (--video-tolerance S places them by timestamp instead)"
+    ) in converted.warnings
+    assert converted.metadata["video_frames"] == {"placed_by": "frame_index", "tolerance_s": 1e-4, "timestamp_gap_s": None}
+    assert np.array_equal(converted.episodes[1].observations["images.top"], expected_frames(root, "images.top", 1))

@@ -168,10 +168,9 @@ def lerobot_to_episodes(
         read = _read_v30(root, info, wanted, optional, image_keys, video_keys, progress)
     else:
         read = _read_v21(root, info, wanted, optional, image_keys, video_keys, progress)
-    columns = {
-        key: _shaped(root, key, values, features.get(key, {})) if key not in _PLACING else values.reshape(-1)
-        for key, values in read.columns.items()
-    }
+    columns = {key: _shaped(root, key, values, features.get(key, {})) for key, values in read.columns.items()}
+    # One number per row, declared or not.
+    columns |= {key: _shaped(root, key, read.columns[key], {"shape": [1]}).reshape(-1) for key in _PLACING if key in columns}
     if len(columns["episode_index"]) == 0:
         raise ImitationError(f"{root}: the dataset holds no frames")
     placement = None
@@ -266,15 +265,20 @@ def _placement(
     gap = None
     if stamps is not None and indices is not None:
         gap = float(np.max(np.abs(stamps.astype(np.float64) - indices / float(fps)), initial=0.0))
+        gap = gap if math.isfinite(gap) else None  # NaN or inf stamps: damage, and no distance to report
     if stamps is not None and (indices is None or tolerance_s is not None or (gap is not None and gap <= tolerance)):
         return _Placement("timestamp", tolerance, gap)
     if stamps is None:
         warnings.append(f"{root}: no timestamp column; video frames are placed by frame_index at the videos' {fps:g} fps")
     else:
-        assert gap is not None
+        strayed = (
+            f"stray from frame_index / fps by up to {gap * 1e3:.1f} ms, more than lerobot's {TOLERANCE_S} s (stamped by a "
+            "wall clock?)"
+            if gap is not None
+            else "are not all finite numbers"
+        )
         warnings.append(
-            f"{root}: the rows' timestamps stray from frame_index / fps by up to {gap * 1e3:.1f} ms, more than lerobot's "
-            f"{TOLERANCE_S} s (stamped by a wall clock?); video frames are placed by frame_index at the videos' {fps:g} fps "
+            f"{root}: the rows' timestamps {strayed}; video frames are placed by frame_index at the videos' {fps:g} fps "
             "(--video-tolerance S places them by timestamp instead)"
         )
     return _Placement("frame_index", TOLERANCE_S, gap)
