@@ -145,3 +145,42 @@ def test_a_run_stopped_early_stays_stopped_when_resumed_from_its_last_checkpoint
     resumed = Apprenticeship(TabularSolver(mdp, 1.0), mu_expert, config)
     resumed.load_state_dict(snapshot(*whole.state_dict()))
     assert resumed.done and (resumed.converged, resumed.stalled) == (whole.converged, whole.stalled)
+
+
+@pytest.mark.parametrize("mu_expert", [(0.3, 0.4), (0.0, 0.0), (2.0, 1.0)], ids=["short", "zero", "long"])
+def test_each_iterations_row_restates_the_projection(mu_expert: tuple[float, float]) -> None:
+    """The row of iteration i: t = ‖μ_E − μ̄‖ before it (the margin), α, ‖μ_E − μ̄‖ after it, that
+    over ‖μ_E‖ (or itself when μ_E = 0), and the new policy's own distance ‖μ^(i) − μ_E‖."""
+    target = np.array(mu_expert)
+    learner = Apprenticeship(TabularSolver(two_state_mdp(3), 1.0), target, ApprenticeshipConfig(iterations=3, tolerance=0.0))
+    scale = float(np.linalg.norm(target))
+    for i in range(1, 4):
+        before = learner.mu_bar.copy() if i > 1 else None
+        row = learner.step()
+        if before is None:
+            before = learner.mus[0]
+        distance = float(np.linalg.norm(target - learner.mu_bar))
+        assert row == pytest.approx(
+            {
+                "iteration": float(i),
+                "distance": distance,
+                "relative_distance": distance / scale if scale else distance,
+                "margin": float(np.linalg.norm(target - before)),
+                "alpha": learner.lambdas[-1],
+                "policy_distance": float(np.linalg.norm(learner.mus[-1] - target)),
+            }
+        )
+        if learner.done:
+            break
+
+
+def test_a_distance_exactly_at_the_tolerance_has_converged() -> None:
+    """‖μ_E‖ = 1, so the tolerance is the distance itself; features ¼ keep μ within reach of it."""
+    mdp = two_state_mdp(3)
+    mdp = TabularMDP(transition=mdp.transition, initial=mdp.initial, features=mdp.features / 4, reward=mdp.reward, horizon=3)
+    target = np.array([0.0, 1.0])
+    probe = Apprenticeship(TabularSolver(mdp, 1.0), target, ApprenticeshipConfig(iterations=1, tolerance=0.0))
+    probe.step()
+    learner = Apprenticeship(TabularSolver(mdp, 1.0), target, ApprenticeshipConfig(iterations=5, tolerance=probe.distance))
+    learner.step()
+    assert learner.distance == probe.distance > 0 and learner.converged and learner.done
