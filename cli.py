@@ -324,8 +324,14 @@ def _hidden_sizes(text: str) -> list[int]:
 
 def cmd_train_bc(args: argparse.Namespace) -> int:
     from imitation.algorithms.bc import BCConfig
+    from imitation.data.frame_transform import parse_crop
+    from imitation.data.image_resize import parse_image_size
     from imitation.jobs.bc import bc_job
 
+    if args.image_size is not None:
+        args.image_size = list(parse_image_size(args.image_size, "--image-size"))
+    if args.crop is not None:
+        args.crop = list(parse_crop(args.crop))
     result = bc_job(
         args.demos, args.env, BCConfig(**_fields(args, "BCConfig")), args.out, progress=not args.quiet, resume=args.resume
     )
@@ -736,6 +742,8 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "frame_stack": "--frame-stack",
             "random_shift": "--random-shift",
             "observation_keys": "--observation-keys",
+            "image_size": "--image-size",
+            "crop": "--crop",
             "stream_memory": "--stream-memory",
             "steps": "--steps",
             "mixed_precision": "--mixed-precision",
@@ -1394,6 +1402,18 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="K,K",
         help="Dict observations: the keys the policy reads (default: the frames alone for demos recorded with --pixels, "
         "every key otherwise)",
+    )
+    bc.add_argument(
+        "--image-size",
+        metavar="HxW",
+        help="camera frames: resize every frame to H×W (area averaging) as the demos load, e.g. 96x96; the policy keeps "
+        "the size and the env it is evaluated in resizes its frames the same way (default: as stored)",
+    )
+    bc.add_argument(
+        "--crop",
+        metavar="T,L,H,W",
+        help="camera frames: keep only this rectangle (top, left, height, width in pixels of the stored frames) before "
+        "--image-size resizes them; kept by the policy like the size (default: the whole frame)",
     )
     bc.add_argument(
         "--stream-memory",

@@ -101,6 +101,16 @@ def cnn_weight_count(planes: int, height: int, width: int, config: CNNConfig) ->
     return count + planes * max(rows, 0) * max(columns, 0) * config.features
 
 
+def cnn_activation_count(height: int, width: int, config: CNNConfig) -> int:
+    """Numbers the convolutions' outputs hold for one sample (what a training step keeps for the
+    backward pass, per conv layer, besides its input)."""
+    count = 0
+    for out, kernel, stride in zip(config.channels, config.kernels, config.strides):
+        height, width = (height - kernel) // stride + 1, (width - kernel) // stride + 1
+        count += out * max(height, 0) * max(width, 0)
+    return count
+
+
 def random_shift(frames: torch.Tensor, pad: int, generator: torch.Generator | None = None) -> torch.Tensor:
     """Each sample of (batch, k, H, W, C) frames shifted by its own (dy, dx) in {−pad, …, pad}²,
     edges replicated (module docstring); the k frames of a sample move together."""

@@ -44,10 +44,18 @@ import torch
 from torch import nn
 from torch.distributions import Categorical, Distribution, Normal, kl_divergence, register_kl
 
+from imitation.data.frame_transform import FrameTransform
 from imitation.data.spaces import check_spaces_fit, describe_space, space_from_json, space_to_json
 from imitation.encoders import CNNConfig, ImageEncoder, cnn_weight_count, conv_output_sides, random_shift
 from imitation.envs.make import make_env
-from imitation.envs.pixels import PixelObservation, PixelRecipe, StackFrames, is_image_space, make_pixel_env
+from imitation.envs.pixels import (
+    PixelObservation,
+    PixelRecipe,
+    StackFrames,
+    TransformFrames,
+    is_image_space,
+    make_pixel_env,
+)
 from imitation.envs.previous_action import PreviousActionObservation
 from imitation.errors import ImitationError, SpaceError
 from imitation.limits import LIMITS, over_limit
@@ -125,11 +133,14 @@ class PolicyConfig:
     # Box actions: the observation is x_t = [s_t, a_{t-1}, 1{t=0}] and μ is a_{t-1} plus the head's output.
     previous_action: bool = False
     # Pixel observations: the leaves read (top-level keys; None: all), frames per image leaf, the
-    # CNN for image leaves, and how the acting env renders its frames (`acting_env`).
+    # CNN for image leaves, how the acting env renders its frames (`make_acting_env`), and the
+    # crop and size its frames are brought to, as the demos' were when loaded (`acting_env`,
+    # `FrameTransform.to_json`).
     observation_keys: list[str] | None = None
     frame_stack: int = 1
     cnn: dict[str, Any] | None = None
     pixels: dict[str, Any] | None = None
+    image_transform: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -152,6 +163,8 @@ class PolicyConfig:
                 "activation must be a name, shared_trunk, normalize_observations/actions and previous_action true or false"
             )
         check_image_fields(config.observation_keys, config.frame_stack, config.cnn, config.pixels)
+        if config.image_transform is not None:
+            FrameTransform.from_json(config.image_transform)
         if (
             isinstance(config.log_std_init, bool)
             or not isinstance(config.log_std_init, (int, float))
@@ -200,6 +213,20 @@ def check_weights_cover(path: Any, planned: int, weights: dict[str, torch.Tensor
     if planned > held:
         raise ImitationError(
             f"{path}: its config describes a network of at least {planned} weights, but its weights file holds {held} numbers"
+        )
+
+
+def check_cnn_size(layout: ObservationLayout, cnn: CNNConfig) -> None:
+    """Refuse, before any weight is allocated, CNNs on the layout's image leaves that hold more
+    than `LIMITS.policy_parameters` weights: their last linear layer grows with the frames' area
+    (the default CNN on 480×640 frames holds 139 million weights, on 96×96 2 million)."""
+    weights = sum(cnn_weight_count(leaf.frames * leaf.channels, leaf.height, leaf.width, cnn) for leaf in layout.images)
+    if weights > LIMITS.policy_parameters:
+        sides = ", ".join(sorted({f"{leaf.height}×{leaf.width}" for leaf in layout.images}))
+        raise ImitationError(
+            f"the CNN on {sides} frames would hold {weights} weights, more than the limit policy_parameters="
+            f"{LIMITS.policy_parameters}: train on smaller frames (train bc --image-size 96x96 resizes them as they load) "
+            "or raise the limit with `imitation --limit policy_parameters=N`"
         )
 
 
@@ -468,6 +495,7 @@ class ActorCritic(nn.Module):
         if self.layout is None:
             return []
         cnn = CNNConfig.from_json(self.config.cnn or {})
+        check_cnn_size(self.layout, cnn)
         encoders = []
         for leaf in self.layout.images:
             if min(conv_output_sides(leaf.height, leaf.width, cnn)) < 1:
@@ -785,8 +813,11 @@ def load_policy(path: str | os.PathLike) -> ActorCritic:
 
 def acting_env(policy: ActorCritic, env: gym.Env) -> gym.Env:
     """`env` as `policy` observes it: with x_t = [s_t, a_{t-1}, 1{t=0}] for a policy of the
-    previous action, its image leaves stacked for a policy of frame stacks (`env` renders the
-    frames already: `make_acting_env`)."""
+    previous action, its image leaves cropped and resized as the policy's demos were
+    (`TransformFrames`), then stacked for a policy of frame stacks (`env` renders the frames
+    already: `make_acting_env`)."""
+    if policy.config.image_transform is not None:
+        env = TransformFrames(env, FrameTransform.from_json(policy.config.image_transform))
     if policy.config.frame_stack > 1:
         env = StackFrames(env, policy.config.frame_stack)
     return PreviousActionObservation(env) if policy.config.previous_action else env

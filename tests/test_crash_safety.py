@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -134,10 +135,12 @@ def test_ctrl_c_during_train_bc_keeps_a_checkpoint_that_resume_finishes(tmp_path
     partial = tmp_path / "bc.partial"
     args = ["train", "bc", "--demos", str(DATASETS / "CartPole-v1.mcap"), "--env", "CartPole-v1", "--epochs", "20", "--patience", "20", "--hidden", "32,32", "--quiet", "--out", str(out)]
     message = interrupt_after_first_checkpoint(*args, out=out)
-    assert message.startswith("interrupted: BC stopped after epoch ") and f"of 20; its checkpoint is in {partial}" in message
-    stopped_at = int(message.split("after epoch ")[1].split(" ")[0])
+    # at the next minibatch, within an epoch (or at its end)
+    stopped = re.match(r"interrupted: BC stopped after (?:batch \d+ of \d+ in epoch (\d+)|epoch (\d+)) of 20; its checkpoint is in ", message)
+    assert stopped is not None and f"its checkpoint is in {partial}" in message, message
+    finished = int(stopped[1]) - 1 if stopped[1] else int(stopped[2])
     tensors, state = read_checkpoint(partial)
-    assert state["trainer"]["epoch"] == stopped_at + 1 and len(state["history"]) == stopped_at
+    assert state["trainer"]["epoch"] == finished + 1 and len(state["history"]) == finished
     config = json.loads((partial / "config.json").read_text())
     policy = ActorCritic(PolicyConfig.from_json(config["policy"]))
     policy.load_state_dict({name.removeprefix("policy."): t for name, t in tensors.items() if name.startswith("policy.")})

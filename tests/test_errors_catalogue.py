@@ -734,6 +734,11 @@ CASE_LIST = [
                                 "--epochs", "1", "--quiet", "--out", i.root / "t43"], expect="--stream-memory streams"),
     case("train-45", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--threads", "0", "--out", i.root / "t45"), expect="--threads must"),
     case("train-50", lambda i: ["train", "ppo", "--env", "CartPole-v1", "--shaped", "--out", i.root / "t50"]),
+    case("train-52", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--image-size", "40x40", "--out", i.root / "t52")),
+    case("train-53", lambda i: ["train", "bc", "--demos", _camera_demos(i, 48, 64), "--crop", "0,0,60,64", "--quiet", "--out", i.root / "t53"]),
+    case("train-54", lambda i: ["train", "bc", "--demos", _camera_demos(i, 480, 640), "--quiet", "--out", i.root / "t54"]),
+    case("train-55", lambda i: ["train", "bc", "--demos", _camera_demos(i, 256, 256), "--batch-size", "100000", "--epoch-samples", "100000", "--quiet",
+                                "--out", i.root / "t55"]),
     case("train-44", lambda i: _bc(DATASETS / "CartPole-v1.mcap", "--stream-memory", "0.001", "--batch-size", "256", "--out", i.root / "t44")),
     case("irl-1", lambda i: ["train", "irl", "--env", "imitation/GridWorld8x8-v0", "--demos", DATASETS / "GridWorld8x8-v0.mcap", "--discount", "0", "--out", i.root / "i1"],
          expect="--discount must"),
@@ -1062,6 +1067,22 @@ def _multidiscrete_demos(i: Inputs) -> Path:
     episode = Episode(observations=np.zeros((4, 2), np.int64), actions=np.zeros((3, 1), np.float32), rewards=np.zeros(3))
     return write_episodes(i.path("multidiscrete-obs.mcap"), [episode, episode], env_id="", observation_space=gym.spaces.MultiDiscrete([3, 3]),
                           action_space=gym.spaces.Box(-1, 1, (1,), np.float32))
+
+
+def _camera_demos(i: Inputs, height: int, width: int) -> Path:
+    """Two short episodes of H×W camera frames (PNG) beside a state, written by the demo writer."""
+    from imitation.data.mcap.writer import write_episodes
+    from imitation.data.types import Episode
+
+    path = i.path(f"camera-{height}x{width}.mcap")
+    if path.exists():
+        return path
+    space = gym.spaces.Dict({"pixels": gym.spaces.Box(0, 255, (height, width, 3), np.uint8), "state": gym.spaces.Box(-1, 1, (2,), np.float32)})
+    frames = np.broadcast_to(np.arange(width, dtype=np.uint8)[None, :, None], (4, height, width, 3))
+    episode = Episode(observations={"pixels": np.ascontiguousarray(frames), "state": np.zeros((4, 2), np.float32)},
+                      actions=np.zeros((3, 1), np.float32), rewards=np.zeros(3))
+    return write_episodes(path, [episode, episode], env_id="", observation_space=space, action_space=gym.spaces.Box(-1, 1, (1,), np.float32),
+                          image_codec="png")
 
 
 def _multibinary_demos(i: Inputs) -> Path:

@@ -36,6 +36,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol, cast
 
+import gymnasium as gym
 import numpy as np
 import torch
 
@@ -51,11 +52,21 @@ from imitation.checkpoints import (
     rng_checkpoint,
     unprefixed,
 )
+from imitation.data.frame_transform import FrameTransform
+from imitation.data.image_resize import MAX_SIDE
 from imitation.data.loader import MinibatchLoader, TransitionTensors, resolve_device
 from imitation.data.stream import StreamingLoader
+from imitation.encoders import CNNConfig, cnn_activation_count, cnn_weight_count
 from imitation.errors import ConfigError, ImitationError
 from imitation.flat_adam import FlatAdam
-from imitation.policies import ActorCritic, RunningMeanStd
+from imitation.policies import (
+    ActorCritic,
+    RunningMeanStd,
+    action_logits_size,
+    mlp_weight_count,
+    observation_layout,
+    observation_size,
+)
 
 LOSSES = ("nll", "mse")
 STEPS = ("all", "human")
@@ -98,6 +109,10 @@ class BCConfig:
     random_shift: int = 4
     observation_keys: list[str] | None = None
     cnn: dict[str, Any] | None = None
+    # Camera frames cropped to [top, left, height, width] and resized to [height, width] as they
+    # load (`FrameTransform`); the policy keeps both, so the env it acts in does the same.
+    image_size: list[int] | None = None
+    crop: list[int] | None = None
     # Bytes of decoded transitions a streaming run may hold (imitation.data.stream): None loads
     # the demos into memory; a number streams shuffled batches from them, for image datasets
     # larger than memory.
@@ -133,6 +148,7 @@ class BCConfig:
             raise ConfigError("threads", f"must be in [1, 1024], got {self.threads}", owner="BCConfig")
         if self.steps not in STEPS:
             raise ConfigError("steps", f"must be one of {', '.join(STEPS)}, got {self.steps!r}", owner="BCConfig")
+        self.frame_transform()
         if self.stream_memory is not None and self.stream_memory < 1:
             raise ConfigError("stream_memory", f"must be at least 1 byte, got {self.stream_memory}", owner="BCConfig")
         for name in ("epochs", "batch_size", "patience"):
@@ -142,6 +158,24 @@ class BCConfig:
             raise ConfigError(
                 "learning_rate", f"must be a positive number below 1e30, got {self.learning_rate}", owner="BCConfig"
             )
+
+    def frame_transform(self) -> FrameTransform | None:
+        """The crop and size frames load at (None: as stored); ConfigError for malformed ones."""
+        if self.image_size is not None and not _sides(self.image_size, 2, 1):
+            raise ConfigError(
+                "image_size", f"must be [height, width], each 1 to {MAX_SIDE}, got {self.image_size!r:.40}", owner="BCConfig"
+            )
+        if self.crop is not None and not (_sides(self.crop, 4, 0) and min(self.crop[2:]) >= 1):
+            raise ConfigError(
+                "crop",
+                f"must be [top, left, height, width], height and width 1 to {MAX_SIDE}, got {self.crop!r:.40}",
+                owner="BCConfig",
+            )
+        if self.image_size is None and self.crop is None:
+            return None
+        size = (self.image_size[0], self.image_size[1]) if self.image_size is not None else None
+        crop = (self.crop[0], self.crop[1], self.crop[2], self.crop[3]) if self.crop is not None else None
+        return FrameTransform(size, crop)
 
     def validate_data_parallel(self, processes: int) -> None:
         """Refuse what a data-parallel run of `processes` processes cannot do."""
@@ -158,6 +192,14 @@ class BCConfig:
                 "streams no data under torchrun (each process loads its share of the demos into memory); leave it unset",
                 owner="BCConfig",
             )
+
+
+def _sides(values: Any, count: int, low: int) -> bool:
+    return (
+        isinstance(values, list)
+        and len(values) == count
+        and all(isinstance(n, int) and not isinstance(n, bool) and low <= n <= MAX_SIDE for n in values)
+    )
 
 
 class DataParallel(Protocol):
@@ -209,9 +251,11 @@ def _mean_loss(policy: ActorCritic, data: TransitionTensors | StreamingLoader, c
 
 
 def _loss_sum(policy: ActorCritic, data: TransitionTensors | StreamingLoader, config: BCConfig) -> tuple[float, int]:
-    """The fit's sum over `data`, and its rows."""
+    """The fit's sum over `data`, and its rows: in-memory data in pieces of 4096 rows, or of a
+    training batch for a policy with a CNN, whose activations then stay within a training step's."""
     streamed = isinstance(data, StreamingLoader)
-    batches = data if isinstance(data, StreamingLoader) else MinibatchLoader(data, batch_size=4096, shuffle=False)
+    piece = config.batch_size if len(policy.image_encoders) else 4096
+    batches = data if isinstance(data, StreamingLoader) else MinibatchLoader(data, batch_size=piece, shuffle=False)
     count = data.transitions if isinstance(data, StreamingLoader) else len(data)
     device = next(policy.parameters()).device
     with torch.no_grad():
@@ -360,6 +404,12 @@ class BehaviouralCloning:
         self.samples = 0
         self.stopped = False
         self.clock = TrainingClock()
+        # Within the current epoch: the batches taken and their fits, the loader's generator as
+        # the epoch began (it draws the epoch's order), and whether Ctrl-C asked to stop (`stop_when`).
+        self.batch, self.epoch_start = 0, self.loader.generator_state()
+        self.fits: list[float] = []
+        self._stop_requested: Callable[[], bool] = lambda: False
+        self._within = ""
 
     @property
     def completed(self) -> int:
@@ -370,20 +420,40 @@ class BehaviouralCloning:
         return self.stopped or self.epochs >= self.total
 
     def position(self) -> str:
+        if self.batch:
+            return f"batch {self.batch} of {len(self.loader)} in epoch {self.epochs + 1} of {self.total}"
         return f"epoch {self.epochs} of {self.total}"
+
+    def stop_when(self, requested: Callable[[], bool]) -> None:
+        """Stop an epoch between minibatches once `requested()` (`imitation.jobs.loop.Interruptible`)."""
+        self._stop_requested = requested
+
+    def within(self) -> str:
+        return self._within
 
     def progress(self, row: dict[str, float]) -> dict[str, str]:
         shown = {"train": f"{row['train_loss']:.3f}", "val": f"{row['validation_loss']:.3f}"}
         return shown | ({"ret": f"{row['return']:.1f}"} if np.isfinite(row["return"]) else {})
 
-    def step(self) -> dict[str, float]:
+    def step(self) -> dict[str, float] | None:
         """One epoch of minibatch steps on the loss; then the validation loss, the best weights,
-        the early stop, and the evaluation when one is due."""
+        the early stop, and the evaluation when one is due. Stopped between minibatches at a
+        request (`stop_when`), None: the epoch goes on from there (after a checkpoint, on --resume)."""
         self.clock.start()
         epoch = self.epochs + 1
-        fits = []
+        if self.batch == 0:
+            self.epoch_start, self.fits = self.loader.generator_state(), []
+        else:  # the epoch stopped midway: its order drawn again, the batches taken left out
+            self.loader.set_generator_state(self.epoch_start)
+        fits = self.fits
         streamed = isinstance(self.loader, StreamingLoader)
-        for batch in self.loader:
+        batches = len(self.loader)
+        taken = 0
+        for batch in self.loader.batches(skip=self.batch):
+            if taken and self._stop_requested():
+                self._within = ""
+                return None
+            self._within = f"batch {self.batch + 1} of {batches}"
             if streamed:  # streamed batches arrive on the CPU
                 batch = batch.to(self.device)
             with torch.autocast(self.device.type, dtype=self.half, enabled=self.config.mixed_precision):
@@ -398,6 +468,9 @@ class BehaviouralCloning:
             self.scaler.update()
             fits.append(parts["fit"])
             self.samples += len(batch) * (self.parallel.world_size if self.parallel is not None else 1)
+            self.batch, taken = self.batch + 1, taken + 1
+        self.batch = 0
+        self._within = "validation loss"
         validation = self.validation
         if self.parallel is None:
             train_loss = float(np.mean(fits))
@@ -422,9 +495,11 @@ class BehaviouralCloning:
             "samples_per_second": self.samples / self.clock.seconds,
         }
         if self.evaluate is not None and (epoch % self.evaluate_every == 0 or self.done):
+            self._within = "evaluation"
             self.policy.eval()
             row["return"] = self.evaluate(self.policy)
             self.policy.train()
+        self._within = ""
         if self.done:
             self.policy.load_state_dict(self.best_state)
             self.policy.eval()
@@ -453,7 +528,9 @@ class BehaviouralCloning:
 
     def state_dict(self) -> CheckpointData:
         """Everything to continue at the next epoch as if never stopped: weights, the best
-        weights so far, Adam's moments, the shuffling and torch generators."""
+        weights so far, Adam's moments, the shuffling and torch generators; within an epoch
+        (stopped between minibatches), the batches taken, their fits and the shuffling
+        generator as the epoch began, to draw its order again."""
         optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")
         rng_tensors, rng_state = rng_checkpoint()
         tensors = (
@@ -473,6 +550,9 @@ class BehaviouralCloning:
             "rng": rng_state,
             "scaler": self.scaler.state_dict(),
         }
+        if self.batch:
+            tensors["loader.epoch_start"] = self.epoch_start
+            state |= {"batch": self.batch, "fits": list(self.fits)}
         if self.parallel is not None:
             # Every process's place in its own data and random streams, so that each resumes where it was.
             tensors |= {
@@ -502,6 +582,10 @@ class BehaviouralCloning:
                 float(state["seconds"]),
             )
             self.epochs = checked_counter(int(state["epoch"]), "next epoch", 1, self.total + 1) - 1
+            self.batch = checked_counter(int(state.get("batch", 0)), "batch within the epoch", 0, len(self.loader))
+            if self.batch:
+                self.epoch_start = tensors["loader.epoch_start"].clone()
+                self.fits = [float(fit) for fit in state["fits"]]
 
     def _restore_ranks(self, tensors: dict[str, torch.Tensor], state: dict[str, Any], parallel: DataParallel) -> None:
         """This process's loader and torch generators from a data-parallel checkpoint."""
@@ -520,8 +604,55 @@ def fit(learner: BehaviouralCloning) -> list[dict[str, float]]:
     shared loop instead); the rows of its epochs."""
     rows = []
     while not learner.done:
-        rows.append(learner.step())
+        row = learner.step()
+        assert row is not None  # stopped within an epoch only when `stop_when` asks, which nothing here does
+        rows.append(row)
     return rows
+
+
+# Bytes per weight in training: the weights, their gradients, Adam's two moments, the best
+# weights kept and a checkpoint's snapshot, float32 each.
+WEIGHT_BYTES = 6 * 4
+
+
+def training_step_bytes(
+    observation_space: gym.Space,
+    action_space: gym.Space,
+    config: BCConfig,
+    *,
+    keys: list[str] | None,
+    frames: int,
+    transitions: int,
+) -> tuple[int, int]:
+    """(weights, bytes) of a BC policy for these spaces (as the policy reads them: image leaves
+    stacked and transformed) and what one training step holds beyond the data, on a batch of
+    `config.batch_size` rows or all of an epoch's (at least `config.epoch_samples`, drawn from
+    `transitions`), whichever is fewer, estimated without building anything: `WEIGHT_BYTES` per weight; per sample and
+    image leaf of k·H·W·C pixels, the shifted uint8 copy and two float32 copies (scaled, laid out
+    as planes), and for each of the CNN's activations its output, its ReLU's and their gradient
+    (float32 each)."""
+    layout = observation_layout(observation_space, keys, frames)
+    cnn = CNNConfig.from_json(config.cnn or {})
+    hidden = list(config.hidden_sizes)
+    if layout is None:
+        inputs, cnn_weights, per_sample = observation_size(observation_space), 0, 0
+    else:
+        inputs = layout.vector_size + cnn.features * len(layout.images)
+        cnn_weights = sum(
+            cnn_weight_count(leaf.frames * leaf.channels, leaf.height, leaf.width, cnn) for leaf in layout.images
+        )
+        per_sample = sum(
+            leaf.frames * leaf.height * leaf.width * leaf.channels * (1 + 2 * 4)
+            + 3 * 4 * cnn_activation_count(leaf.height, leaf.width, cnn)
+            for leaf in layout.images
+        )
+    weights = (
+        cnn_weights
+        + 2 * mlp_weight_count(inputs, hidden, 0)
+        + (hidden or [inputs])[-1] * (action_logits_size(action_space) + 1)
+    )
+    rows = min(config.batch_size, max(transitions, config.epoch_samples))
+    return weights, weights * WEIGHT_BYTES + per_sample * rows
 
 
 SMALL_DATA = 1000  # training transitions below which "auto" picks tanh (see BCConfig.activation)

@@ -25,15 +25,16 @@ import mmap
 import struct
 import threading
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from imitation.data.frame_transform import FrameTransform
 from imitation.data.mcap.format import EPISODE_TOPIC, REWARD_FIELD, TIME_FIELD, Field, fields_for
-from imitation.data.mcap.images import decode_frame
+from imitation.data.mcap.images import decode_frame, is_image_leaf
 from imitation.data.mcap.reader import DemoFile
 from imitation.data.mcap.records import ChunkRef, Damage, chunk_header, chunk_records, decode_chunk
 from imitation.data.types import Transitions, tree_from_leaves
@@ -85,23 +86,31 @@ class _ContentBuffers(threading.local):
 
 @dataclass
 class _Column:
-    """One output array and, for observations, the episodes' final rows (which have no transition)."""
+    """One output array and, for observations, the episodes' final rows (which have no transition).
+    An image column may hold its frames transformed (`FrameTransform`): its rows are then of
+    another shape than the field's."""
 
     field: Field
     out: np.ndarray  # (N, *shape)
     final: np.ndarray | None  # (E, *shape), observations only
+    transform: FrameTransform | None = None
+
+    @property
+    def row_nbytes(self) -> int:
+        return self.field.row_nbytes if self.transform is None else self.out.dtype.itemsize * math.prod(self.out.shape[1:])
 
     def place(self, data: memoryview, episode: int, start: int, length: int, first_row: int) -> None:
         """A block holding rows [first_row, ...) of output episode `episode`, whose `length`
         transitions start at flat row `start`."""
-        rows = len(data) // self.field.row_nbytes
+        row_nbytes = self.row_nbytes
+        rows = len(data) // row_nbytes
         in_out = max(0, min(first_row + rows, length) - first_row)
         if first_row + rows > length + (self.final is not None):
             raise _NotTiled(f"{self.field.topic}: a block runs past its episode's end")
-        self._put(self.out[start + first_row : start + first_row + in_out], data[: in_out * self.field.row_nbytes])
+        self._put(self.out[start + first_row : start + first_row + in_out], data[: in_out * row_nbytes])
         if in_out < rows:
             assert self.final is not None
-            self._put(self.final[episode : episode + 1], data[in_out * self.field.row_nbytes :])
+            self._put(self.final[episode : episode + 1], data[in_out * row_nbytes :])
 
     def _put(self, target: np.ndarray, data: memoryview) -> None:
         if target.dtype == self.field.dtype:
@@ -119,23 +128,45 @@ class _FilePlan:
     chunks: list[ChunkRef]
 
 
-def read_transitions(dataset: DemoDataset, indices: Sequence[int], *, next_observations: bool) -> Transitions | None:
+def read_transitions(
+    dataset: DemoDataset,
+    indices: Sequence[int],
+    *,
+    next_observations: bool,
+    transform: FrameTransform | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> Transitions | None:
     """Episodes `indices` (dataset-wide, ascending) as one Transitions batch, or None when the
-    files need the general path (own timestamps, blocks not placeable by log time, damage)."""
+    files need the general path (own timestamps, blocks not placeable by log time, damage).
+
+    With `transform`, each frame of an image channel is cropped and resized as it is decoded,
+    into an output array of the transformed size (the files' frames are never held whole).
+    `progress(steps)` is told, from the decoding threads, the observations of each chunk as it is
+    placed (the steps and each episode's final observation)."""
     fields = fields_for(dataset.observation_space, dataset.action_space)
     observation_fields = [f for f in fields if f.kind == "observation"]
     action_fields = [f for f in fields if f.kind == "action"]
     plans = _plan(dataset, indices)
     if plans is None or any(f.row_nbytes == 0 for f in observation_fields + action_fields):
         return None
+    transformed = {f.topic for f in observation_fields if transform is not None and is_image_leaf(f.dtype, f.shape)}
     facts = [f.file.episodes[k] for f in plans for k in f.ordinal_of]
     lengths = np.array([episode.length for episode in facts], dtype=np.int64)
     total = int(lengths.sum())
     if 8 * total > sum(c.uncompressed_size for plan in plans for c in plan.chunks):
         return None  # more steps than the chunks hold 8-byte rewards for: a damaged index, for the general path to report
     starts = np.cumsum(lengths) - lengths
+
+    def shape(f: Field) -> tuple[int, ...]:
+        return transform.shape(f.shape) if transform is not None and f.topic in transformed else f.shape
+
     columns = {
-        f.topic: _Column(f, large_empty((total, *f.shape), f.native_dtype), np.empty((len(facts), *f.shape), f.native_dtype))
+        f.topic: _Column(
+            f,
+            large_empty((total, *shape(f)), f.native_dtype),
+            np.empty((len(facts), *shape(f)), f.native_dtype),
+            transform if f.topic in transformed else None,
+        )
         for f in observation_fields
     }
     columns |= {f.topic: _Column(f, large_empty((total, *f.shape), f.native_dtype), None) for f in action_fields}
@@ -143,7 +174,7 @@ def read_transitions(dataset: DemoDataset, indices: Sequence[int], *, next_obser
     pieces: dict[tuple[str, int], list[tuple[int, int]]] = defaultdict(list)
     try:
         for plan in plans:
-            for placed in _fill_file(plan, columns, starts, lengths):
+            for placed in _fill_file(plan, columns, starts, lengths, progress):
                 for topic, ordinal, first_row, rows in placed:
                     pieces[topic, ordinal].append((first_row, rows))
     except (_NotTiled, Damage, ValueError, struct.error):
@@ -193,7 +224,11 @@ def _plan(dataset: DemoDataset, indices: Sequence[int]) -> list[_FilePlan] | Non
 
 
 def _fill_file(
-    plan: _FilePlan, columns: dict[str, _Column], starts: np.ndarray, lengths: np.ndarray
+    plan: _FilePlan,
+    columns: dict[str, _Column],
+    starts: np.ndarray,
+    lengths: np.ndarray,
+    progress: Callable[[int], None] | None = None,
 ) -> list[list[tuple[str, int, int, int]]]:
     file = plan.file
     dt_ns = round(file.dt * 1e9)
@@ -201,12 +236,17 @@ def _fill_file(
         raise _NotTiled("no time step")
     topic_of = {channel_id: (f.topic if f is not None else EPISODE_TOPIC) for channel_id, f in file.channel_fields.items()}
     codec_of: dict[int, str] = {}
+    coded: set[str] = set()
     for channel_id, f in file.channel_fields.items():
         if f is not None and f.codec is not None and f.topic in columns:
             if (f.dtype, f.shape) != (columns[f.topic].field.dtype, columns[f.topic].field.shape):
                 raise _NotTiled(f"{f.topic}: the image channel's layout differs from the space's")
             codec_of[channel_id] = f.codec
+            coded.add(f.topic)
+    if any(column.transform is not None and topic not in coded for topic, column in columns.items()):
+        raise _NotTiled("frames stored as blocks of rows: the general path transforms them episode by episode")
     t_starts = [facts.t_start_ns for facts in file.episodes]
+    counted = next(topic for topic, column in columns.items() if column.final is not None)  # the steps of one observation
 
     def fill_chunk(chunk: ChunkRef) -> list[tuple[str, int, int, int]]:
         record = memoryview(source.read(chunk.offset, chunk.length))
@@ -221,13 +261,16 @@ def _fill_file(
             if column is None or ordinal is None:
                 continue
             if channel_id in codec_of:
-                data = memoryview(decode_frame(codec_of[channel_id], column.field.shape, data)).cast("B")
+                frame = decode_frame(codec_of[channel_id], column.field.shape, data)
+                data = memoryview(column.transform(frame) if column.transform is not None else frame).cast("B")
             first_row, misaligned = divmod(log_time - t_starts[k], dt_ns)
-            rows, partial = divmod(len(data), column.field.row_nbytes)
+            rows, partial = divmod(len(data), column.row_nbytes)
             if misaligned or partial or log_time > file.episodes[k].t_end_ns:
                 raise _NotTiled(f"{column.field.topic}: block at {log_time} ns is not placed by its time")
             column.place(data, ordinal, int(starts[ordinal]), int(lengths[ordinal]), first_row)
             placed.append((column.field.topic, ordinal, first_row, rows))
+        if progress is not None:
+            progress(sum(rows for topic, _, _, rows in placed if topic == counted))
         return placed
 
     buffers = _ContentBuffers()

@@ -11,6 +11,7 @@ Typical use::
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import resource
@@ -23,6 +24,7 @@ import torch
 
 from imitation.data.columns import read_transitions
 from imitation.data.dataset import DemoDataset
+from imitation.data.frame_transform import FrameTransform
 from imitation.data.spaces import space_leaves
 from imitation.data.types import Episode, Transitions, episodes_to_transitions, first_nonfinite
 from imitation.errors import ConfigError, ImitationError
@@ -160,6 +162,8 @@ def load_transitions(
     next_observations: bool = True,
     finite: bool = True,
     too_large: str = "train on fewer demo files, or on a machine with more memory",
+    transform: FrameTransform | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> Transitions:
     """All transitions of the chosen episodes as one contiguous numpy batch.
 
@@ -167,7 +171,13 @@ def load_transitions(
     the observations. With `finite` (the default), NaN or ±inf anywhere in the observations,
     actions or rewards is an ImitationError naming the file, episode and step (see
     `check_finite`). A batch larger than the memory available is refused before it is
-    allocated, the error ending in `too_large` (what the caller's user can do about it)."""
+    allocated, the error ending in `too_large` (what the caller's user can do about it).
+
+    With `transform`, every frame of the observations' image leaves is cropped and resized as
+    it loads (`FrameTransform`): frame by frame where the files' frames are placed by their
+    times, else an episode at a time, so that at most one episode is held at its stored size.
+    `progress(n)` is told of observations loaded (each episode's steps and its final
+    observation), possibly from other threads."""
     dataset = source if isinstance(source, DemoDataset) else DemoDataset(source)
     indices = sorted(set(int(k) for k in episodes)) if episodes is not None else list(range(len(dataset)))
     if indices and not 0 <= indices[0] <= indices[-1] < len(dataset):
@@ -176,10 +186,27 @@ def load_transitions(
     steps = sum(all_facts[k].length for k in indices)
     if steps == 0:
         raise ImitationError("no transitions to load: the demos hold no steps")
-    _check_memory(dataset, steps, len(indices), next_observations=next_observations, too_large=too_large)
-    transitions = read_transitions(dataset, indices, next_observations=next_observations)
-    if transitions is None:
+    largest = max(all_facts[k].length for k in indices) + 1 if transform is not None else 0
+    _check_memory(
+        dataset,
+        steps,
+        len(indices),
+        next_observations=next_observations,
+        too_large=too_large,
+        transform=transform,
+        held=largest,
+    )
+    transitions = read_transitions(
+        dataset, indices, next_observations=next_observations, transform=transform, progress=progress
+    )
+    if transitions is None and transform is not None:
+        transitions = episodes_to_transitions(
+            list(_transformed_episodes(dataset, indices, transform, progress)), indices, next_observations=next_observations
+        )
+    elif transitions is None:
         transitions = episodes_to_transitions(_read(dataset, indices), indices, next_observations=next_observations)
+        if progress is not None:
+            progress(steps + len(indices))
     if finite:
         check_finite(transitions, dataset)
     return transitions
@@ -213,16 +240,41 @@ def select_human_steps(
     return transitions.select(torch.from_numpy(np.flatnonzero(human_steps(dataset, episodes, unrecorded=unrecorded))))
 
 
-def _check_memory(dataset: DemoDataset, steps: int, episodes: int, *, next_observations: bool, too_large: str) -> None:
+def _transformed_episodes(
+    dataset: DemoDataset, indices: Sequence[int], transform: FrameTransform, progress: Callable[[int], None] | None
+) -> Iterator[Episode]:
+    """Episodes `indices`, read one at a time, their frames transformed."""
+    for k in indices:
+        (episode,) = _read(dataset, [k])
+        yield dataclasses.replace(episode, observations=transform.rows(episode.observations))
+        if progress is not None:
+            progress(len(episode) + 1)
+
+
+def _check_memory(
+    dataset: DemoDataset,
+    steps: int,
+    episodes: int,
+    *,
+    next_observations: bool,
+    too_large: str,
+    transform: FrameTransform | None = None,
+    held: int = 0,
+) -> None:
     """Refuse, before allocating, a load that cannot fit in the memory this machine has free:
-    one line naming the size, instead of an out-of-memory kill or traceback midway."""
-    observation_row = sum(dtype.itemsize * math.prod(shape) for _, dtype, shape in space_leaves(dataset.observation_space))
+    one line naming the size, instead of an out-of-memory kill or traceback midway. With
+    `transform` the observations are counted at their transformed size, plus `held` of them
+    at the stored size (an episode decoded before its frames are transformed)."""
+    space = dataset.observation_space
+    stored_row = sum(dtype.itemsize * math.prod(shape) for _, dtype, shape in space_leaves(space))
+    observation_row = transform.row_bytes(space) if transform is not None else stored_row
     action_row = sum(dtype.itemsize * math.prod(shape) for _, dtype, shape in space_leaves(dataset.action_space))
     # observations and final rows, s' if asked for, actions, rewards, the two flags, episode indices
     needed = (
         (steps + episodes) * observation_row
         + (steps * observation_row if next_observations else 0)
         + steps * (action_row + 8 + 2 + 8)
+        + held * stored_row
     )
     available = available_memory()
     if available is not None and needed > available:
@@ -233,18 +285,23 @@ def _check_memory(dataset: DemoDataset, steps: int, episodes: int, *, next_obser
 
 
 def available_memory() -> int | None:
-    """Bytes of memory available to a new allocation (Linux's MemAvailable, bounded by an
-    address-space limit if one is set); None where it cannot be told."""
-    found: list[int] = []
-    try:
-        with open("/proc/meminfo") as stream:
-            found += [int(line.split()[1]) * 1024 for line in stream if line.startswith("MemAvailable:")]
-    except (OSError, ValueError, IndexError):
-        pass
+    """Bytes of memory available to a new allocation (Linux's MemAvailable, bounded by what an
+    address-space limit, if one is set, leaves beyond the address space this process already
+    maps); None where it cannot be told."""
+    found = _proc_kilobytes("/proc/meminfo", "MemAvailable:")
     soft, _ = resource.getrlimit(resource.RLIMIT_AS)
     if soft != resource.RLIM_INFINITY:
-        found.append(soft)
+        found.append(max(0, soft - sum(_proc_kilobytes("/proc/self/status", "VmSize:"))))
     return min(found) if found else None
+
+
+def _proc_kilobytes(path: str, key: str) -> list[int]:
+    """The bytes of the "`key` N kB" lines of a /proc file (none where it cannot be read)."""
+    try:
+        with open(path) as stream:
+            return [int(line.split()[1]) * 1024 for line in stream if line.startswith(key)]
+    except (OSError, ValueError, IndexError):
+        return []
 
 
 def check_finite(transitions: Transitions, dataset: DemoDataset) -> None:
@@ -359,6 +416,11 @@ class MinibatchLoader:
         return full if self.drop_last or rest == 0 else full + 1
 
     def __iter__(self) -> Iterator[TransitionTensors]:
+        return self.batches()
+
+    def batches(self, skip: int = 0) -> Iterator[TransitionTensors]:
+        """An epoch's batches, the first `skip` of them left out (an epoch resumed midway: the
+        order is drawn as for the whole epoch, and the batches left out are never gathered)."""
         count = len(self.data)
         if self.shuffle:
             order = torch.cat([torch.randperm(count, generator=self._generator) for _ in range(self.passes)]).to(
@@ -368,7 +430,7 @@ class MinibatchLoader:
             order = torch.arange(count, device=self.data.device).repeat(self.passes)
         if self.steps is not None:
             order = order[: self.steps * self.batch_size]
-        for start in range(0, len(order), self.batch_size):
+        for start in range(skip * self.batch_size, len(order), self.batch_size):
             index = order[start : start + self.batch_size]
             if self.drop_last and len(index) < self.batch_size:
                 break

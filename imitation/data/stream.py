@@ -14,27 +14,32 @@ Each epoch (seeded, reproducible):
    (`wait_seconds` counts it).
 
 Memory held at once (`peak_bytes`): the buffer plus the decoded episodes waiting for it stays
-within `memory` plus one episode (the last admitted may overshoot). The content of every batch
+within `memory` plus one episode (the last admitted may overshoot), counted at the size the
+learner takes its frames (`transform`). The content of every batch
 depends on the seed alone, never on thread timing: episodes enter the buffer in permutation
 order, and rows are drawn from a numpy generator seeded from the epoch's torch generator.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import queue
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Generator, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import closing
 from dataclasses import dataclass
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import torch
 
 from imitation.data.dataset import DemoDataset
+from imitation.data.frame_transform import FrameTransform
 from imitation.data.loader import TransitionTensors, check_episodes_finite, transitions_to_torch
 from imitation.data.spaces import LeafPath, space_leaves
 from imitation.data.types import Transitions, episodes_to_transitions, tree_from_leaves, tree_leaves
@@ -67,7 +72,10 @@ class StreamingLoader:
     `frames` > 1 stacks the top-level image leaves `image_keys` as `stack_frames` does. An epoch
     passes over the data as often as it takes to reach `min_samples` samples, each pass in its own
     order. Without `shuffle`, episodes and rows come in ascending order and the buffer holds one
-    batch. NaN or ±inf in an episode is an ImitationError naming its file, episode and step."""
+    batch. NaN or ±inf in an episode is an ImitationError naming its file, episode and step.
+    With `transform`, each decoded episode's frames are cropped and resized before it waits for
+    the buffer, and the budget counts them at that size (each decoding worker holds one episode
+    at its stored size meanwhile)."""
 
     def __init__(
         self,
@@ -82,6 +90,7 @@ class StreamingLoader:
         seed: int = 0,
         workers: int = 2,
         min_samples: int = 0,
+        transform: FrameTransform | None = None,
     ) -> None:
         if batch_size < 1:
             raise ImitationError(f"batch size must be positive, got {batch_size}")
@@ -96,7 +105,9 @@ class StreamingLoader:
         self.transitions = sum(self._lengths.values())
         self.batch_size, self.memory, self.frames, self.shuffle, self.workers = batch_size, memory, frames, shuffle, workers
         self.image_keys = list(image_keys)
-        self._leaves = _buffer_leaves(dataset, frames, set(image_keys))
+        self.transform = transform
+        observation_space = transform.space(dataset.observation_space) if transform is not None else dataset.observation_space
+        self._leaves = _buffer_leaves(observation_space, dataset.action_space, frames, set(image_keys))
         self.row_bytes = sum(leaf.row_bytes for leaf in self._leaves)
         # Decoded, unstacked: what a waiting episode holds per row (counted for its T + 1 observations).
         self._decoded_row_bytes = sum(leaf.row_bytes // (frames if leaf.stacked else 1) for leaf in self._leaves)
@@ -123,6 +134,7 @@ class StreamingLoader:
             image_keys=self.image_keys,
             shuffle=False,
             workers=self.workers,
+            transform=self.transform,
         )
 
     def generator_state(self) -> torch.Tensor:
@@ -136,6 +148,17 @@ class StreamingLoader:
         return -(-self.passes * self.transitions // self.batch_size)
 
     def __iter__(self) -> Iterator[TransitionTensors]:
+        return self.batches()
+
+    def batches(self, skip: int = 0) -> Iterator[TransitionTensors]:
+        """An epoch's batches, the first `skip` of them decoded and left out (an epoch resumed
+        midway: the buffer's draws depend on every batch before)."""
+        with closing(self._epoch()) as epoch:  # a consumer that stops early stops the producer at once
+            for index, batch in enumerate(epoch):
+                if index >= skip:
+                    yield batch
+
+    def _epoch(self) -> Generator[TransitionTensors, None, None]:
         if self.shuffle:
             order = [
                 self.episodes[i]
@@ -226,9 +249,12 @@ class StreamingLoader:
             self._put(out, batch, stop)
 
     def _decode(self, k: int) -> Transitions:
-        """Episode k as one contiguous block of its T transitions (a worker thread's job)."""
+        """Episode k as one contiguous block of its T transitions (a worker thread's job), its
+        frames transformed if the loader has a transform."""
         episode = self.dataset[k]
         check_episodes_finite([episode], self.dataset, [k])
+        if self.transform is not None:
+            episode = dataclasses.replace(episode, observations=self.transform.rows(episode.observations))
         return episodes_to_transitions([episode], [k], next_observations=False)
 
     def _copy(self, source: Transitions, stacks: np.ndarray, buffer: dict[_Leaf, np.ndarray], at: int) -> None:
@@ -249,15 +275,13 @@ class StreamingLoader:
                 continue
 
 
-def _buffer_leaves(dataset: DemoDataset, frames: int, image_keys: set[str]) -> list[_Leaf]:
+def _buffer_leaves(observation_space: gym.Space, action_space: gym.Space, frames: int, image_keys: set[str]) -> list[_Leaf]:
     """The arrays of one buffered row: observations (image leaves stacked), actions, rewards, flags, episode."""
     leaves = []
-    for path, dtype, shape in space_leaves(dataset.observation_space):
+    for path, dtype, shape in space_leaves(observation_space):
         stacked = frames > 1 and ("" if not path else path[0]) in image_keys and len(path) <= 1
         leaves.append(_Leaf("observations", path, (frames, *shape) if stacked else shape, np.dtype(dtype), stacked))
-    leaves += [
-        _Leaf("actions", path, shape, np.dtype(dtype), False) for path, dtype, shape in space_leaves(dataset.action_space)
-    ]
+    leaves += [_Leaf("actions", path, shape, np.dtype(dtype), False) for path, dtype, shape in space_leaves(action_space)]
     leaves += [
         _Leaf("rewards", (), (), np.dtype(np.float64), False),
         _Leaf("terminated", (), (), np.dtype(bool), False),

@@ -9,6 +9,8 @@
   state rides along for experts that act on it (DAgger's scripted expert) and for evaluation;
   pixel policies read "pixels" alone (`PolicyConfig.observation_keys`). An env whose observation
   already is an image gives {"pixels": that image, resized}.
+- `TransformFrames(env, transform)`: the observations' image leaves cropped and resized as a policy
+  trained with `train bc --crop/--image-size` saw its demos' frames (`FrameTransform`).
 - `StackFrames(env, k)`: every image leaf becomes its last k frames, (k, H, W, C) oldest first,
   with the reset frame repeated before the first step (gymnasium's FrameStackObservation with
   padding "reset"); other leaves pass through unchanged. `stack_frames` builds the same stacks
@@ -28,6 +30,7 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
+from imitation.data.frame_transform import FrameTransform, parse_crop
 from imitation.errors import ImitationError
 
 PIXELS_KEY = "pixels"
@@ -65,17 +68,7 @@ class PixelRecipe:
         match = _SIZE.match(size.strip())
         if not match:
             raise ImitationError(f"--pixels {size!r}: give the frame size as HEIGHTxWIDTH, e.g. 84x84")
-        box = None
-        if crop is not None:
-            parts = crop.split(",")
-            if len(parts) != 4 or not all(part.strip().isdigit() for part in parts):
-                raise ImitationError(
-                    f"--crop {crop!r}: give the rectangle as TOP,LEFT,HEIGHT,WIDTH in pixels, e.g. 120,150,200,300"
-                )
-            top, left, height, width = (int(part) for part in parts)
-            if height < 1 or width < 1:
-                raise ImitationError(f"--crop {crop!r}: the rectangle's height and width must be at least 1")
-            box = (top, left, height, width)
+        box = parse_crop(crop) if crop is not None else None
         return PixelRecipe(int(match[1]), int(match[2]), grayscale, box)
 
     def to_json(self) -> dict[str, Any]:
@@ -200,6 +193,21 @@ class PixelObservation(gym.ObservationWrapper):
         if not isinstance(rendered, np.ndarray):
             raise ImitationError(f"environment {self.env.spec.id if self.env.spec else self.env}: render() gave no frame")
         return {PIXELS_KEY: self.recipe.frame(rendered), STATE_KEY: observation}
+
+
+class TransformFrames(gym.ObservationWrapper):
+    """Every image leaf of the observations cropped and resized by `transform`, as a policy
+    trained with `train bc --crop/--image-size` learnt from them (`FrameTransform`)."""
+
+    def __init__(self, env: gym.Env, transform: FrameTransform) -> None:
+        super().__init__(env)
+        name = env.spec.id if env.spec else type(env.unwrapped).__name__
+        transform.check(env.observation_space, f"environment {name}")
+        self.transform = transform
+        self.observation_space = transform.space(env.observation_space)
+
+    def observation(self, observation: Any) -> Any:
+        return self.transform.observation(observation)
 
 
 def expert_on_state(expert: Callable[[Any], Any], env: PixelObservation) -> Callable[[Any], Any]:

@@ -76,19 +76,16 @@ def baseline_scores(train: TransitionTensors, validation: TransitionTensors, act
     return scores
 
 
-def policy_scores(policy: ActorCritic, validation: TransitionTensors) -> Scores:
+def policy_scores(policy: ActorCritic, validation: TransitionTensors, *, rows: int = 1024) -> Scores:
     """The policy on `validation`, scored as the baselines are: its NLL of the held-out actions, and
     the squared error of its mean (Box) or the error rate of its most likely action (Discrete).
-    Batches of `PIECE` rows bound the memory a CNN's activations take."""
+    Batches of `rows` bound the memory a CNN's activations take."""
     totals: dict[str, float] = {}
-    for start in range(0, len(validation), PIECE):
-        piece = validation.select(torch.arange(start, min(start + PIECE, len(validation)), device=validation.device))
+    for start in range(0, len(validation), rows):
+        piece = validation.select(torch.arange(start, min(start + rows, len(validation)), device=validation.device))
         for name, value in _piece_scores(policy, piece).items():
             totals[name] = totals.get(name, 0.0) + value * len(piece)
     return {name: total / len(validation) for name, total in totals.items()}
-
-
-PIECE = 1024
 
 
 def _piece_scores(policy: ActorCritic, validation: TransitionTensors) -> Scores:

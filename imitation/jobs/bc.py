@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from collections.abc import Callable, Sequence
 from contextlib import closing, nullcontext
@@ -12,11 +13,13 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from imitation.algorithms.bc import BCConfig, BehaviouralCloning, policy_options
+from imitation.algorithms.bc import BCConfig, BehaviouralCloning, policy_options, training_step_bytes
 from imitation.checkpoints import Tensors
 from imitation.data.dataset import DemoDataset
+from imitation.data.frame_transform import FrameTransform
 from imitation.data.loader import (
     TransitionTensors,
+    available_memory,
     human_steps,
     load_transitions,
     resolve_device,
@@ -27,8 +30,10 @@ from imitation.data.loader import (
 )
 from imitation.data.mcap.format import TIME_FIELD
 from imitation.data.shards import Share, plan_shares
+from imitation.data.spaces import space_leaves
 from imitation.data.stream import StreamingLoader
 from imitation.data.types import Transitions
+from imitation.encoders import CNNConfig
 from imitation.envs.make import make_env
 from imitation.envs.pixels import PIXELS_KEY, image_keys, make_pixel_env, recorded_pixels, stack_frames, stacked_space
 from imitation.envs.previous_action import previous_action_space, with_previous_actions
@@ -41,7 +46,16 @@ from imitation.jobs.loop import Checkpointing
 from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
-from imitation.policies import ActorCritic, SingleObservationPolicy, acting_env, make_policy, policy_tensors
+from imitation.policies import (
+    ActorCritic,
+    SingleObservationPolicy,
+    acting_env,
+    check_cnn_size,
+    make_policy,
+    observation_layout,
+    policy_tensors,
+)
+from imitation.progress import activity
 from imitation.seeding import seed_everything
 
 
@@ -106,6 +120,19 @@ def _bc_job(
     keys = image_keys(spaces.observation_space)
     if frames > 1 and not keys:
         raise ConfigError("frame_stack", "stacks image observations, and the demos hold none", owner="BCConfig")
+    transform = config.frame_transform()
+    if transform is not None:
+        transform.check(dataset.observation_space, str(first.path))
+    observed = transform.space(spaces.observation_space) if transform is not None else spaces.observation_space
+    observation_space = (
+        previous_action_space(observed, spaces.action_space)
+        if previous_action
+        else stacked_space(observed, frames)
+        if frames > 1
+        else observed
+    )
+    observation_keys = config.observation_keys or ([PIXELS_KEY] if pixels is not None else None)
+    _check_training_memory(dataset, observation_space, spaces.action_space, config, keys=observation_keys, frames=frames)
     train: TransitionTensors | StreamingLoader
     validation: TransitionTensors | StreamingLoader | None
     if config.stream_memory is not None and config.steps == "human":
@@ -119,35 +146,37 @@ def _bc_job(
         return plan[parallel.rank].episodes
 
     if config.stream_memory is not None:
-        train, validation, split = _streams(dataset, config, previous_action=previous_action, frames=frames, image_keys=keys)
-    else:
-        train, validation, split = _split(
-            dataset,
-            config,
-            offline=env is None,
-            previous_action=previous_action,
-            frames=frames,
-            image_keys=keys,
-            share=share if parallel is not None else None,
+        train, validation, split = _streams(
+            dataset, config, previous_action=previous_action, frames=frames, image_keys=keys, transform=transform
         )
+    else:
+        resized = f", frames {transform.describe()} as they load" if transform is not None else ""
+        what = f"loading {dataset.num_transitions} transitions of {len(dataset)} episode(s){resized}"
+        with activity("BC", what, enabled=progress) as loading:
+            observations = dataset.num_transitions + len(dataset)  # each episode's steps and its final observation
+            train, validation, split = _split(
+                dataset,
+                config,
+                offline=env is None,
+                previous_action=previous_action,
+                frames=frames,
+                image_keys=keys,
+                share=share if parallel is not None else None,
+                transform=transform,
+                loaded=(lambda n: loading.count(n, observations, "observations")) if loading is not None else None,
+            )
     train_transitions = _transitions(train)
     validation_transitions = _transitions(validation) if validation is not None else 0
     if parallel is not None:
         train_transitions, validation_transitions = _pooled_counts(parallel, train_transitions, validation_transitions)
         if "train_transitions" in split:  # episode tails held out: the record counts every process's
             split |= {"train_transitions": train_transitions, "validation_transitions": validation_transitions}
-    observation_space = (
-        previous_action_space(spaces.observation_space, spaces.action_space)
-        if previous_action
-        else stacked_space(spaces.observation_space, frames)
-        if frames > 1
-        else spaces.observation_space
-    )
     pixel_options = {
         "frame_stack": frames,
-        "observation_keys": config.observation_keys or ([PIXELS_KEY] if pixels is not None else None),
+        "observation_keys": observation_keys,
         "cnn": config.cnn,
         "pixels": pixels.to_json() if pixels is not None else None,
+        "image_transform": transform.to_json() if transform is not None else None,
     }
     try:
         policy = make_policy(
@@ -188,59 +217,62 @@ def _bc_job(
         closing(env) if env is not None else nullcontext(),
         training_run(out, run_config, x_axis="epoch", resume=resume) as run,
     ):
-        learner = BehaviouralCloning(
-            policy, train, validation, config, evaluate=env_return if env is not None else None, parallel=parallel
-        )
+        streamed = isinstance(train, StreamingLoader) and bool(policy.observation_normalizers)
+        with activity("BC", "fitting the normalisers in one pass over the demos", enabled=progress and streamed):
+            learner = BehaviouralCloning(
+                policy, train, validation, config, evaluate=env_return if env is not None else None, parallel=parallel
+            )
         checkpoints = checkpointing(run)
         if parallel is not None:
             resumed = parallel.broadcast_checkpoint(checkpoints.resume) if resume else None
             checkpoints = dataclasses.replace(checkpoints, resume=resumed, agree=parallel.any)
         run_learner(learner, checkpoints=checkpoints, log=run.log, progress=progress)
         seconds = learner.clock.seconds  # training only, not the evaluation below
-        run.save_weights(policy_tensors(learner.policy.cpu()))
-        states = _states_alone(spaces.observation_space) if previous_action else _unchanged
-        # Data-parallel: rank 0 holds its share alone, so no scores on the held-out transitions.
-        yardstick = _yardstick(
-            learner,
-            train,
-            validation,
-            config,
-            spaces.action_space,
-            states,
-            scored=parallel is None,
-            previous_action=previous_action if _boxes(spaces.observation_space, spaces.action_space) else None,
-        )
-        title = f"BC on {env_id or dataset.env_id or 'offline demos'}"
-        plot_curve(
-            run.file("loss_curve.png"),
-            run.history,
-            x="epoch",
-            ys=["train_loss", "validation_loss"],
-            title=f"{title}: loss",
-            references={f"{name} baseline": value for name, value in yardstick["references"].items()},
-        )
-        if env is not None:
-            plot_curve(run.file("return_curve.png"), run.history, x="epoch", ys=["return"], title=f"{title}: return")
-        metrics = {
-            "env_id": env_id,
-            "offline": env is None,
-            "previous_action": previous_action,
-            "train_transitions": train_transitions,
-            "validation_transitions": validation_transitions,
-            "data_parallel": _plan_summary(plan) if parallel is not None else None,
-            "epochs": len(run.history),
-            "best_epoch": learner.best_epoch,
-            "best_validation_loss": min((row["validation_loss"] for row in run.history), default=None),
-            "seconds": seconds,
-            "samples_per_second": run.history[-1]["samples_per_second"],
-            "stopped": yardstick["stopped"],
-            "validation": yardstick["validation"],
-            "baselines": yardstick["baselines"],
-            "beats_baselines": yardstick["beats"],
-            "warnings": yardstick["warnings"],
-            "eval": final_evaluation(learner.policy.cpu(), policy_env) if policy_env is not None else None,
-        }
-        run.finish(metrics)
+        with activity("BC", "scoring the trained policy", enabled=progress):
+            run.save_weights(policy_tensors(learner.policy.cpu()))
+            states = _states_alone(spaces.observation_space) if previous_action else _unchanged
+            # Data-parallel: rank 0 holds its share alone, so no scores on the held-out transitions.
+            yardstick = _yardstick(
+                learner,
+                train,
+                validation,
+                config,
+                spaces.action_space,
+                states,
+                scored=parallel is None,
+                previous_action=previous_action if _boxes(spaces.observation_space, spaces.action_space) else None,
+            )
+            title = f"BC on {env_id or dataset.env_id or 'offline demos'}"
+            plot_curve(
+                run.file("loss_curve.png"),
+                run.history,
+                x="epoch",
+                ys=["train_loss", "validation_loss"],
+                title=f"{title}: loss",
+                references={f"{name} baseline": value for name, value in yardstick["references"].items()},
+            )
+            if env is not None:
+                plot_curve(run.file("return_curve.png"), run.history, x="epoch", ys=["return"], title=f"{title}: return")
+            metrics = {
+                "env_id": env_id,
+                "offline": env is None,
+                "previous_action": previous_action,
+                "train_transitions": train_transitions,
+                "validation_transitions": validation_transitions,
+                "data_parallel": _plan_summary(plan) if parallel is not None else None,
+                "epochs": len(run.history),
+                "best_epoch": learner.best_epoch,
+                "best_validation_loss": min((row["validation_loss"] for row in run.history), default=None),
+                "seconds": seconds,
+                "samples_per_second": run.history[-1]["samples_per_second"],
+                "stopped": yardstick["stopped"],
+                "validation": yardstick["validation"],
+                "baselines": yardstick["baselines"],
+                "beats_baselines": yardstick["beats"],
+                "warnings": yardstick["warnings"],
+                "eval": final_evaluation(learner.policy.cpu(), policy_env) if policy_env is not None else None,
+            }
+            run.finish(metrics)
     return {"run": str(run.path), **metrics}
 
 
@@ -275,7 +307,9 @@ def _yardstick(
     if not scored or validation is None or not len(validation) or isinstance(validation, StreamingLoader):
         return {"stopped": stopped, "validation": None, "baselines": {}, "beats": {}, "references": {}, "warnings": warnings}
     assert not isinstance(train, StreamingLoader)  # streamed validation goes with streamed training
-    scores = policy_scores(learner.policy.cpu(), validation.to("cpu"))
+    # A policy with a CNN scored in pieces of a training batch: its activations then take what a training step's did.
+    rows = config.batch_size if len(learner.policy.image_encoders) else 1024
+    scores = policy_scores(learner.policy.cpu(), validation.to("cpu"), rows=rows)
     baselines = baseline_scores(states(train), states(validation), action_space)
     beats = {name: all(scores[key] < value for key, value in baseline.items()) for name, baseline in baselines.items()}
     loss = "mse" if config.loss == "mse" else "nll"
@@ -370,12 +404,15 @@ def _split(
     frames: int = 1,
     image_keys: list[str] | None = None,
     share: Callable[[Sequence[int]], list[int]] | None = None,
+    transform: FrameTransform | None = None,
+    loaded: Callable[[int], None] | None = None,
 ) -> tuple[TransitionTensors, TransitionTensors | None, dict[str, Any]]:
     """Training and validation transitions: whole episodes held out; offline, where the
     validation loss is all a run reports, each episode's last steps when there are too few
     episodes to spare one (a single long recording). With `previous_action` the observations are
     x_t, built before the split so that a held-out tail starts from the command before it; so are
-    stacks of `frames` frames of the `image_keys` leaves.
+    stacks of `frames` frames of the `image_keys` leaves, after their frames are cropped and
+    resized by `transform` as they load; `loaded(n)` is told of observations loaded.
 
     With `share` (a data-parallel process), the same split, of the episodes `share(counted)`
     gives this process for the training episodes `counted`; the split's record stays whole."""
@@ -385,7 +422,10 @@ def _split(
             dataset,
             episodes=episodes,
             next_observations=False,
-            too_large="stream them instead (--stream-memory MB), train on fewer demo files, or on a machine with more memory",
+            too_large=("resize the frames as they load (--image-size HxW), " if image_keys else "")
+            + "stream them instead (--stream-memory MB), train on fewer demo files, or on a machine with more memory",
+            transform=transform,
+            progress=loaded,
         )
         if frames > 1:
             observations = stack_frames(transitions.observations, transitions.episode_index, frames, image_keys or [])
@@ -425,6 +465,51 @@ def _split(
     )
 
 
+def _check_training_memory(
+    dataset: DemoDataset,
+    observation_space: gym.Space,
+    action_space: gym.Space,
+    config: BCConfig,
+    *,
+    keys: list[str] | None,
+    frames: int,
+) -> None:
+    """Refuse, before the demos load or a weight is allocated, a CNN beyond the limit on its
+    weights (`check_cnn_size`), or a policy and batch that will not fit beside the data
+    (`training_step_bytes`, the demos at the size the policy reads them, or the streaming budget)
+    in the memory available: one line saying which flag helps."""
+    try:
+        layout = observation_layout(observation_space, keys, frames)
+        weights, step = training_step_bytes(
+            observation_space, action_space, config, keys=keys, frames=frames, transitions=dataset.num_transitions
+        )
+    except ImitationError:
+        return  # spaces no policy takes: building the policy says so, naming the demos
+    images = layout.images if layout is not None else []
+    if layout is not None and images:
+        try:
+            check_cnn_size(layout, CNNConfig.from_json(config.cnn or {}))
+        except ImitationError as error:
+            raise ImitationError(f"{dataset.files[0].path}: {error}") from None
+    available = available_memory()
+    row = sum(dtype.itemsize * math.prod(shape) for _, dtype, shape in space_leaves(observation_space))
+    data = config.stream_memory if config.stream_memory is not None else dataset.num_transitions * row
+    if available is None or step + data <= available:
+        return
+    rows = min(config.batch_size, max(dataset.num_transitions, config.epoch_samples))
+    sides = ", ".join(sorted({f"{leaf.height}×{leaf.width}" for leaf in images}))
+    advice = (
+        "train on smaller frames (--image-size 96x96 resizes them as they load) or take smaller batches (--batch-size)"
+        if any(leaf.height * leaf.width > 128 * 128 for leaf in images)
+        else "take smaller batches (--batch-size)"
+    )
+    raise ImitationError(
+        f"{dataset.files[0].path}: a BC step on batches of {rows}{f' {sides} frames' if sides else ''} "
+        f"needs about {step / 2**30:.1f} GiB ({weights} weights with their gradients and Adam's moments, and the "
+        f"activations) beside {data / 2**30:.1f} GiB of demos, and {available / 2**30:.1f} GiB is available; {advice}"
+    )
+
+
 def _check_some_training(dataset: DemoDataset, transitions: int) -> None:
     """Refuse training on nothing: what is left when `--steps human` finds no person's step."""
     if not transitions:
@@ -459,7 +544,13 @@ def _transitions(data: TransitionTensors | StreamingLoader) -> int:
 
 
 def _streams(
-    dataset: DemoDataset, config: BCConfig, *, previous_action: bool, frames: int, image_keys: list[str]
+    dataset: DemoDataset,
+    config: BCConfig,
+    *,
+    previous_action: bool,
+    frames: int,
+    image_keys: list[str],
+    transform: FrameTransform | None = None,
 ) -> tuple[StreamingLoader, StreamingLoader | None, dict[str, Any]]:
     """`_split` for `config.stream_memory`: whole episodes held out (never episode tails), each
     side streamed within the memory budget; validation in order, one batch at a time."""
@@ -474,6 +565,7 @@ def _streams(
         "memory": config.stream_memory,
         "frames": frames,
         "image_keys": image_keys,
+        "transform": transform,
     }
     train = StreamingLoader(dataset, train_ids, seed=config.seed, min_samples=config.epoch_samples, **options)
     if train.transitions == 0:

@@ -52,6 +52,13 @@ def dagger_job(
             "is for BC on a recorded command stream; DAgger's learner acts on the state alone",
             owner="BCConfig",
         )
+    for name in ("image_size", "crop"):
+        if getattr(config.bc, name) is not None:
+            raise ConfigError(
+                name,
+                "resizes stored frames for train bc; DAgger renders its frames as --pixels and --crop say",
+                owner="BCConfig",
+            )
     demos = demos or []
     seed_everything(config.seed)
     frames = config.bc.frame_stack or 1

@@ -9,9 +9,12 @@ intervals. `run` steps it until it is done and owns everything around the steps:
   last step, so that a Ctrl-C in the job's work after training (a final evaluation) loses nothing;
 - Ctrl-C (and SIGTERM, which the CLI routes to the same handler) is deferred to the end of the
   current step, where a checkpoint is saved and `TrainingInterrupted` raised; a second Ctrl-C
-  stops at once;
-- logging and progress: each step's row goes to `log` and to a progress bar on a terminal, or
-  to a line every 30 seconds when stderr is a log (`progress_bar`);
+  stops at once. A learner whose steps are long (`Interruptible`: BC, whose step is an epoch)
+  is told of the request and stops at the next boundary within its step (a minibatch), and the
+  checkpoint then holds its place there;
+- logging and progress: each step's row goes to `log` and to a progress bar on a terminal, or,
+  when stderr is a log, to a line when training starts and every 30 seconds, steps ending or not,
+  saying where within its step the learner is when it has a `within()` (`progress_bar`'s heartbeat);
 - observing: within `observe_rows(callback)`, each row also goes to `callback(learner, row)`, so
   that a caller several jobs above the loop (a sweep's trial) sees the rows without every job
   passing a callback down.
@@ -28,7 +31,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 from imitation.checkpoints import CheckpointData, Tensors, snapshot
 from imitation.progress import progress_bar
@@ -58,11 +61,24 @@ class Learner(Protocol):
 
     def progress(self, row: Row) -> dict[str, str]: ...  # the row's figures a progress bar shows
 
-    def step(self) -> Row: ...
+    def step(self) -> Row | None: ...  # None only for an `Interruptible` learner stopped within its step
 
     def state_dict(self) -> CheckpointData: ...
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None: ...
+
+
+@runtime_checkable
+class Interruptible(Protocol):
+    """A learner whose step is long and can stop midway at a boundary of its own (BC: between
+    minibatches). `run` hands it `requested` (whether Ctrl-C asked to stop) with `stop_when`; a
+    step that stops returns None instead of its row, `position()` then says where within the
+    step it is, and `state_dict()` holds that place, so that a resumed run goes on from it as if
+    never stopped. `within()` says where within the current step it is, for progress lines."""
+
+    def stop_when(self, requested: Callable[[], bool]) -> None: ...
+
+    def within(self) -> str: ...
 
 
 @dataclass
@@ -149,27 +165,62 @@ def run(
     if checkpoints is not None and checkpoints.resume is not None:
         learner.load_state_dict(checkpoints.resume)
     rows: list[Row] = []
-    bar = progress_bar(total=learner.total, initial=learner.completed, desc=learner.name, unit=learner.unit, enabled=progress)
+    bar = progress_bar(
+        total=learner.total,
+        initial=learner.completed,
+        desc=learner.name,
+        unit=learner.unit,
+        enabled=progress,
+        heartbeat=True,
+        detail=learner.within if isinstance(learner, Interruptible) else None,
+    )
+    # Within a step only where one process decides alone: the processes of a data-parallel run
+    # agree on stopping between steps.
+    interruptible = isinstance(learner, Interruptible) and checkpoints is not None and checkpoints.agree is None
+    stop_when = learner.stop_when if isinstance(learner, Interruptible) and interruptible else None
     with bar, StopAtBoundary(enabled=checkpoints is not None) as stop, _outermost() as observer:
-        if checkpoints is not None and checkpoints.at_start and checkpoints.resume is None:
-            checkpoints.save(*snapshot(*learner.state_dict()))
-        while not learner.done:
-            row = learner.step()
-            rows.append(row)
-            if log is not None:
-                log(row)
-            if observer is not None:
-                observer(learner, row)
-            bar.set_postfix(learner.progress(row), refresh=False)
-            bar.update()
-            if checkpoints is None:
-                continue
-            if learner.done:  # the trained state, so that a Ctrl-C in what follows (an evaluation) loses nothing
-                checkpoints.save(*snapshot(*learner.state_dict()))
-                continue
-            interrupted = stop.requested if checkpoints.agree is None else checkpoints.agree(stop.requested)
-            if interrupted or learner.completed % checkpoints.interval(learner.total) == 0:
-                checkpoints.save(*snapshot(*learner.state_dict()))
-            if interrupted:
-                raise TrainingInterrupted(f"{learner.name} stopped after {learner.position()}")
+        if stop_when is not None:
+            stop_when(lambda: stop.requested)
+        try:
+            _steps(learner, checkpoints, log, bar, stop, observer, rows)
+        finally:
+            if stop_when is not None:
+                stop_when(lambda: False)
     return rows
+
+
+def _steps(
+    learner: Learner,
+    checkpoints: Checkpointing | None,
+    log: Callable[[Row], None] | None,
+    bar: Any,
+    stop: StopAtBoundary,
+    observer: RowObserver | None,
+    rows: list[Row],
+) -> None:
+    """`run`'s loop: each step's row logged, observed and shown, checkpoints saved, Ctrl-C honoured."""
+    if checkpoints is not None and checkpoints.at_start and checkpoints.resume is None:
+        checkpoints.save(*snapshot(*learner.state_dict()))
+    while not learner.done:
+        row = learner.step()
+        if row is None:  # an Interruptible learner stopped within its step, at the request
+            assert checkpoints is not None  # it is asked to stop only then
+            checkpoints.save(*snapshot(*learner.state_dict()))
+            raise TrainingInterrupted(f"{learner.name} stopped after {learner.position()}")
+        rows.append(row)
+        if log is not None:
+            log(row)
+        if observer is not None:
+            observer(learner, row)
+        bar.set_postfix(learner.progress(row), refresh=False)
+        bar.update()
+        if checkpoints is None:
+            continue
+        if learner.done:  # the trained state, so that a Ctrl-C in what follows (an evaluation) loses nothing
+            checkpoints.save(*snapshot(*learner.state_dict()))
+            continue
+        interrupted = stop.requested if checkpoints.agree is None else checkpoints.agree(stop.requested)
+        if interrupted or learner.completed % checkpoints.interval(learner.total) == 0:
+            checkpoints.save(*snapshot(*learner.state_dict()))
+        if interrupted:
+            raise TrainingInterrupted(f"{learner.name} stopped after {learner.position()}")
