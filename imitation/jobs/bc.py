@@ -477,7 +477,7 @@ def _check_training_memory(
     """Refuse, before the demos load or a weight is allocated, a CNN beyond the limit on its
     weights (`check_cnn_size`), or a policy and batch that will not fit beside the data
     (`training_step_bytes`, the demos at the size the policy reads them, or the streaming budget)
-    in the memory available: one line saying which flag helps."""
+    in the memory available, where the demos alone would: one line saying which flag helps."""
     try:
         layout = observation_layout(observation_space, keys, frames)
         weights, step = training_step_bytes(
@@ -494,8 +494,8 @@ def _check_training_memory(
     available = available_memory()
     row = sum(dtype.itemsize * math.prod(shape) for _, dtype, shape in space_leaves(observation_space))
     data = config.stream_memory if config.stream_memory is not None else dataset.num_transitions * row
-    if available is None or step + data <= available:
-        return
+    if available is None or step + data <= available or data > available:
+        return  # it fits; or the demos alone do not, which their loading refuses with its own advice
     rows = min(config.batch_size, max(dataset.num_transitions, config.epoch_samples))
     sides = ", ".join(sorted({f"{leaf.height}×{leaf.width}" for leaf in images}))
     advice = (
