@@ -4,17 +4,20 @@ tqdm draws its bar only on a terminal (`disable=None`), so a job whose output go
 a pipe (a batch script, CI, `nohup`) used to say nothing for minutes. `progress_bar` gives tqdm's
 bar on a terminal and otherwise `ProgressLines`: a plain line every 30 seconds and one at the end,
 with the position, the latest figures, the time spent and an estimate of the time left. With
-`heartbeat`, a line also 3 seconds after it starts and every 30 seconds while no step ends (a step
-that takes minutes: an epoch of BC on camera frames), saying where within the step the work is
-(`detail`). The first waits those 3 seconds so that work refused at once (a setting checked after
-the demos load) still answers with its one line alone.
+`heartbeat`, lines also while no step ends (a step that takes minutes: an epoch of BC on camera
+frames), saying where within the step the work is (`detail`). `activity` does the same for long
+work that is not a loop of steps (loading demos), on a terminal as on a log.
 
-`activity` does the same for long work that is not a loop of steps (loading demos): a line 3
-seconds after it starts and one every 30 seconds until it ends, on a terminal as on a log.
+Heartbeat lines keep one clock for the whole process: the first is due 3 seconds after the
+process started, each next one 27 seconds after the last progress line (a margin under 30 for a
+busy machine's late wake-ups), whichever part of the work is running then. None comes within a
+second of a part's start, so that work refused at once (a setting checked after the demos load)
+still answers with its one error line alone.
 """
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import time
@@ -24,28 +27,55 @@ from typing import Any, TextIO
 
 from tqdm import tqdm
 
-FIRST_LINE_SECONDS = 3.0
+FIRST_LINE_SECONDS = 3.0  # after the process started
+GRACE_SECONDS = 1.0  # after a part of the work started
+
+
+def _process_start() -> float:
+    """When this process started, on `time.monotonic`'s clock (Linux: its start time in
+    /proc/self/stat against the uptime); elsewhere, now."""
+    try:
+        with open("/proc/self/stat") as stat, open("/proc/uptime") as uptime:
+            ticks = int(stat.read().rsplit(")", 1)[1].split()[19])
+            age = float(uptime.read().split()[0]) - ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return time.monotonic()
+    return time.monotonic() - max(0.0, age)
+
+
+class _LineClock:
+    """When this process's last progress line was printed (None: none yet)."""
+
+    started = _process_start()
+    last: float | None = None
+
+    @classmethod
+    def printed(cls) -> None:
+        cls.last = time.monotonic()
+
+    @classmethod
+    def due(cls, every: float) -> float:
+        return cls.started + FIRST_LINE_SECONDS if cls.last is None else cls.last + 0.9 * every
 
 
 class _Ticker:
-    """Calls `tick()` from a thread of its own `first` seconds after it starts and whenever nine
-    tenths of `every` seconds pass without `touch()`, until `stop()`: the margin keeps lines
-    within `every` of each other on a busy machine, whose scheduler may wake the thread late."""
+    """Calls `tick()` (which prints a line) from a thread of its own whenever a heartbeat line is
+    due (`_LineClock`, lines `every` seconds apart), but not within `grace` seconds of its start,
+    until `stop()`."""
 
-    def __init__(self, tick: Callable[[], None], every: float, first: float) -> None:
-        self._tick, self.every = tick, 0.9 * every
-        self._last = time.monotonic() - self.every + first
+    def __init__(self, tick: Callable[[], None], every: float, grace: float) -> None:
+        self._tick, self.every = tick, every
+        self._earliest = time.monotonic() + grace
         self._stopped = threading.Event()
         self._thread = threading.Thread(target=self._run, name="progress-heartbeat", daemon=True)
         self._thread.start()
 
-    def touch(self) -> None:
-        self._last = time.monotonic()
+    def _next(self) -> float:
+        return max(_LineClock.due(self.every), self._earliest)
 
     def _run(self) -> None:
-        while not self._stopped.wait(max(0.0, self._last + self.every - time.monotonic())):
-            if time.monotonic() - self._last >= self.every:
-                self._last = time.monotonic()
+        while not self._stopped.wait(max(0.0, self._next() - time.monotonic())):
+            if time.monotonic() >= self._next():
                 self._tick()
 
     def stop(self) -> None:
@@ -57,9 +87,9 @@ class _Ticker:
 class ProgressLines:
     """Progress for a log rather than a terminal: a plain line every `every` seconds and one at
     the end. It has the part of tqdm's interface the toolkit uses (update, set_postfix, close, a
-    context manager). With `heartbeat`, a line `first` seconds after it starts and one whenever
-    `every` seconds pass without one, steps ending or not, with `detail()` (where within the step
-    the work is) beside the position."""
+    context manager). With `heartbeat`, lines also between steps (the module docstring: none
+    within `grace` seconds of its start), with `detail()` (where within the step the work is)
+    beside the position."""
 
     def __init__(
         self,
@@ -72,7 +102,7 @@ class ProgressLines:
         stream: TextIO | None = None,
         heartbeat: bool = False,
         detail: Callable[[], str] | None = None,
-        first: float = FIRST_LINE_SECONDS,
+        grace: float = GRACE_SECONDS,
     ) -> None:
         self.total, self.count, self.desc, self.unit, self.every = total, initial, desc, unit, every
         self.stream = stream if stream is not None else sys.stderr
@@ -83,7 +113,7 @@ class ProgressLines:
         self._lock = threading.Lock()  # the heartbeat's lines and the steps' do not interleave
         self._ticker: _Ticker | None = None
         if heartbeat:
-            self._ticker = _Ticker(lambda: self._line(time.monotonic(), beat=True), every, first)
+            self._ticker = _Ticker(lambda: self._line(time.monotonic(), beat=True), every, grace)
 
     def set_postfix(self, values: dict[str, str], refresh: bool = True) -> None:
         self.postfix = ", ".join(f"{key} {value}" for key, value in values.items())
@@ -97,8 +127,7 @@ class ProgressLines:
 
     def _line(self, now: float, *, final: bool = False, beat: bool = False) -> None:
         with self._lock:
-            if self._ticker is not None:
-                self._ticker.touch()
+            _LineClock.printed()
             self.shown = self.count
             spent = now - self.started
             done = self.count - self.first
@@ -153,13 +182,13 @@ class Activity:
     """Long work that is not a loop of steps, as `activity` reports it: `status` is what the
     lines say of how far it has come (the work sets it as it goes)."""
 
-    def __init__(self, desc: str, what: str, *, every: float, first: float, stream: TextIO) -> None:
+    def __init__(self, desc: str, what: str, *, every: float, grace: float, stream: TextIO) -> None:
         self.desc, self.what, self.stream = desc, what, stream
         self.status = ""
         self.done = 0
         self.started = time.monotonic()
         self._lock = threading.Lock()
-        self._ticker = _Ticker(self._line, every, first)
+        self._ticker = _Ticker(self._line, every, grace)
 
     def count(self, n: int, total: int, unit: str) -> None:
         """`n` more of `total` `unit` done (callable from any thread): the status says how many."""
@@ -169,6 +198,7 @@ class Activity:
 
     def _line(self) -> None:
         with self._lock:
+            _LineClock.printed()
             spent = time.monotonic() - self.started
             status = f": {self.status}" if self.status else ""
             print(f"[{self.desc}] {self.what}{status} ({_duration(spent)} so far)", file=self.stream, flush=True)
@@ -184,16 +214,16 @@ def activity(
     *,
     enabled: bool = True,
     every: float = 30.0,
-    first: float = FIRST_LINE_SECONDS,
+    grace: float = GRACE_SECONDS,
     stream: TextIO | None = None,
 ) -> Iterator[Activity | None]:
-    """A line "[desc] what" `first` seconds after the block starts and one every `every` seconds
-    until it ends (with the `Activity.status` the block sets), on stderr, terminal or not; None
-    and silence when not `enabled`."""
+    """Lines "[desc] what" while the block runs, when heartbeat lines are due (the module
+    docstring: none within `grace` seconds of its start), with the `Activity.status` the block
+    sets, on stderr, terminal or not; None and silence when not `enabled`."""
     if not enabled:
         yield None
         return
-    work = Activity(desc, what, every=every, first=first, stream=stream if stream is not None else sys.stderr)
+    work = Activity(desc, what, every=every, grace=grace, stream=stream if stream is not None else sys.stderr)
     try:
         yield work
     finally:

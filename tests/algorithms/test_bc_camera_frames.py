@@ -132,14 +132,14 @@ def test_frames_that_make_too_large_a_cnn_or_too_large_a_step_are_refused_before
 
 def test_progress_lines_come_soon_after_the_start_and_while_a_step_runs() -> None:
     stream = io.StringIO()
-    with ProgressLines(total=2, desc="BC", unit="epoch", every=0.2, first=0.1, stream=stream, heartbeat=True,
+    with ProgressLines(total=2, desc="BC", unit="epoch", every=0.2, grace=0.1, stream=stream, heartbeat=True,
                        detail=lambda: "batch 3 of 9"):
         assert stream.getvalue() == ""  # work refused at once says its one line alone
         time.sleep(0.5)
     assert stream.getvalue().startswith("[BC] epoch 0/2, batch 3 of 9 (0 s so far)")
     assert stream.getvalue().count("[BC] epoch 0/2, batch 3 of 9 (") >= 2  # no step ended, lines came anyway
     lines = io.StringIO()
-    with activity("BC", "loading 10 transitions", every=0.2, first=0.1, stream=lines) as loading:
+    with activity("BC", "loading 10 transitions", every=0.2, grace=0.1, stream=lines) as loading:
         assert loading is not None
         loading.count(4, 11, "observations")
         time.sleep(0.35)
