@@ -12,6 +12,9 @@ import pytest
 import torch
 
 from imitation.algorithms.policy_gradient import Batch, PGConfig, PolicyGradient
+from imitation.checkpoints import snapshot, unprefixed
+from imitation.errors import ImitationError
+from imitation.policies import ActorCritic, PolicyConfig
 
 GAMMA = 0.5
 
@@ -124,3 +127,20 @@ def test_progress_shows_the_return_and_steps_and_a_config_reads_back_from_its_js
     config = learner.config
     saved = dataclasses.asdict(config) | {"written_by": "a later version"}
     assert PGConfig.from_json(saved) == config
+
+
+def test_the_checkpoint_alone_rebuilds_the_policy_and_a_damaged_one_is_one_line_naming_the_learner() -> None:
+    learner = learner_with_critic_s0(n_step=2)
+    try:
+        learner.step()
+        tensors, state = snapshot(*learner.state_dict())
+        policy = ActorCritic(PolicyConfig.from_json(state["policy"]))
+        policy.load_state_dict(unprefixed("policy", tensors))
+        features = torch.randn(3, 4)
+        assert torch.equal(policy.value(features), learner.policy.value(features))
+        with pytest.raises(ImitationError, match=r"^the checkpoint's next batch is 1000000000, outside 0\.\.\d+ for this run"):
+            learner.load_state_dict((tensors, state | {"batch": 10**9}))
+        with pytest.raises(ImitationError, match=r"^the checkpoint does not fit this policy gradient run \(RuntimeError: Error\(s\) in loading"):
+            learner.load_state_dict(({name: t for name, t in tensors.items() if name != "policy.value_head.weight"}, state))
+    finally:
+        learner.close()

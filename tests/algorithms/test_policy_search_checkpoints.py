@@ -1,15 +1,19 @@
-"""A policy search's checkpoint (imitation.algorithms.policy_search) at its edges: taken before the
-first generation, its counters refused by name when out of range, the projected total it resumes
-with, and CMA-ES's replayed history (its row's σ, and the history a resumed run saves again)."""
+"""A policy search (imitation.algorithms.policy_search) at its edges: its checkpoint taken before
+the first generation, its counters refused by name when out of range, the projected total it
+resumes with, CMA-ES's replayed history (its row's σ, and the history a resumed run saves again);
+the action a searched policy takes, and the elites among tied scores."""
 
 from __future__ import annotations
 
+import gymnasium as gym
+import numpy as np
 import pytest
 import torch
 
-from imitation.algorithms.policy_search import PolicySearch, SearchConfig
+from imitation.algorithms.policy_search import PolicySearch, SearchConfig, elite_indices, mode
 from imitation.checkpoints import snapshot
 from imitation.errors import ImitationError
+from imitation.policies import make_policy
 
 
 def search(method: str = "cmaes") -> PolicySearch:
@@ -64,3 +68,26 @@ def test_cmaes_reports_its_step_size_and_a_resumed_run_saves_the_history_it_repl
     assert torch.equal(torch.as_tensor(resumed.search.centre()), torch.as_tensor(first.search.centre()))
     first.close()
     resumed.close()
+
+
+@pytest.mark.parametrize(
+    "action_space",
+    [gym.spaces.Discrete(3), gym.spaces.MultiDiscrete([3, 2, 4]), gym.spaces.Box(-1.0, 1.0, (2,), np.float32)],
+    ids=["discrete", "multidiscrete", "box"],
+)
+def test_the_searched_policys_action_is_its_mode_component_by_component(action_space: gym.Space) -> None:
+    torch.manual_seed(0)
+    policy = make_policy(gym.spaces.Box(-1.0, 1.0, (3,), np.float32), action_space, hidden_sizes=[5])
+    features = policy.encode(torch.randn(6, 3))
+    with torch.no_grad():
+        outputs = policy.action_head(policy.actor_trunk(features))
+        assert torch.equal(mode(policy, outputs), policy.act(features, deterministic=True))
+
+
+def test_elites_among_tied_scores_are_the_first_candidates() -> None:
+    """40 candidates, the first 20 tied for best in shuffled positions: the 10 elites are the
+    earliest-listed of them (numpy's default sort is not stable past 16 elements)."""
+    best = np.random.default_rng(0).permutation(40)[:20]
+    scores = np.zeros(40)
+    scores[best] = 1.0
+    assert elite_indices(scores, 0.25).tolist() == sorted(best)[:10]

@@ -108,6 +108,34 @@ def test_a_worker_sent_no_learner_lets_the_expert_drive_every_step(tmp_path: Pat
     check_shard(path, None, 0, [5])
 
 
+def test_a_retried_shard_keeps_its_finished_episodes_and_draws_on_as_if_uninterrupted(tmp_path: Path) -> None:
+    """A worker's first try finished one episode of three (Ray then retries the collection): the
+    retry keeps that episode, skips the draws it took, and plays the rest from the same stream."""
+    policy = learner()
+    seeds = [300, 301, 302]
+    worker = RoundWorker(MAKE)
+    path = tmp_path / f"round-{ROUND:02d}-w1.mcap"
+    options = dict(env_id=ENV_ID, round_index=ROUND, beta=BETA, mode="label", rng_seed=[SEED, ROUND, 1], metadata=METADATA)
+    assert worker.collect(policy, str(path), seeds=seeds[:1], **options) == 1
+    first = DemoFile(path).read_episodes()[0]
+    assert worker.collect(policy, str(path), seeds=seeds, **options) == 3
+    worker.close()
+    check_shard(path, policy, 1, seeds)
+    kept = DemoFile(path).read_episodes()[0]
+    assert np.array_equal(kept.timestamps, first.timestamps)  # the episode itself, not a replay of it
+
+
+def test_a_worker_runs_torch_on_one_thread() -> None:
+    """Each Ray worker takes one CPU (`num_cpus=1`): its torch must not spread over more."""
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        RoundWorker(MAKE).close()
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+
+
 ray = pytest.importorskip("ray", reason="the Ray tests need the optional extra: pip install 'imitation-mcap[ray]'")
 
 

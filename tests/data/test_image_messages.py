@@ -9,7 +9,7 @@ import pytest
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
-from imitation.data.mcap.images import FrameError, decode_frame, encode_frame, encode_frames
+from imitation.data.mcap.images import FrameError, _one_line, decode_frame, encode_frame, encode_frames
 
 TIMES = np.array([0, 999_999_999, 1_000_000_000, 1_700_000_123_456_789_012], dtype=np.int64)
 
@@ -67,3 +67,9 @@ def test_a_raw_frame_of_another_geometry_is_refused_naming_both() -> None:
     short = RawImage(width=5, height=3, encoding="mono8", step=5, data=bytes(14)).SerializeToString()
     with pytest.raises(FrameError, match=r"^14 bytes of pixels, but a 5x3 mono8 image has 15$"):
         decode_frame("raw", (3, 5), short)
+
+
+def test_a_decoders_error_is_quoted_on_one_line_of_at_most_120_characters_or_by_its_type() -> None:
+    assert _one_line(ValueError("broken\n   header  here")) == "broken header here"
+    assert _one_line(ValueError("x" * 300)) == "x" * 120
+    assert _one_line(OSError()) == "OSError"
