@@ -3,9 +3,9 @@
 tqdm draws its bar only on a terminal (`disable=None`), so a job whose output goes to a file or
 a pipe (a batch script, CI, `nohup`) used to say nothing for minutes. `progress_bar` gives tqdm's
 bar on a terminal and otherwise `ProgressLines`: a plain line every 30 seconds and one at the end,
-with the position, the latest figures, the time spent and an estimate of the time left. With
-`heartbeat`, lines also while no step ends (a step that takes minutes: an epoch of BC on camera
-frames), saying where within the step the work is (`detail`). `activity` does the same for long
+with the position, the latest figures, the time spent and an estimate of the time left, and (its
+`heartbeat`) lines also while no step ends (a step that takes minutes: an epoch of BC on camera
+frames, an episode recorded at 480×640), saying where within the step the work is (`detail`). `activity` does the same for long
 work that is not a loop of steps (loading demos), on a terminal as on a log.
 
 Heartbeat lines keep one clock for the whole process: the first is due 3 seconds after the
@@ -168,7 +168,7 @@ def progress_bar(
     desc: str,
     unit: str,
     enabled: bool = True,
-    heartbeat: bool = False,
+    heartbeat: bool = True,
     detail: Callable[[], str] | None = None,
 ) -> Any:
     """A tqdm bar on a terminal; on anything else (a log file, a pipe) `ProgressLines` (with its

@@ -171,7 +171,6 @@ def run(
         desc=learner.name,
         unit=learner.unit,
         enabled=progress,
-        heartbeat=True,
         detail=learner.within if isinstance(learner, Interruptible) else None,
     )
     # Within a step only where one process decides alone: the processes of a data-parallel run
