@@ -9,6 +9,7 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 
 from imitation.data.mcap.format import EpisodeFacts
+from imitation.data.mcap.images import FrameMap
 from imitation.data.mcap.reader import DemoFile
 from imitation.data.spaces import spaces_equal
 from imitation.data.types import Episode
@@ -67,10 +68,11 @@ class DemoDataset:
         for f in self.files:
             yield from f
 
-    def read_episodes(self, indices: Sequence[int] | None = None) -> list[Episode]:
-        """Episodes `indices` (dataset-wide; all by default) in ascending order, each chunk read once."""
+    def read_episodes(self, indices: Sequence[int] | None = None, *, transform: FrameMap | None = None) -> list[Episode]:
+        """Episodes `indices` (dataset-wide; all by default) in ascending order, each chunk read
+        once; with `transform`, their frames as it makes them, each as it is decoded."""
         if indices is None:
-            return [episode for f in self.files for episode in f.read_episodes()]
+            return [episode for f in self.files for episode in f.read_episodes(transform=transform)]
         chosen = sorted(set(int(k) for k in indices))
         if chosen and not 0 <= chosen[0] <= chosen[-1] < len(self):
             raise IndexError(f"episode indices must lie in [0, {len(self)}), got {chosen[0]}..{chosen[-1]}")
@@ -79,5 +81,5 @@ class DemoDataset:
             start, end = int(self._offsets[file_index]), int(self._offsets[file_index + 1])
             local = [k - start for k in chosen if start <= k < end]
             if local:
-                episodes += f.read_episodes(local)
+                episodes += f.read_episodes(local, transform=transform)
         return episodes

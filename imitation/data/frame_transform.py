@@ -19,7 +19,7 @@ import numpy as np
 
 from imitation.data.image_resize import MAX_SIDE, resized
 from imitation.data.mcap.images import is_image_leaf
-from imitation.data.spaces import LeafPath, space_leaves
+from imitation.data.spaces import space_leaves
 from imitation.errors import ImitationError
 
 
@@ -52,10 +52,6 @@ class FrameTransform:
             frame = frame[top : top + height, left : left + width]
         return resized(frame, self.size) if self.size is not None else np.ascontiguousarray(frame)
 
-    def image_paths(self, space: gym.Space) -> list[LeafPath]:
-        """The leaves of `space` it transforms."""
-        return [path for path, dtype, shape in space_leaves(space) if is_image_leaf(dtype, shape)]
-
     def check(self, space: gym.Space, where: str) -> None:
         """Refuse a crop outside a frame of `space`, or a space without frames; `where` names the data."""
         leaves = [(path, shape) for path, dtype, shape in space_leaves(space) if is_image_leaf(dtype, shape)]
@@ -84,19 +80,6 @@ class FrameTransform:
             return {key: self.observation(value) for key, value in observation.items()}
         array = np.asarray(observation)
         return self(array) if is_image_leaf(array.dtype, array.shape) else observation
-
-    def rows(self, tree: Any) -> Any:
-        """A batch of observations (rows first; an array, or a dict of them) with each image
-        leaf's rows transformed, frame by frame into the new array."""
-        if isinstance(tree, dict):
-            return {key: self.rows(value) for key, value in tree.items()}
-        array = np.asarray(tree)
-        if not is_image_leaf(array.dtype, array.shape[1:]):
-            return tree
-        out = np.empty((len(array), *self.shape(array.shape[1:])), dtype=array.dtype)
-        for row, frame in enumerate(array):
-            out[row] = self(frame)
-        return out
 
     def row_bytes(self, space: gym.Space) -> int:
         """Bytes of one observation of `space` once transformed."""

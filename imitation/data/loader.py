@@ -11,7 +11,6 @@ Typical use::
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import resource
@@ -148,9 +147,9 @@ def load_episodes(
     return _read(dataset, episodes)
 
 
-def _read(dataset: DemoDataset, episodes: Sequence[int] | None) -> list[Episode]:
+def _read(dataset: DemoDataset, episodes: Sequence[int] | None, transform: FrameTransform | None = None) -> list[Episode]:
     try:
-        return dataset.read_episodes(episodes)
+        return dataset.read_episodes(episodes, transform=transform)
     except IndexError as error:
         raise ImitationError(str(error)) from None
 
@@ -174,8 +173,7 @@ def load_transitions(
     allocated, the error ending in `too_large` (what the caller's user can do about it).
 
     With `transform`, every frame of the observations' image leaves is cropped and resized as
-    it loads (`FrameTransform`): frame by frame where the files' frames are placed by their
-    times, else an episode at a time, so that at most one episode is held at its stored size.
+    it is decoded (`FrameTransform`), so that no more than a frame is held at its stored size.
     `progress(n)` is told of observations loaded (each episode's steps and its final
     observation), possibly from other threads."""
     dataset = source if isinstance(source, DemoDataset) else DemoDataset(source)
@@ -186,16 +184,7 @@ def load_transitions(
     steps = sum(all_facts[k].length for k in indices)
     if steps == 0:
         raise ImitationError("no transitions to load: the demos hold no steps")
-    largest = max(all_facts[k].length for k in indices) + 1 if transform is not None else 0
-    _check_memory(
-        dataset,
-        steps,
-        len(indices),
-        next_observations=next_observations,
-        too_large=too_large,
-        transform=transform,
-        held=largest,
-    )
+    _check_memory(dataset, steps, len(indices), next_observations=next_observations, too_large=too_large, transform=transform)
     transitions = read_transitions(
         dataset, indices, next_observations=next_observations, transform=transform, progress=progress
     )
@@ -243,10 +232,10 @@ def select_human_steps(
 def _transformed_episodes(
     dataset: DemoDataset, indices: Sequence[int], transform: FrameTransform, progress: Callable[[int], None] | None
 ) -> Iterator[Episode]:
-    """Episodes `indices`, read one at a time, their frames transformed."""
+    """Episodes `indices`, read one at a time, their frames transformed as they are decoded."""
     for k in indices:
-        (episode,) = _read(dataset, [k])
-        yield dataclasses.replace(episode, observations=transform.rows(episode.observations))
+        (episode,) = _read(dataset, [k], transform)
+        yield episode
         if progress is not None:
             progress(len(episode) + 1)
 
@@ -259,22 +248,22 @@ def _check_memory(
     next_observations: bool,
     too_large: str,
     transform: FrameTransform | None = None,
-    held: int = 0,
 ) -> None:
     """Refuse, before allocating, a load that cannot fit in the memory this machine has free:
     one line naming the size, instead of an out-of-memory kill or traceback midway. With
-    `transform` the observations are counted at their transformed size, plus `held` of them
-    at the stored size (an episode decoded before its frames are transformed)."""
+    `transform` the observations are counted at their transformed size."""
     space = dataset.observation_space
-    stored_row = sum(dtype.itemsize * math.prod(shape) for _, dtype, shape in space_leaves(space))
-    observation_row = transform.row_bytes(space) if transform is not None else stored_row
+    observation_row = (
+        transform.row_bytes(space)
+        if transform is not None
+        else sum(dtype.itemsize * math.prod(shape) for _, dtype, shape in space_leaves(space))
+    )
     action_row = sum(dtype.itemsize * math.prod(shape) for _, dtype, shape in space_leaves(dataset.action_space))
     # observations and final rows, s' if asked for, actions, rewards, the two flags, episode indices
     needed = (
         (steps + episodes) * observation_row
         + (steps * observation_row if next_observations else 0)
         + steps * (action_row + 8 + 2 + 8)
-        + held * stored_row
     )
     available = available_memory()
     if available is not None and needed > available:

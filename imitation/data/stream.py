@@ -22,7 +22,6 @@ order, and rows are drawn from a numpy generator seeded from the epoch's torch g
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import queue
 import threading
@@ -73,9 +72,8 @@ class StreamingLoader:
     passes over the data as often as it takes to reach `min_samples` samples, each pass in its own
     order. Without `shuffle`, episodes and rows come in ascending order and the buffer holds one
     batch. NaN or ±inf in an episode is an ImitationError naming its file, episode and step.
-    With `transform`, each decoded episode's frames are cropped and resized before it waits for
-    the buffer, and the budget counts them at that size (each decoding worker holds one episode
-    at its stored size meanwhile)."""
+    With `transform`, each frame is cropped and resized as it is decoded, and the budget counts
+    the frames at that size."""
 
     def __init__(
         self,
@@ -251,10 +249,8 @@ class StreamingLoader:
     def _decode(self, k: int) -> Transitions:
         """Episode k as one contiguous block of its T transitions (a worker thread's job), its
         frames transformed if the loader has a transform."""
-        episode = self.dataset[k]
+        (episode,) = self.dataset.read_episodes([k], transform=self.transform)
         check_episodes_finite([episode], self.dataset, [k])
-        if self.transform is not None:
-            episode = dataclasses.replace(episode, observations=self.transform.rows(episode.observations))
         return episodes_to_transitions([episode], [k], next_observations=False)
 
     def _copy(self, source: Transitions, stacks: np.ndarray, buffer: dict[_Leaf, np.ndarray], at: int) -> None:

@@ -1,8 +1,8 @@
 """BC on camera frames of a real size (issue 51, items 1 and 6, the training side).
 
-`train bc --image-size HxW --crop T,L,H,W` crops and resizes every frame once, as it loads (frame by
-frame where the files' frames are placed by their times, an episode at a time otherwise, and in the
-streaming loader); the policy keeps both, and the env it acts in does the same to its frames. The
+`train bc --image-size HxW --crop T,L,H,W` crops and resizes every frame once, as it is decoded (on
+the loader's fast path, its general one for files with their own clock, and in the streaming
+loader); the policy keeps both, and the env it acts in does the same to its frames. The
 CNN's size and a training step's memory are checked before anything loads, each refusal one line
 naming the flag that helps. Progress comes from the start (the loading, then every epoch's batches,
 on a log as on a terminal), and Ctrl-C within a long epoch stops at the next minibatch with a
@@ -74,10 +74,10 @@ TRANSFORM = FrameTransform((48, 64), (40, 80, 400, 480))
 def test_frames_are_cropped_and_resized_as_they_load_exactly_as_the_stored_frames_would_be(camera_demos: Path, timed_demos: Path) -> None:
     whole = load_transitions(DemoDataset(camera_demos))
     assert whole.observations["pixels"].shape[1:] == (480, 640, 3)
-    expected = TRANSFORM.rows(whole.observations)["pixels"]
-    expected_next = TRANSFORM.rows(whole.next_observations)["pixels"]
+    expected = np.stack([TRANSFORM(frame) for frame in whole.observations["pixels"]])
+    expected_next = np.stack([TRANSFORM(frame) for frame in whole.next_observations["pixels"]])
     assert expected.shape[1:] == (48, 64, 3) and expected.std() > 0
-    # frame by frame through the fast path; an episode at a time through the general one
+    # through the fast path, and the general one (files with their own clock)
     assert read_transitions(DemoDataset(camera_demos), [0], next_observations=False, transform=TRANSFORM) is not None
     assert read_transitions(DemoDataset(timed_demos), [0], next_observations=False, transform=TRANSFORM) is None
     for path in (camera_demos, timed_demos):

@@ -27,7 +27,7 @@ import os
 import warnings
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -163,17 +163,34 @@ def encode_frame(
     return _message_class(codec)(timestamp=timestamp, format=codec, data=out.getvalue()).SerializeToString()
 
 
+class FrameMap(Protocol):
+    """What is done to each frame as it is decoded (`imitation.data.frame_transform.FrameTransform`:
+    a crop and a resize), and the shape it makes of a frame's."""
+
+    def shape(self, shape: tuple[int, ...]) -> tuple[int, ...]: ...
+
+    def __call__(self, frame: np.ndarray) -> np.ndarray: ...
+
+
 def decode_frames(
-    codec: str, shape: tuple[int, ...], frames: Sequence[bytes | memoryview], *, topic: str, episode: int
+    codec: str,
+    shape: tuple[int, ...],
+    frames: Sequence[bytes | memoryview],
+    *,
+    topic: str,
+    episode: int,
+    transform: FrameMap | None = None,
 ) -> np.ndarray:
     """The frames of one episode's channel as a uint8 array (len(frames), *shape); frame i is step i.
+    With `transform`, each frame as it makes it, one at a time (the episode is never held at `shape`).
 
     Raises FrameError for a frame that does not parse, decode, or match `shape`."""
-    out = np.empty((len(frames), *shape), dtype=np.uint8)
+    out = np.empty((len(frames), *(transform.shape(shape) if transform is not None else shape)), dtype=np.uint8)
 
     def decode(step: int) -> None:
         try:
-            out[step] = decode_frame(codec, shape, frames[step])
+            frame = decode_frame(codec, shape, frames[step])
+            out[step] = transform(frame) if transform is not None else frame
         except FrameError as error:
             raise type(error)(f"{topic}, episode {episode}, step {step}: {error}") from None
 

@@ -44,7 +44,7 @@ from imitation.data.mcap.format import (
     metadata_crc,
     to_json_text,
 )
-from imitation.data.mcap.images import FrameError, FrameLimitError, decode_frames, is_image_leaf
+from imitation.data.mcap.images import FrameError, FrameLimitError, FrameMap, decode_frames, is_image_leaf
 from imitation.data.mcap.records import (
     OP_CHANNEL,
     OP_CHUNK,
@@ -91,8 +91,10 @@ class _EpisodeAssembler:
         action_space: gym.Space,
         channels: dict[int, Field | None],
         facts_by_end_time: dict[int, EpisodeFacts] | None = None,
+        transform: FrameMap | None = None,
     ):
         self._channels = channels
+        self._transform = transform  # done to every frame of the observations as it is decoded
         # Known facts (from a checked index) by t_end_ns, the marker's log time, which is unique
         # per episode: looking them up is cheaper than parsing each marker's JSON again.
         self._facts_by_end_time = facts_by_end_time or {}
@@ -133,7 +135,7 @@ class _EpisodeAssembler:
         def rows(f: Field, count: int) -> np.ndarray:
             parts = blocks.get(f.topic, [])
             if f.topic in images:
-                return _frames(f, images[f.topic], parts, count, facts.index)
+                return _frames(f, images[f.topic], parts, count, facts.index, self._transform)
             if f.row_nbytes == 0:
                 return np.zeros((count, *f.shape), dtype=f.native_dtype)
             data = parts[0] if len(parts) == 1 else b"".join(parts)
@@ -203,8 +205,11 @@ def _interventions(
     )
 
 
-def _frames(f: Field, channel: Field, frames: list[bytes | memoryview], count: int, episode: int) -> np.ndarray:
-    """The rows of an image channel: one message per frame, decoded to the space's leaf."""
+def _frames(
+    f: Field, channel: Field, frames: list[bytes | memoryview], count: int, episode: int, transform: FrameMap | None = None
+) -> np.ndarray:
+    """The rows of an image channel: one message per frame, decoded to the space's leaf (and
+    `transform`ed, frame by frame)."""
     assert channel.codec is not None
     if channel.dtype != f.dtype or channel.shape != f.shape or not is_image_leaf(f.dtype, f.shape):
         raise ValueError(
@@ -214,7 +219,7 @@ def _frames(f: Field, channel: Field, frames: list[bytes | memoryview], count: i
     # Counted before anything is allocated: the frames are messages the file really holds.
     if len(frames) != count:
         raise ValueError(f"episode {episode}: {f.topic} holds {len(frames)} frames, expected {count}")
-    return decode_frames(channel.codec, f.shape, frames, topic=f.topic, episode=episode)
+    return decode_frames(channel.codec, f.shape, frames, topic=f.topic, episode=episode, transform=transform)
 
 
 def _check_episode_index(episodes: list[EpisodeFacts], content_bytes: int) -> None:
@@ -397,12 +402,13 @@ class DemoFile:
         for _, episode in self._read(self._index.chunks, keep=None, bulk=False):
             yield episode
 
-    def read_episodes(self, indices: Sequence[int] | None = None) -> list[Episode]:
-        """Episodes `indices` (all by default), in file order, reading each needed chunk once.
+    def read_episodes(self, indices: Sequence[int] | None = None, *, transform: FrameMap | None = None) -> list[Episode]:
+        """Episodes `indices` (all by default), in file order, reading each needed chunk once;
+        with `transform`, the observations' frames as it makes them, each as it is decoded.
 
         Arrays are read-only views of the chunk buffers read for them (no copy beyond the read)."""
         if indices is None:
-            return [episode for _, episode in self._read(self._index.chunks, keep=None, bulk=True)]
+            return [episode for _, episode in self._read(self._index.chunks, keep=None, bulk=True, transform=transform)]
         wanted = set(indices)
         for k in wanted:
             if not 0 <= k < len(self):
@@ -412,7 +418,8 @@ class DemoFile:
             for chunk in self.chunks_of(self.episodes[k]):
                 needed[chunk.offset] = chunk
         chunks = sorted(needed.values(), key=lambda c: (c.start_time, c.offset))
-        found = {facts.index: episode for facts, episode in self._read(chunks, keep=lambda f: f.index in wanted, bulk=True)}
+        read = self._read(chunks, keep=lambda f: f.index in wanted, bulk=True, transform=transform)
+        found = {facts.index: episode for facts, episode in read}
         missing = wanted - set(found)
         if missing:
             raise DemoFileError(f"{self.path}: episode {min(missing)} is listed in the index but its data is missing")
@@ -421,7 +428,12 @@ class DemoFile:
     # -- internals ----------------------------------------------------------------------------
 
     def _read(
-        self, chunks: Sequence[ChunkRef], *, keep: Callable[[EpisodeFacts], bool] | None, bulk: bool
+        self,
+        chunks: Sequence[ChunkRef],
+        *,
+        keep: Callable[[EpisodeFacts], bool] | None,
+        bulk: bool,
+        transform: FrameMap | None = None,
     ) -> Iterator[tuple[EpisodeFacts, Episode]]:
         """Assemble episodes from `chunks` (in file order); yield those `keep` accepts.
 
@@ -431,7 +443,9 @@ class DemoFile:
         memory bounded with per-chunk buffers instead."""
         if not chunks:
             return
-        assembler = _EpisodeAssembler(self.observation_space, self.action_space, self._index.channels, self._facts_by_end_time)
+        assembler = _EpisodeAssembler(
+            self.observation_space, self.action_space, self._index.channels, self._facts_by_end_time, transform
+        )
         try:
             buffers = ChunkBuffers(chunks) if bulk else None
         except Damage as error:
