@@ -324,8 +324,8 @@ def _hidden_sizes(text: str) -> list[int]:
 
 def cmd_train_bc(args: argparse.Namespace) -> int:
     from imitation.algorithms.bc import BCConfig
-    from imitation.data.frame_transform import parse_crop
     from imitation.data.image_resize import parse_image_size
+    from imitation.envs.pixels import parse_crop
     from imitation.jobs.bc import bc_job
 
     if args.image_size is not None:

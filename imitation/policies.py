@@ -44,7 +44,7 @@ import torch
 from torch import nn
 from torch.distributions import Categorical, Distribution, Normal, kl_divergence, register_kl
 
-from imitation.data.frame_transform import FrameTransform
+from imitation.data.frame_transform import FrameTransform, TransformFrames
 from imitation.data.spaces import check_spaces_fit, describe_space, space_from_json, space_to_json
 from imitation.encoders import CNNConfig, ImageEncoder, cnn_weight_count, conv_output_sides, random_shift
 from imitation.envs.make import make_env
@@ -52,7 +52,6 @@ from imitation.envs.pixels import (
     PixelObservation,
     PixelRecipe,
     StackFrames,
-    TransformFrames,
     is_image_space,
     make_pixel_env,
 )

@@ -17,8 +17,10 @@ Trainers that can resume (PPO, with GCL's reward learner when `train irl --metho
 BC; DAgger; tabular MaxEnt/MCE IRL) save a checkpoint into `RUN_DIR.partial/checkpoint/`
 (`tensors.safetensors` and `state.json`, see imitation.checkpoints) every tenth of the run and
 when Ctrl-C (or SIGTERM) stops them. The partial directory of a run that stops for any reason (an
-interruption, a full disk, a failure) is kept when it holds a checkpoint, and removed otherwise. A
-new run refuses to start over a kept one, and
+interruption, a full disk, a failure) is kept when it holds a checkpoint, and removed otherwise;
+a failure removes it too when its one checkpoint is the one taken before the first step (a
+learner's `at_start`), which holds nothing a rerun would not redo, so that input refused in the
+first step leaves nothing behind. A new run refuses to start over a kept one, and
 `RunWriter(..., resume=True)` reopens it: the logged rows are cut back to the checkpoint and
 the trainer continues from its state. A finished run keeps no checkpoint: nothing resumes it,
 so `finish()` removes it once the run is in place.
@@ -198,6 +200,8 @@ class RunWriter:
             self._csv_file = open(self.partial / PROGRESS_FILE, "w", newline="")  # noqa: SIM115
         self._csv: csv.DictWriter | None = None
         self._history: list[dict[str, float]] = []
+        # Whether the checkpoint on disk holds work done (a reopened one is assumed to).
+        self._progress_checkpointed = resume
         self._tensorboard = None
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
@@ -279,6 +283,14 @@ class RunWriter:
 
     def save_checkpoint(self, tensors: dict[str, torch.Tensor], state: dict[str, Any]) -> None:
         """Save a trainer's checkpoint with the rows logged so far (see `save_checkpoint`)."""
+        self._save_checkpoint(tensors, state)
+        self._progress_checkpointed = True
+
+    def save_start_checkpoint(self, tensors: dict[str, torch.Tensor], state: dict[str, Any]) -> None:
+        """Save the checkpoint taken before the first step: kept by an interruption, not by a failure."""
+        self._save_checkpoint(tensors, state)
+
+    def _save_checkpoint(self, tensors: dict[str, torch.Tensor], state: dict[str, Any]) -> None:
         with writing(self.partial / CHECKPOINT_DIR):
             save_checkpoint(self.partial, tensors, {"history": self._history, "trainer": state, "config": self._started_with})
 
@@ -309,12 +321,13 @@ class RunWriter:
         for name in (CHECKPOINT_DIR, CHECKPOINT_DIR + ".new", CHECKPOINT_DIR + ".old"):
             shutil.rmtree(self.path / name, ignore_errors=True)
 
-    def abort(self, *, keep_checkpoint: bool = False) -> bool:
+    def abort(self, *, keep_checkpoint: bool = False, keep_start: bool = False) -> bool:
         """Stop after a failure. The partial run is removed, unless `keep_checkpoint` and it holds
-        a checkpoint to resume from; whether it was kept."""
+        a checkpoint to resume from, one of work done or, with `keep_start`, the one taken before
+        the first step; whether it was kept."""
         with suppress(OSError):
             self._close_logs()
-        kept = keep_checkpoint and has_checkpoint(self.partial)
+        kept = keep_checkpoint and (self._progress_checkpointed or keep_start) and has_checkpoint(self.partial)
         if not kept:
             shutil.rmtree(self.partial, ignore_errors=True)
         self._release()
@@ -329,11 +342,11 @@ class RunWriter:
         return self
 
     def __exit__(self, exc_type: type | None, exc: BaseException | None, tb: Any) -> None:
-        # A failure never deletes a checkpoint: what stopped the run (a full disk, a lost
-        # process of a torchrun job, a bug) may be mended, and the run continued with --resume.
+        # A failure never deletes a checkpoint of work done: what stopped the run (a full disk,
+        # a lost process of a torchrun job, a bug) may be mended, and the run continued with --resume.
         if exc_type is None:
             return
-        kept = self.abort(keep_checkpoint=True)
+        kept = self.abort(keep_checkpoint=True, keep_start=isinstance(exc, KeyboardInterrupt))
         if kept and isinstance(exc, WriteError):
             exc.args = (
                 f"{exc}; {self.partial} keeps the run's last checkpoint: make room, then run the same command with --resume",

@@ -5,6 +5,7 @@ loaded by every learner, and losses that diverge."""
 from __future__ import annotations
 
 import dataclasses
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -16,12 +17,20 @@ from test_cli import assert_one_line_error
 from imitation.data.mcap.reader import DemoFile
 from imitation.data.mcap.writer import write_episodes
 from imitation.errors import ImitationError
+from imitation.runs import has_checkpoint
 
 
 def assert_nothing_written(*paths: Path) -> None:
     for path in paths:
         for leftover in (path, path.with_name(path.name + ".partial")):
             assert not leftover.exists(), f"{leftover} was left behind"
+
+
+def assert_checkpoint_kept(result: subprocess.CompletedProcess, run: Path) -> None:
+    """A failure after a checkpoint of work done keeps it, and says so (nothing lost)."""
+    partial = run.with_name(run.name + ".partial")
+    assert not run.exists() and has_checkpoint(partial), f"{partial} holds no checkpoint"
+    assert f"{partial} keeps the run's last checkpoint" in result.stderr, result.stderr
 
 
 def copy_with_nan(source: Path, out: Path, *, episode: int, step: int, field: str) -> Path:
@@ -52,7 +61,9 @@ def test_nan_from_an_environment_is_named_by_episode_and_step(tmp_path: Path) ->
     assert_one_line_error(results["ppo reward"], "the environment returned a non-finite reward at env step 1157 (env copy 0)")
     # On call 300 the episode ends: the NaN is in the final observation, which the env has replaced by a reset one.
     assert_one_line_error(results["ppo final obs"], "the environment returned a non-finite final observation at env step 1197 (env copy 0)")
-    assert_nothing_written(tmp_path / "ppo-obs", tmp_path / "ppo-reward", tmp_path / "ppo-final")
+    # The NaN comes after the checkpoint at a tenth of the run (410 steps): kept, to resume once the env is mended.
+    for case, run in (("ppo obs", "ppo-obs"), ("ppo reward", "ppo-reward"), ("ppo final obs", "ppo-final")):
+        assert_checkpoint_kept(results[case], tmp_path / run)
     # The recordings' five finished episodes are kept, for `imitation recover`, and said so.
     for name in ("obs.mcap", "reward.mcap"):
         assert f"{tmp_path / name}.partial keeps 5 finished episode(s)" in results[f"record {name.split('.')[0]}"].stderr

@@ -126,3 +126,25 @@ def test_a_lock_file_hard_linked_to_another_file_is_refused_and_the_file_kept(tm
     with pytest.raises(ImitationError, match=r"\.x\.mcap\.lock: not a lock file of this program \(a hard link to another file"):
         OutputLock(tmp_path / "x.mcap").acquire()
     assert victim.read_text() == "keep me"
+
+
+def test_a_failure_drops_a_start_checkpoint_but_an_interruption_or_a_later_checkpoint_keeps_it(tmp_path: Path) -> None:
+    """The checkpoint taken before the first step holds no work: a failure (input refused in the
+    first step) leaves nothing behind, a Ctrl-C keeps it to resume from, and so does a failure
+    once a checkpoint of work done replaced it."""
+
+    def started(name: str) -> RunWriter:
+        run = RunWriter(tmp_path / name, config={"kind": "test"}, tensorboard=False)
+        run.save_start_checkpoint({"w": torch.zeros(3)}, {"epoch": 0})
+        return run
+
+    with pytest.raises(ValueError), started("failed"):
+        raise ValueError("refused in the first step")
+    with pytest.raises(KeyboardInterrupt), started("interrupted"):
+        raise KeyboardInterrupt
+    with pytest.raises(ValueError), started("failed later") as run:
+        run.save_checkpoint({"w": torch.ones(3)}, {"epoch": 1})
+        raise ValueError("failed in the second step")
+    assert not (tmp_path / "failed.partial").exists()
+    assert read_checkpoint(tmp_path / "interrupted.partial")[1]["trainer"] == {"epoch": 0}
+    assert read_checkpoint(tmp_path / "failed later.partial")[1]["trainer"] == {"epoch": 1}

@@ -5,7 +5,7 @@
 width), then resize to `size` (height, width) with the toolkit's one resize
 (`imitation.data.image_resize`: area averaging). The policy carries it (`PolicyConfig`'s
 `image_transform`), and the env it acts in applies it to every frame it observes, so a policy
-sees in evaluation exactly what it learnt from.
+sees in evaluation exactly what it learnt from (`TransformFrames`).
 """
 
 from __future__ import annotations
@@ -21,17 +21,6 @@ from imitation.data.image_resize import MAX_SIDE, resized
 from imitation.data.mcap.images import is_image_leaf
 from imitation.data.spaces import space_leaves
 from imitation.errors import ImitationError
-
-
-def parse_crop(text: str) -> tuple[int, int, int, int]:
-    """(top, left, height, width) from "T,L,H,W" as given to `--crop`."""
-    parts = text.split(",")
-    if len(parts) != 4 or not all(part.strip().isdigit() for part in parts):
-        raise ImitationError(f"--crop {text!r}: give the rectangle as TOP,LEFT,HEIGHT,WIDTH in pixels, e.g. 120,150,200,300")
-    top, left, height, width = (int(part) for part in parts)
-    if height < 1 or width < 1:
-        raise ImitationError(f"--crop {text!r}: the rectangle's height and width must be at least 1")
-    return top, left, height, width
 
 
 @dataclass(frozen=True)
@@ -123,3 +112,18 @@ def _integers(values: Any, count: int, low: int) -> bool:
         and len(values) == count
         and all(isinstance(n, int) and not isinstance(n, bool) and low <= n <= MAX_SIDE for n in values)
     )
+
+
+class TransformFrames(gym.ObservationWrapper):
+    """Every image leaf of the observations cropped and resized by `transform`, as a policy
+    trained with `train bc --crop/--image-size` learnt from them (`FrameTransform`)."""
+
+    def __init__(self, env: gym.Env, transform: FrameTransform) -> None:
+        super().__init__(env)
+        name = env.spec.id if env.spec else type(env.unwrapped).__name__
+        transform.check(env.observation_space, f"environment {name}")
+        self.transform = transform
+        self.observation_space = transform.space(env.observation_space)
+
+    def observation(self, observation: Any) -> Any:
+        return self.transform.observation(observation)

@@ -9,8 +9,6 @@
   state rides along for experts that act on it (DAgger's scripted expert) and for evaluation;
   pixel policies read "pixels" alone (`PolicyConfig.observation_keys`). An env whose observation
   already is an image gives {"pixels": that image, resized}.
-- `TransformFrames(env, transform)`: the observations' image leaves cropped and resized as a policy
-  trained with `train bc --crop/--image-size` saw its demos' frames (`FrameTransform`).
 - `StackFrames(env, k)`: every image leaf becomes its last k frames, (k, H, W, C) oldest first,
   with the reset frame repeated before the first step (gymnasium's FrameStackObservation with
   padding "reset"); other leaves pass through unchanged. `stack_frames` builds the same stacks
@@ -30,12 +28,22 @@ import cv2
 import gymnasium as gym
 import numpy as np
 
-from imitation.data.frame_transform import FrameTransform, parse_crop
 from imitation.errors import ImitationError
 
 PIXELS_KEY = "pixels"
 STATE_KEY = "state"
 _SIZE = re.compile(r"^([1-9][0-9]{0,3})x([1-9][0-9]{0,3})$")
+
+
+def parse_crop(text: str) -> tuple[int, int, int, int]:
+    """(top, left, height, width) from "T,L,H,W" as given to `--crop`."""
+    parts = text.split(",")
+    if len(parts) != 4 or not all(part.strip().isdigit() for part in parts):
+        raise ImitationError(f"--crop {text!r}: give the rectangle as TOP,LEFT,HEIGHT,WIDTH in pixels, e.g. 120,150,200,300")
+    top, left, height, width = (int(part) for part in parts)
+    if height < 1 or width < 1:
+        raise ImitationError(f"--crop {text!r}: the rectangle's height and width must be at least 1")
+    return top, left, height, width
 
 
 def is_image_space(space: gym.Space) -> bool:
@@ -193,21 +201,6 @@ class PixelObservation(gym.ObservationWrapper):
         if not isinstance(rendered, np.ndarray):
             raise ImitationError(f"environment {self.env.spec.id if self.env.spec else self.env}: render() gave no frame")
         return {PIXELS_KEY: self.recipe.frame(rendered), STATE_KEY: observation}
-
-
-class TransformFrames(gym.ObservationWrapper):
-    """Every image leaf of the observations cropped and resized by `transform`, as a policy
-    trained with `train bc --crop/--image-size` learnt from them (`FrameTransform`)."""
-
-    def __init__(self, env: gym.Env, transform: FrameTransform) -> None:
-        super().__init__(env)
-        name = env.spec.id if env.spec else type(env.unwrapped).__name__
-        transform.check(env.observation_space, f"environment {name}")
-        self.transform = transform
-        self.observation_space = transform.space(env.observation_space)
-
-    def observation(self, observation: Any) -> Any:
-        return self.transform.observation(observation)
 
 
 def expert_on_state(expert: Callable[[Any], Any], env: PixelObservation) -> Callable[[Any], Any]:

@@ -84,14 +84,15 @@ class Interruptible(Protocol):
 @dataclass
 class Checkpointing:
     """`save(tensors, state)` every `every` steps (None: every tenth of the run), after the last
-    step, when interrupted, and with `at_start` before the first step of a run not resumed (for a
-    learner whose step can be stopped midway: a second Ctrl-C, SIGKILL); `resume`, when given, is
+    step and when interrupted; `at_start(tensors, state)`, when given, before the first step of a
+    run not resumed (for a learner whose step can be stopped midway: a second Ctrl-C, SIGKILL),
+    a checkpoint that holds no work done; `resume`, when given, is
     the checkpoint to continue from. `agree(requested)`, for the processes of a data-parallel run,
     says whether any of them was asked to stop, so that all stop after the same step."""
 
     save: Callable[[Tensors, dict[str, Any]], None]
     every: int | None = None
-    at_start: bool = False
+    at_start: Callable[[Tensors, dict[str, Any]], None] | None = None
     resume: CheckpointData | None = None
     agree: Callable[[bool], bool] | None = None
 
@@ -198,8 +199,8 @@ def _steps(
     rows: list[Row],
 ) -> None:
     """`run`'s loop: each step's row logged, observed and shown, checkpoints saved, Ctrl-C honoured."""
-    if checkpoints is not None and checkpoints.at_start and checkpoints.resume is None:
-        checkpoints.save(*snapshot(*learner.state_dict()))
+    if checkpoints is not None and checkpoints.at_start is not None and checkpoints.resume is None:
+        checkpoints.at_start(*snapshot(*learner.state_dict()))
     while not learner.done:
         row = learner.step()
         if row is None:  # an Interruptible learner stopped within its step, at the request

@@ -64,7 +64,8 @@ def training_run(
 def checkpointing(run: RunWriter, *, at_start: bool = False) -> Checkpointing:
     """Checkpoints into `run`, from the one it was reopened with (and before the first step, with
     `at_start`)."""
-    return Checkpointing(save=run.save_checkpoint, resume=run.resumed, at_start=at_start)
+    start = run.save_start_checkpoint if at_start else None
+    return Checkpointing(save=run.save_checkpoint, resume=run.resumed, at_start=start)
 
 
 class EnvLearner(Learner, Protocol):

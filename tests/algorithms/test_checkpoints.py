@@ -377,7 +377,8 @@ def test_the_loop_saves_every_interval_stops_on_ctrl_c_with_a_checkpoint_and_res
     # `at_start`: one before the first step too, unless resumed.
     saved.clear()
     started = FakeLearner(3)
-    run(started, checkpoints=Checkpointing(save=lambda tensors, state: saved.append((tensors, state)), every=5, at_start=True))
+    keep = lambda tensors, state: saved.append((tensors, state))  # noqa: E731
+    run(started, checkpoints=Checkpointing(save=keep, every=5, at_start=keep))
     assert [state["next"] for _, state in saved] == [1, 4] and started.events[0] == "save 0"
 
     # Ctrl-C during a step: the step finishes, a checkpoint is saved, and the message is "{name} stopped after {position}".
@@ -402,7 +403,7 @@ def test_the_loop_saves_every_interval_stops_on_ctrl_c_with_a_checkpoint_and_res
     assert [state["next"] for _, state in saved] == [7, 10, 11]
     resumed_at_start = FakeLearner(10)
     saved.clear()
-    run(resumed_at_start, checkpoints=Checkpointing(save=lambda tensors, state: saved.append((tensors, state)), every=3, resume=(tensors, state), at_start=True))
+    run(resumed_at_start, checkpoints=Checkpointing(save=keep, every=3, resume=(tensors, state), at_start=keep))
     assert resumed_at_start.events[:2] == ["load 4", "step 5"] and [state["next"] for _, state in saved] == [7, 10, 11]
 
     # Without checkpoints nothing is saved (the learner's state is never asked for).
