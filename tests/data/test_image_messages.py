@@ -4,10 +4,15 @@ geometry and encoding are its own, and a message decodes back to the frame."""
 
 from __future__ import annotations
 
+import io
+import struct
+import zlib
+
 import numpy as np
 import pytest
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from PIL import Image
 
 from imitation.data.mcap.images import FrameError, _one_line, decode_frame, encode_frame, encode_frames
 
@@ -73,3 +78,68 @@ def test_a_decoders_error_is_quoted_on_one_line_of_at_most_120_characters_or_by_
     assert _one_line(ValueError("broken\n   header  here")) == "broken header here"
     assert _one_line(ValueError("x" * 300)) == "x" * 120
     assert _one_line(OSError()) == "OSError"
+
+
+def _compressed(codec: str, data: bytes) -> bytes:
+    return CompressedImage(format=codec, data=data).SerializeToString()
+
+
+def _png_chunks(*chunks: tuple[bytes, bytes]) -> bytes:
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    return b"\x89PNG\r\n\x1a\n" + b"".join(chunk(kind, data) for kind, data in chunks) + chunk(b"IEND", b"")
+
+
+def _rgb_png(width: int, height: int, pixels: bytes, *before_data: tuple[bytes, bytes]) -> bytes:
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return _png_chunks((b"IHDR", header), *before_data, (b"IDAT", zlib.compress(pixels)))
+
+
+def test_a_webp_message_decodes_to_its_rgb_or_rgba_frame() -> None:
+    for shape in ((4, 6, 3), (4, 6, 4)):
+        frame = np.full(shape, 120, dtype=np.uint8)
+        message = encode_frame("webp", frame, 7, webp_quality=100, jpeg_quality=10)
+        assert CompressedImage.FromString(message).format == "webp"
+        assert np.array_equal(decode_frame("webp", shape, message), frame)  # a flat picture is exact at 100
+
+
+def test_an_animated_webp_frame_is_refused_naming_its_frame_count() -> None:
+    frame = np.full((4, 6, 3), 120, dtype=np.uint8)
+    out = io.BytesIO()
+    Image.fromarray(frame).save(
+        out,
+        format="WEBP",
+        save_all=True,
+        append_images=[Image.fromarray(255 - frame), Image.fromarray(frame // 2)],
+        duration=50,
+    )
+    with pytest.raises(FrameError, match=r"^an animation of 3 frames, not one picture$"):
+        decode_frame("webp", (4, 6, 3), _compressed("webp", out.getvalue()))
+
+
+def test_a_picture_of_another_format_than_the_codec_is_refused_even_when_pillow_reads_it() -> None:
+    frame = np.full((4, 6, 3), 120, dtype=np.uint8)
+    for codec, other in (("png", "BMP"), ("png", "JPEG"), ("jpeg", "PNG"), ("webp", "PNG")):
+        out = io.BytesIO()
+        Image.fromarray(frame).save(out, format=other)
+        with pytest.raises(FrameError, match=rf"^does not decode as {codec} \(cannot identify image file"):
+            decode_frame(codec, (4, 6, 3), _compressed(codec, out.getvalue()))
+
+
+def test_a_png_whose_header_passes_pillows_bomb_warning_is_refused_by_it() -> None:
+    # 10^8 pixels: past Pillow's warning (89,478,485) but short of its error (twice that).
+    with pytest.raises(
+        FrameError, match=r"^does not decode as png \(Image size \(100000000 pixels\) exceeds limit of 89478485"
+    ):
+        decode_frame("png", (4, 6, 3), _compressed("png", _rgb_png(10_000, 10_000, b"")))
+
+
+def test_a_png_pillow_warns_about_but_reads_decodes_to_its_picture() -> None:
+    # An acTL chunk claiming 0 frames: Pillow warns that the APNG is invalid and reads the PNG's
+    # own picture, which is the frame.
+    frame = np.random.default_rng(1).integers(0, 256, (4, 6, 3), dtype=np.uint8)
+    rows = b"".join(b"\0" + row.tobytes() for row in frame)
+    data = _rgb_png(6, 4, rows, (b"acTL", struct.pack(">II", 0, 0)))
+    with pytest.warns(UserWarning, match="Invalid APNG"):
+        assert np.array_equal(decode_frame("png", (4, 6, 3), _compressed("png", data)), frame)
