@@ -43,12 +43,10 @@ bench: venv
 
 # The MuJoCo table (issue 20): BC, DAgger, GAIL, AIRL and PPO on recovered rewards, 3 seeds, beside
 # imitation 1.0.1 run on the same demos (its venv under bench/). The experts are our PPO's, as imitation's
-# are (the zoo's SAC falls after ~300 of Hopper's 1000 steps on v5); HalfCheetah's demos are recorded
-# without DART noise, which knocks its PPO expert over. Our GAIL pays PPO the logit log D − log(1 − D)
-# with a gradient penalty: −log(1 − D) alone did not learn Hopper. AIRL's discriminator keeps every
-# rollout, half of each minibatch's negatives from the latest: the one setting under which both AIRL
-# rows pass on Hopper. HalfCheetah's g is retrained on after a second AIRL run whose policy starts
-# afresh (--airl-restart): the first run's g rates standing still like running (bench/RESULTS.md).
+# are; HalfCheetah's demos are recorded without DART noise. GAIL pays PPO the logit log D − log(1 − D)
+# with a gradient penalty; AIRL's discriminator keeps every rollout, half of each minibatch's negatives
+# from the latest; HalfCheetah's g is retrained on after a second AIRL run whose policy starts afresh
+# (--airl-restart). Why each setting, and the figures: bench/RESULTS.md, "The MuJoCo table" sections.
 # Hours on 2 cores; resumes where it stopped.
 bench-mujoco: venv
 	$(PY) bench/mujoco_table.py --peer --ppo-expert Hopper --ppo-expert HalfCheetah --action-noise HalfCheetah=0 \
@@ -64,12 +62,12 @@ bench-claims: venv
 	$(PY) bench/claim_clip_vs_kl.py
 	$(PY) bench/claim_apprenticeship.py
 
-# Mutation fuzzing of every file reader, 10,000 inputs per target (figures: bench/RESULTS.md, "Fuzzing (issue 8)").
+# Mutation fuzzing of every file reader, 10,000 inputs per target (figures: bench/RESULTS.md, "Current figures").
 fuzz: venv
 	$(PY) tools/fuzz.py
 
 # Mutation testing of the numerical core ([tool.mutmut] in pyproject.toml); mutmut keeps its
-# results in mutants/ and re-tests only what changed. Figures: bench/RESULTS.md, issue 14.
+# results in mutants/ and re-tests only what changed. Figures: bench/RESULTS.md, "Current figures".
 mutate: venv
 	OMP_NUM_THREADS=1 $(PY) tools/mutation_report.py --run
 

@@ -567,7 +567,7 @@ def cmd_eval_reward(args: argparse.Namespace) -> int:
 
     from imitation.jobs.evaluate_reward import RewardEvaluationConfig, evaluate_reward
 
-    torch.set_num_threads(1)  # EPIC's many small reward calls; measured 2-10x faster than 2 threads on 2 busy cores
+    torch.set_num_threads(1)  # EPIC's many small reward calls: faster on one thread (bench/RESULTS.md)
     config = RewardEvaluationConfig(**_fields(args, "RewardEvaluationConfig"))
     out = args.out or str(Path(args.run) / "eval-reward")
     result = evaluate_reward(args.run, args.env, config, out, progress=not args.quiet, workers=_workers(args))

@@ -6,16 +6,13 @@ meets states it has no data for, and its errors grow with the horizon (∝ T² r
 DAgger labels the states the learner itself visits, so it should reach expert-level return with
 fewer expert-labelled samples. This script measures that.
 
-Task: Pendulum-v1 with the scripted expert (`imitation.experts.scripted.pendulum`). In a pilot
-(64×64 tanh MLP, 100 epochs, 1–2 seeds) both Pendulum and CartPole-v1 showed the effect, and
-Pendulum showed it more clearly: BC on 4 expert episodes (800 labels) still failed to swing up
-(-447, about 0.65 normalised) while DAgger with the same 800 labels returned -145 (the expert: -110).
-The swing-up is where compounding bites: a slightly mistimed pump leaves the pendulum at an
+Task: Pendulum-v1 with the scripted expert (`imitation.experts.scripted.pendulum`). The
+swing-up is where compounding bites: a slightly mistimed pump leaves the pendulum at an
 (angle, speed) pair the expert never passed through, and the learner's next action there is a
-guess. CartPole's expert stays within a small region that BC covers after a few hundred labels
-(pilot: BC ≥ 0.95 from 400–800 labels, DAgger from 150–250), so the gap there is narrower.
-Pendulum episodes also always last 200 steps, so every episode costs exactly 200 labels on both
-sides and the label axes line up.
+guess. CartPole's expert stays within a small region that BC covers after a few hundred labels,
+so the gap there is narrower (the pilot that chose the task: bench/RESULTS.md). Pendulum
+episodes also always last 200 steps, so every episode costs exactly 200 labels on both sides and
+the label axes line up.
 
 - BC: for each budget of n expert episodes (collect_round with β = 1, i.e. pure expert rollouts),
   a fresh policy is trained with BC (`BehaviouralCloning`, run to its end) on their 200·n labelled steps.

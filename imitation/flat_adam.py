@@ -112,8 +112,8 @@ class FlatAdam:
         step_size = group["lr"] / (1 - beta1**self.steps)
         denominator = self._denominator
         if denominator.device.type == "cpu":
-            # numpy's: torch's vectorised CPU sqrt takes ~15x longer on zeros (measured), which
-            # the moments of parameters without gradients (BC's unused critic) are.
+            # numpy's: torch's vectorised CPU sqrt is many times slower on zeros (bench/ppo_step.py),
+            # which the moments of parameters without gradients (BC's unused critic) are.
             np.sqrt(self.exp_avg_sq.numpy(), out=denominator.numpy())
         else:
             torch.sqrt(self.exp_avg_sq, out=denominator)

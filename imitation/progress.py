@@ -1,7 +1,7 @@
 """Progress that reaches the user whether stderr is a terminal or a log file.
 
 tqdm draws its bar only on a terminal (`disable=None`), so a job whose output goes to a file or
-a pipe (a batch script, CI, `nohup`) used to say nothing for minutes. `progress_bar` gives tqdm's
+a pipe (a batch script, CI, `nohup`) would say nothing for minutes. `progress_bar` gives tqdm's
 bar on a terminal and otherwise `ProgressLines`: a plain line every 30 seconds and one at the end,
 with the position, the latest figures, the time spent and an estimate of the time left, and (its
 `heartbeat`) lines also while no step ends (a step that takes minutes: an epoch of BC on camera

@@ -505,8 +505,8 @@ class PPO:
         self, config: PPOConfig, *, reward: RolloutReward | None = None, remote: RemoteRollouts | None = None
     ) -> None:
         config.validate()
-        # Measured on 2 cores: one thread runs these small MLPs ~10× faster than two, which
-        # spend their time synchronising.
+        # One thread by default: with two, these small MLPs spend their time synchronising
+        # (bench/RESULTS.md, "Why the presets are what they are").
         torch.set_num_threads(config.threads)
         torch.manual_seed(config.seed)
         np.random.seed(config.seed)

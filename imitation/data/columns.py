@@ -50,10 +50,10 @@ _LARGE_BYTES = 32 * 1024 * 1024
 def large_empty(shape: tuple[int, ...], dtype: np.dtype | type) -> np.ndarray:
     """np.empty for the big arrays of a load (image columns, batches of frames): at 32 MiB or
     more, memory of its own mapping marked for transparent huge pages, so filling it costs one
-    page fault per 2 MiB instead of per 4 KiB. Measured here (a VM, THP "madvise"): writing a
-    fresh 1.2 GB np.empty array takes 1.7 s of CPU, one of these 0.15 s; numpy's own huge-page
-    hint does not take effect on this kernel. The array behaves as any other (writable,
-    C-contiguous; the mapping is freed with its last reference); elsewhere it is np.empty."""
+    page fault per 2 MiB instead of per 4 KiB (on a VM with THP "madvise", about a tenth of the CPU
+    time to fill: bench/RESULTS.md), where numpy's own huge-page hint does not take effect. The
+    array behaves as any other (writable, C-contiguous; the mapping is freed with its last
+    reference); elsewhere it is np.empty."""
     dtype = np.dtype(dtype)
     size = math.prod(shape) * dtype.itemsize
     if size < _LARGE_BYTES or not hasattr(mmap, "MADV_HUGEPAGE") or dtype.hasobject:

@@ -98,8 +98,8 @@ class TransitionTensors:
 def _take_rows(tensor: torch.Tensor, rows: np.ndarray, index: torch.Tensor) -> torch.Tensor:
     """`tensor[index]` for a CPU tensor, the same values in a new tensor: numpy's take copies
     each row whole, where torch's advanced indexing of a uint8 image batch goes element by
-    element (measured here on 7 batches of 256 frames of 640x360x3: 2.1-2.3 s of CPU with
-    torch, 0.25-0.7 s with numpy). The RNG stream and the rows chosen are the caller's, as before."""
+    element, several times slower (bench/RESULTS.md). The RNG stream and the rows chosen are the
+    caller's."""
     if (
         tensor.device.type != "cpu"
         or tensor.requires_grad

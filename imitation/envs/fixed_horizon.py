@@ -10,9 +10,8 @@ Kostrikov et al. (2019, "Discriminator-actor-critic") treat terminal states in a
 imitation: the system freezes where it failed and stays there, earning 0, until the horizon.
 Unlike a termination this pays a constant reward the same either way, so it leaks nothing; and
 the learned reward gets to judge "having failed" as one thing, which it must learn from the
-demos never doing it, instead of extrapolating to every pose a falling pole can take (measured:
-without the indicator, guided cost learning left some failure poses rated as high as the demos,
-and PPO retrained on its reward learned to fall into them).
+demos never doing it, instead of extrapolating to every pose a falling pole can take, which PPO
+retrained on the reward would learn to fall into (bench/RESULTS.md, "Maximum-entropy IRL").
 """
 
 from __future__ import annotations

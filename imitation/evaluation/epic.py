@@ -53,10 +53,9 @@ from imitation.errors import ImitationError
 RewardFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 """R(s, a, s') on a batch: arrays of N states, N actions and N next states in, N rewards out."""
 
-# Rows (state × mean sample) per reward call in the sampled estimator. Of 2k- to 256k-row calls,
-# a 64×64 MLP reward ran fastest on 8k-row ones on 2 CPU cores: their activations stay in cache,
-# and smaller calls lose that to per-call overhead. Chunking also means 4096 transitions × 512
-# samples never hold the whole 4M-row product in memory.
+# Rows (state × mean sample) per reward call in the sampled estimator: large enough that per-call
+# overhead is small, small enough that a small MLP's activations stay in cache (bench/RESULTS.md).
+# Chunking also means 4096 transitions × 512 samples never hold the whole 4M-row product in memory.
 _CHUNK_ROWS = 1 << 13
 # A spread below this fraction of the reward's magnitude is float32 round-off (learned rewards
 # are float32 networks), not a preference between transitions.

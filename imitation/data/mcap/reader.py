@@ -438,9 +438,9 @@ class DemoFile:
         """Assemble episodes from `chunks` (in file order); yield those `keep` accepts.
 
         `bulk`: the caller keeps everything, so read into two large buffers (raw records and
-        decompressed content) instead of one buffer per chunk. Measured here, large numpy
-        allocations (huge pages) fault in 2-3x faster than many 1 MiB ones; lazy iteration keeps
-        memory bounded with per-chunk buffers instead."""
+        decompressed content) instead of one buffer per chunk: large allocations (huge pages) fault
+        in faster than many 1 MiB ones (bench/RESULTS.md). Lazy iteration keeps memory bounded with
+        per-chunk buffers instead."""
         if not chunks:
             return
         assembler = _EpisodeAssembler(

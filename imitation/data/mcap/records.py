@@ -172,8 +172,8 @@ class ChunkBuffers:
 
 
 def _read_chunk(source: ByteSource, chunk: ChunkRef, buffers: ChunkBuffers | None) -> memoryview | bytes:
-    # pread into our own buffer, not mmap: measured here, faulting in a mapped file's pages
-    # varied 4x between runs.
+    # pread into our own buffer, not mmap: the cost of faulting in a mapped file's pages varies
+    # widely from run to run on a VM (bench/RESULTS.md).
     if buffers is None:
         record: memoryview | bytes = source.read(chunk.offset, chunk.length)
         out = None
