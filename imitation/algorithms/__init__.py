@@ -1,1 +1,11 @@
-"""Learning algorithms: BC, DAgger, MaxEnt IRL and the bundled PPO trainer."""
+"""Learning algorithms, each module stating its equations and citing docs/THEORY.md:
+
+- imitation from demos and experts: `bc` (behavioural cloning), `dagger` (DAgger; `ray_dagger` plays its
+  rounds on Ray workers);
+- inverse RL: `maxent_irl` (tabular MaxEnt and MCE IRL), `gcl` (guided cost learning), `adversarial` with
+  `gail` and `airl` (the discriminator on PPO's loop), `apprenticeship` (feature matching, the projection
+  method);
+- reinforcement learning: `ppo` (the bundled PPO trainer; `ray_rollouts` collects its rollouts on Ray
+  actors), `policy_gradient` (REINFORCE, with a baseline, actor-critic), `policy_search` (hill climbing, the
+  cross-entropy method, CMA-ES).
+"""
