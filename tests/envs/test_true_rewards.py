@@ -7,6 +7,7 @@ import pytest
 
 import imitation.envs  # noqa: F401 - registers the imitation/ envs
 from imitation.envs.make import make_env
+from imitation.envs.tabular import TabularEnv, TabularMDP
 from imitation.envs.true_rewards import true_reward
 
 
@@ -38,7 +39,9 @@ def test_true_reward_matches_the_env_step(env_id: str) -> None:
     reward = true_reward(env_id, env)
     assert reward is not None
     observations, actions, next_observations, rewards, _ = random_steps(env, 300)
-    np.testing.assert_allclose(reward(observations, actions, next_observations), rewards, rtol=1e-5, atol=1e-5)
+    computed = reward(observations, actions, next_observations)
+    assert computed.dtype == np.float64  # as step pays it, whatever the observations' dtype (float32 here)
+    np.testing.assert_allclose(computed, rewards, rtol=1e-5, atol=1e-5)
     if env_id == "imitation/CartPoleFixedHorizon-v0":
         assert 0 < np.mean(rewards) < 1, "the rollout should both balance and fail"
 
@@ -140,3 +143,20 @@ def test_a_tabular_reward_reads_states_given_as_a_column_or_as_floats() -> None:
     column = np.array([[0], [5], [63]])
     assert reward(column, np.zeros(3), column).tolist() == expected.tolist()
     assert reward(column.astype(np.float32).ravel(), np.zeros(3), column.ravel()).tolist() == expected.tolist()
+
+
+@pytest.mark.parametrize("state_reward", [np.array([3, -2, 7]), np.array([0.3, -0.2, 0.7], dtype=np.float32)])
+def test_a_tabular_reward_is_float64_as_step_pays_it_whatever_the_mdps_dtype(state_reward: np.ndarray) -> None:
+    mdp = TabularMDP(
+        transition=np.full((3, 1, 3), 1 / 3), initial=np.full(3, 1 / 3), features=np.eye(3), reward=state_reward, horizon=4
+    )
+    env = TabularEnv(mdp)
+    reward = true_reward("a tabular env of no registered id", env)
+    assert reward is not None
+    paid = []
+    for state in range(3):
+        env.state = state
+        paid.append(env.step(0)[1])
+    states = np.arange(3)
+    values = reward(states, np.zeros(3, np.int64), states)
+    assert values.dtype == np.float64 and values.tolist() == paid
