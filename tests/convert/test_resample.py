@@ -73,3 +73,11 @@ def test_markers_begin_episodes_inside_the_span_only() -> None:
     assert split_at_markers(10, 30, np.array([11])) == [(10, 10), (11, 30)]
     # Two markers at one time begin one episode there, not an empty one between them.
     assert split_at_markers(10, 30, np.array([20, 20])) == [(10, 19), (20, 30)]
+
+
+def test_a_time_past_the_end_that_rounds_onto_it_is_not_on_the_grid() -> None:
+    # At 7 Hz the fifth time is 4/7 s = 571,428,571.43 ns: past an end at 571,428,571 ns, though
+    # it rounds to it. The grid holds the times up to the end, as the converter counts its steps.
+    end = 571_428_571
+    assert regular_grid(0, end, 7.0).tolist() == [0, 142_857_143, 285_714_286, 428_571_429]
+    assert regular_grid(0, end + 1, 7.0).tolist() == [0, 142_857_143, 285_714_286, 428_571_429, end]
