@@ -10,8 +10,8 @@ ours runs on exactly those arrays. Reported per size:
   iterations after a warm-up run that pays torch's lazy initialisation, the median of `repeats`
   fresh runs (this VM's timings wander by ±20 % from run to run), one torch thread;
 - iterations until the learned occupancy is within 1e-3 (L∞) of the expert's, at Adam lr 0.1
-  for both (imitation's default 1e-2 needs ~3× more iterations, and so does ours). Each side
-  imitates the soft-optimal expert of its own model: imitation's planner leaves the reward of
+  for both (fewer iterations than imitation's default 1e-2, on both sides: bench/RESULTS.md).
+  Each side imitates the soft-optimal expert of its own model: imitation's planner leaves the reward of
   the final state s_H out (Q_{H-1} = r), ours counts it as the notes do (V_H = r), so neither
   can reach the other's expert exactly. On 100×20 imitation's count would take hours (3 s per
   iteration), so only ours is counted there.

@@ -3,7 +3,8 @@
 One recording (`record --pixels 84x84 --grayscale --crop 150,216,168,168 --frame-stack 4
 --action-noise P`), its last 4 episodes held out, and a BC network trained on the rest for a
 fixed number of Adam steps (batch 128, random shift 4), then rolled out deterministically. The
-variants (those from `--newest-diff` on, remedies aimed at copycat, not yet in bench/RESULTS.md):
+variants (those from `--newest-diff` on are remedies aimed at copycat BC; the figures of all of them are
+in bench/RESULTS.md's Pixel CartPole sections):
 
 - `--scale raw|standardised`: pixels divided by 255, or standardised by the training frames' mean
   and std (what the policies do with normalised observations);

@@ -6,9 +6,9 @@ would run, and measured (exit code, the one line on stderr, wall and CPU time, p
 
 tests/test_hostile_inputs.py runs the same cases and checks that each is refused in one line,
 within 2 CPU seconds and 200 MB beyond what the same command costs on a trivially bad input (its
-`baseline`: a command that imports torch costs ~2 s and ~400 MB before it reads anything). CPU
-time, not wall time: the suite's other workers share the cores, and waiting for one is no cost
-of the input.
+`baseline`: a command that imports torch costs about 2 s and 600-900 MB before it reads anything;
+bench/RESULTS.md). CPU time, not wall time: the suite's other workers share the cores, and
+waiting for one is no cost of the input.
 """
 
 from __future__ import annotations
