@@ -160,3 +160,55 @@ def test_a_tabular_reward_is_float64_as_step_pays_it_whatever_the_mdps_dtype(sta
     states = np.arange(3)
     values = reward(states, np.zeros(3, np.int64), states)
     assert values.dtype == np.float64 and values.tolist() == paid
+
+
+LIMIT_POSES = {
+    # (z, torso angle, first joint angle) at, just inside and past each limit; Hopper's state
+    # bound (|x| < 100) is reachable in its observation through a joint angle only.
+    "Hopper": [
+        (0.7, 0.0, 0.0),
+        (0.7 + 1e-9, 0.0, 0.0),
+        (1.2, 0.2, 0.0),
+        (1.2, -0.2 + 1e-9, 0.0),
+        (1.2, 0.0, 100.0),
+        (1.2, 0.0, -100.0 + 1e-9),
+        (1.2, 0.0, 100.5),
+        (1.2, 0.0, 150.0),
+        (1.2, 0.19, 99.0),
+    ],
+    "Walker2d": [
+        (0.8, 0.0, 0.0),
+        (0.8 + 1e-9, 0.0, 0.0),
+        (2.0, 0.0, 0.0),
+        (2.0 - 1e-9, 0.0, 0.0),
+        (1.2, 1.0, 0.0),
+        (1.2, -1.0, 0.0),
+        (1.2, 1.0 - 1e-9, 0.0),
+        (1.2, 0.0, 150.0),
+    ],
+}
+
+
+@pytest.mark.parametrize("name", list(LIMIT_POSES))
+def test_hopper_and_walker_healthy_bonus_is_the_envs_own_at_their_exact_limits(name: str) -> None:
+    """Poses exactly at each bound (the env's are strict: at the bound is unhealthy), a hair
+    inside it, and past it, in one batch: each state's bonus is 1 exactly when the env says it is
+    healthy, whatever the batch's other states."""
+    env_id = f"imitation/{name}FixedHorizon-v0"
+    env = make_env(env_id)
+    reward = true_reward(env_id, env)
+    assert reward is not None
+    env.reset(seed=0)
+    model = env.unwrapped
+    states, expected = [], []
+    for z, angle, joint in LIMIT_POSES[name]:
+        position = model.init_qpos.copy()
+        position[1:4] = z, angle, joint
+        model.set_state(position, model.init_qvel)
+        states.append(model._get_obs())
+        expected.append(float(model.is_healthy))
+    states = np.array(states)
+    still = np.zeros((len(states), *env.action_space.shape))
+    bonus = reward(states, still, states) - states[:, SPEED_INDEX[name]]
+    np.testing.assert_allclose(bonus, expected, atol=1e-9)
+    assert 0 < np.mean(expected) < 1
