@@ -1,9 +1,11 @@
 """A policy search (imitation.algorithms.policy_search) at its edges: its checkpoint taken before
-the first generation, its counters refused by name when out of range, the projected total it
-resumes with, CMA-ES's replayed history (its row's σ, and the history a resumed run saves again);
-the action a searched policy takes, and the elites among tied scores."""
+the first generation, its counters refused by name when out of range, a damaged part named, the
+projected total it resumes with, CMA-ES's replayed history (its row's σ, and the history a resumed
+run saves again); the action a searched policy takes, and the elites among tied scores."""
 
 from __future__ import annotations
+
+import re
 
 import gymnasium as gym
 import numpy as np
@@ -91,3 +93,21 @@ def test_elites_among_tied_scores_are_the_first_candidates() -> None:
     scores = np.zeros(40)
     scores[best] = 1.0
     assert elite_indices(scores, 0.25).tolist() == sorted(best)[:10]
+
+
+def test_a_damaged_checkpoint_names_the_part_that_does_not_fit() -> None:
+    """CartPole's linear actor has 4 × 2 weights and 2 biases: a CEM mean of 3 values, or a
+    CMA-ES generation of 3 scores where the population is 2, is refused saying so."""
+    cem = search("cem")
+    tensors, state = snapshot(*cem.state_dict())
+    expected = "the checkpoint does not fit this CEM run (ValueError: a parameter vector of shape (3,), not (10,))"
+    with pytest.raises(ImitationError, match=re.escape(expected)):
+        cem.load_state_dict((tensors | {"search.mean": torch.zeros(3, dtype=torch.float64)}, state))
+    cem.close()
+    cmaes = search("cmaes")
+    tensors, state = snapshot(*cmaes.state_dict())
+    damaged = state | {"search": {"told": [[0.0, 1.0, 2.0]]}}
+    expected = "the checkpoint does not fit this CMA-ES run (ValueError: a generation of 3 scores, not 2)"
+    with pytest.raises(ImitationError, match=re.escape(expected)):
+        cmaes.load_state_dict((tensors, damaged))
+    cmaes.close()
