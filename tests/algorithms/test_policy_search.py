@@ -104,12 +104,16 @@ def test_cem_strategy_samples_its_gaussian_and_refits() -> None:
     _, candidates = search.propose(np.random.default_rng(3))
     np.testing.assert_allclose(candidates, np.array([1.0, -1.0]) + 2.0 * np.random.default_rng(3).standard_normal((4, 2)))
     scores = np.array([0.0, 3.0, 1.0, 2.0])
-    search.tell(candidates, 0.0, scores)
+    row = search.tell(candidates, 0.0, scores)
     expected_mean, expected_variance = cem_refit(candidates, scores, 0.2, 0.3)
     np.testing.assert_allclose(search.mean, expected_mean)
     np.testing.assert_allclose(search.variance, expected_variance)
+    assert row == {"sigma": pytest.approx(np.sqrt(expected_variance).mean()), "extra_noise": 0.3}
     search.tell(candidates, 0.0, scores)  # generation 1: Z = 0.15
     np.testing.assert_allclose(search.variance, cem_refit(candidates, scores, 0.2, 0.15)[1])
+    # Generation 2 reaches t_Z: no extra variance, σ the elite's (one of 4 at ρ = 0.2: σ² = 0).
+    row = search.tell(candidates, 0.0, scores)
+    assert search.generation == 3 and row == {"sigma": 0.0, "extra_noise": 0.0}
 
 
 def test_cmaes_through_cma_minimises_a_sphere() -> None:
