@@ -7,6 +7,7 @@ are slow tests: `pytest -m slow`."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import gymnasium as gym
@@ -101,6 +102,8 @@ def test_cem_strategy_samples_its_gaussian_and_refits() -> None:
         env_id="CartPole-v1", method="cem", population=4, sigma=2.0, extra_noise=0.3, extra_noise_generations=2
     )
     search = CrossEntropy(config, np.array([1.0, -1.0]))
+    narrow = CrossEntropy(dataclasses.replace(config, sigma=0.5), np.zeros(3))
+    assert (narrow.mean.tolist(), narrow.variance.tolist(), narrow.generation) == ([0.0] * 3, [0.25] * 3, 0)  # σ₀²
     _, candidates = search.propose(np.random.default_rng(3))
     np.testing.assert_allclose(candidates, np.array([1.0, -1.0]) + 2.0 * np.random.default_rng(3).standard_normal((4, 2)))
     scores = np.array([0.0, 3.0, 1.0, 2.0])
