@@ -40,7 +40,9 @@ def test_true_reward_matches_the_env_step(env_id: str) -> None:
     assert reward is not None
     observations, actions, next_observations, rewards, _ = random_steps(env, 300)
     computed = reward(observations, actions, next_observations)
-    assert computed.dtype == np.float64  # as step pays it, whatever the observations' dtype (float32 here)
+    assert (
+        computed.dtype == np.float64 and computed.shape == rewards.shape
+    )  # as step pays it, whatever the observations' dtype
     np.testing.assert_allclose(computed, rewards, rtol=1e-5, atol=1e-5)
     if env_id == "imitation/CartPoleFixedHorizon-v0":
         assert 0 < np.mean(rewards) < 1, "the rollout should both balance and fail"
@@ -212,3 +214,30 @@ def test_hopper_and_walker_healthy_bonus_is_the_envs_own_at_their_exact_limits(n
     bonus = reward(states, still, states) - states[:, SPEED_INDEX[name]]
     np.testing.assert_allclose(bonus, expected, atol=1e-9)
     assert 0 < np.mean(expected) < 1
+
+
+@pytest.mark.parametrize("name", ["HalfCheetah", "Walker2d", "Ant"])
+def test_mujoco_true_reward_depends_on_the_values_not_the_dtype_they_are_stored_in(name: str) -> None:
+    """The same steps stored as float32 (as a demo file may hold them) and as float64 get the same
+    reward to the last bit: control costs, contact costs and health are computed from the values.
+    Walker2d's extra step stands at z = float32(0.8) = 0.800000012 > 0.8, healthy in float64."""
+    env_id = f"imitation/{name}FixedHorizon-v0"
+    env = make_env(env_id)
+    reward = true_reward(env_id, env)
+    assert reward is not None
+    before, actions, after, _, _ = random_steps(env, 40)
+    if name == "Walker2d":
+        tall = after[:1].copy()
+        tall[0, :2] = 0.8, 0.0
+        before, actions, after = (
+            np.concatenate([before, tall]),
+            np.concatenate([actions, actions[:1]]),
+            np.concatenate([after, tall]),
+        )
+    stored = [np.asarray(part, np.float32) for part in (before, actions, after)]
+    as_float32 = reward(*stored)
+    assert np.array_equal(as_float32, reward(*(part.astype(np.float64) for part in stored)))
+    if name == "Walker2d":
+        assert as_float32[-1] - float(stored[2][-1, 8]) + 1e-3 * np.sum(
+            stored[1][-1].astype(np.float64) ** 2
+        ) == pytest.approx(1.0, abs=1e-9)
