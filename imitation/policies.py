@@ -52,15 +52,30 @@ from imitation.envs.pixels import (
     PixelObservation,
     PixelRecipe,
     StackFrames,
-    is_image_space,
     make_pixel_env,
 )
 from imitation.envs.previous_action import PreviousActionObservation
 from imitation.errors import ImitationError, SpaceError
 from imitation.limits import LIMITS, over_limit
+from imitation.mlp import (
+    ACTIVATIONS,
+    check_layer_widths,
+    check_weights_cover,
+    hidden_layers,
+    mlp_weight_count,
+    orthogonal_linear,
+)
+from imitation.observation_encoding import (
+    ImageLeaf,
+    check_cnn_size,
+    check_image_fields,
+    leaf_frames,
+    observation_layout,
+    observation_size,
+    vector_leaves,
+)
 from imitation.runs import read_run
 
-ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
 # (rows, mean, std) of one process's rows → (mean, std) of every process's (data-parallel training).
 MomentsMerge = Callable[[int, torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 _SCALAR_SHAPE = torch.Size()  # the default sample_shape of Distribution.sample (immutable)
@@ -173,172 +188,6 @@ class PolicyConfig:
         return config
 
 
-def check_image_fields(observation_keys: Any, frame_stack: Any, cnn: Any, pixels: Any) -> None:
-    """The image fields a policy or reward config read from a file holds: the leaves read, the
-    frames per image leaf, the CNN and how the env renders. TypeError or ValueError naming the
-    malformed one."""
-    if observation_keys is not None and not (
-        isinstance(observation_keys, list) and all(isinstance(key, str) for key in observation_keys)
-    ):
-        raise TypeError("observation_keys must be a list of names")
-    if isinstance(frame_stack, bool) or not isinstance(frame_stack, int) or not 1 <= frame_stack <= 64:
-        raise ValueError(f"frame_stack must be an integer in [1, 64], got {str(frame_stack)[:40]}")
-    if cnn is not None:
-        CNNConfig.from_json(cnn)
-    if pixels is not None:
-        PixelRecipe.from_json(pixels)
-
-
-def check_layer_widths(hidden_sizes: Any) -> None:
-    """Hidden-layer widths read from a file: a list of at most 64 widths in [1, 2^20]."""
-    if not (
-        isinstance(hidden_sizes, list)
-        and len(hidden_sizes) <= 64
-        and all(isinstance(h, int) and not isinstance(h, bool) and 1 <= h <= 2**20 for h in hidden_sizes)
-    ):
-        raise ValueError(f"hidden_sizes must be a list of layer widths in [1, 2^20], got {str(hidden_sizes)[:80]}")
-
-
-def mlp_weight_count(inputs: int, hidden_sizes: list[int], outputs: int) -> int:
-    """How many numbers the weight matrices of such an MLP hold (its biases not counted)."""
-    sizes = [inputs, *hidden_sizes, outputs]
-    return sum(a * b for a, b in zip(sizes, sizes[1:]))
-
-
-def check_weights_cover(path: Any, planned: int, weights: dict[str, torch.Tensor]) -> None:
-    """Refuse, before allocating it, a network bigger than the weights file could fill: every
-    parameter must be in the file, so a config asking for more is wrong (or crafted)."""
-    held = sum(tensor.numel() for tensor in weights.values())
-    if planned > held:
-        raise ImitationError(
-            f"{path}: its config describes a network of at least {planned} weights, but its weights file holds {held} numbers"
-        )
-
-
-def check_cnn_size(layout: ObservationLayout, cnn: CNNConfig) -> None:
-    """Refuse, before any weight is allocated, CNNs on the layout's image leaves that hold more
-    than `LIMITS.policy_parameters` weights: their last linear layer grows with the frames' area
-    (the default CNN on 480×640 frames holds 139 million weights, on 96×96 2 million)."""
-    weights = sum(cnn_weight_count(leaf.frames * leaf.channels, leaf.height, leaf.width, cnn) for leaf in layout.images)
-    if weights > LIMITS.policy_parameters:
-        sides = ", ".join(sorted({f"{leaf.height}×{leaf.width}" for leaf in layout.images}))
-        raise ImitationError(
-            f"the CNN on {sides} frames would hold {weights} weights, more than the limit policy_parameters="
-            f"{LIMITS.policy_parameters}: train on smaller frames (train bc --image-size 96x96 resizes them as they load) "
-            "or raise the limit with `imitation --limit policy_parameters=N`"
-        )
-
-
-def _layer(inputs: int, outputs: int, gain: float) -> nn.Linear:
-    linear = nn.Linear(inputs, outputs)
-    nn.init.orthogonal_(linear.weight, gain)
-    nn.init.zeros_(linear.bias)
-    return linear
-
-
-def _mlp(inputs: int, hidden_sizes: list[int], activation: str) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    for size in hidden_sizes:
-        layers += [_layer(inputs, size, math.sqrt(2)), ACTIVATIONS[activation]()]
-        inputs = size
-    return nn.Sequential(*layers)
-
-
-def observation_size(space: gym.Space) -> int:
-    if isinstance(space, gym.spaces.Box):
-        return int(np.prod(space.shape))
-    if isinstance(space, gym.spaces.Discrete):
-        return int(space.n)
-    raise ImitationError(f"policies take Box or Discrete observations, not {type(space).__name__}")
-
-
-@dataclass(frozen=True)
-class ImageLeaf:
-    """A leaf of the observation read as frames: its path, and (k, H, W, C) per sample."""
-
-    path: tuple[str, ...]
-    frames: int
-    height: int
-    width: int
-    channels: int
-
-
-@dataclass(frozen=True)
-class ObservationLayout:
-    """How a Dict or image observation becomes features: image leaves through CNNs, the other
-    leaves read flattened (Discrete ones one-hot) into one vector, in key order."""
-
-    images: list[ImageLeaf]
-    vectors: list[tuple[tuple[str, ...], gym.Space]]
-
-    @property
-    def vector_size(self) -> int:
-        return sum(observation_size(space) for _, space in self.vectors)
-
-
-def observation_layout(space: gym.Space, keys: list[str] | None, frame_stack: int) -> ObservationLayout | None:
-    """The layout of a Dict or image observation space (None for a plain Box or Discrete one,
-    read as before). With `frame_stack` k > 1 an image leaf is a (k, H, W, C) stack."""
-
-    def image(path: tuple[str, ...], sub: gym.Space) -> ImageLeaf | None:
-        if not isinstance(sub, gym.spaces.Box) or sub.dtype != np.uint8:
-            return None
-        shape = sub.shape
-        if frame_stack > 1:
-            if len(shape) == 4 and shape[0] == frame_stack and shape[-1] in (1, 3, 4):
-                return ImageLeaf(path, frame_stack, shape[1], shape[2], shape[3])
-            return None
-        if not is_image_space(sub):
-            return None
-        return ImageLeaf(path, 1, shape[0], shape[1], shape[2] if len(shape) == 3 else 1)
-
-    if not isinstance(space, gym.spaces.Dict):
-        leaf = image((), space)
-        return ObservationLayout([leaf], []) if leaf is not None else None
-    unknown = sorted(set(keys or []) - set(space.spaces))
-    if unknown:
-        raise ImitationError(f"observation keys {unknown} are not in the observation space's {sorted(space.spaces)}")
-    images: list[ImageLeaf] = []
-    vectors: list[tuple[tuple[str, ...], gym.Space]] = []
-    for key, sub in space.spaces.items():
-        if keys is not None and key not in keys:
-            continue
-        leaf = image((key,), sub)
-        if leaf is not None:
-            images.append(leaf)
-        elif isinstance(sub, (gym.spaces.Box, gym.spaces.Discrete)):
-            vectors.append(((key,), sub))
-        else:
-            raise ImitationError(f"policies read Box, Discrete and image leaves of a Dict observation, not {key!r}: {sub}")
-    if not images and not vectors:
-        raise ImitationError("the policy reads no observation leaf")
-    return ObservationLayout(images, vectors)
-
-
-def _leaf(tree: Any, path: tuple[str, ...]) -> Any:
-    for key in path:
-        tree = tree[key]
-    return tree
-
-
-def leaf_frames(observations: Any, leaf: ImageLeaf) -> torch.Tensor:
-    """An image leaf of a batch as (batch, k, H, W, C)."""
-    frames = _leaf(observations, leaf.path)
-    return frames.reshape(frames.shape[0], leaf.frames, leaf.height, leaf.width, leaf.channels)
-
-
-def one_hot_or_flat(values: torch.Tensor, space: gym.Space) -> torch.Tensor:
-    """A batch of one leaf as float rows: Discrete values one-hot, others flattened."""
-    if isinstance(space, gym.spaces.Discrete):
-        return nn.functional.one_hot(values.long().reshape(-1) - int(space.start), int(space.n)).float()
-    return values.reshape(values.shape[0], -1).float()
-
-
-def vector_leaves(observations: Any, layout: ObservationLayout) -> torch.Tensor:
-    """The non-image leaves of a batch, flattened (Discrete ones one-hot) side by side."""
-    return torch.cat([one_hot_or_flat(_leaf(observations, path), space) for path, space in layout.vectors], dim=1)
-
-
 class SoftmaxCategorical(Categorical):
     """Categorical(logits) normalised by log_softmax, one kernel, where torch's constructor takes
     logsumexp, a composite of several: on a PPO minibatch, each kernel's dispatch is most of its cost."""
@@ -442,14 +291,16 @@ class ActorCritic(nn.Module):
             if config.normalize_observations and self.layout is not None and self.layout.images
             else None
         )
-        self.actor_trunk = _mlp(obs_size, config.hidden_sizes, config.activation)
-        self.critic_trunk = self.actor_trunk if config.shared_trunk else _mlp(obs_size, config.hidden_sizes, config.activation)
-        self.value_head = _layer(hidden, 1, 1.0)
+        self.actor_trunk = hidden_layers(obs_size, config.hidden_sizes, config.activation)
+        self.critic_trunk = (
+            self.actor_trunk if config.shared_trunk else hidden_layers(obs_size, config.hidden_sizes, config.activation)
+        )
+        self.value_head = orthogonal_linear(hidden, 1, 1.0)
         # Component sizes of a MultiDiscrete action (None for the other spaces).
         self.action_sizes: list[int] | None = None
         if isinstance(self.action_space, gym.spaces.Discrete):
             self.is_continuous = False
-            self.action_head = _layer(hidden, int(self.action_space.n), 0.01)
+            self.action_head = orthogonal_linear(hidden, int(self.action_space.n), 0.01)
         elif isinstance(self.action_space, gym.spaces.MultiDiscrete):
             if self.action_space.nvec.ndim != 1:
                 raise ImitationError(
@@ -457,12 +308,12 @@ class ActorCritic(nn.Module):
                 )
             self.is_continuous = False
             self.action_sizes = [int(n) for n in self.action_space.nvec]
-            self.action_head = _layer(hidden, sum(self.action_sizes), 0.01)
+            self.action_head = orthogonal_linear(hidden, sum(self.action_sizes), 0.01)
             self.register_buffer("action_start", torch.as_tensor(self.action_space.start, dtype=torch.int64), persistent=False)
         elif isinstance(self.action_space, gym.spaces.Box):
             self.is_continuous = True
             action_dim = int(np.prod(self.action_space.shape))
-            self.action_head = _layer(hidden, action_dim, 0.01)
+            self.action_head = orthogonal_linear(hidden, action_dim, 0.01)
             self.log_std = nn.Parameter(torch.full((action_dim,), float(config.log_std_init)))
             self.register_buffer("action_low", torch.as_tensor(self.action_space.low, dtype=torch.float32).reshape(-1))
             self.register_buffer("action_high", torch.as_tensor(self.action_space.high, dtype=torch.float32).reshape(-1))

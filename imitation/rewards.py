@@ -33,14 +33,11 @@ from imitation.data.spaces import space_from_json, space_to_json
 from imitation.encoders import CNNConfig, ImageEncoder, cnn_weight_count, conv_output_sides
 from imitation.envs.rollout import Rollout
 from imitation.errors import ImitationError, SpaceError
-from imitation.policies import (
-    ACTIVATIONS,
+from imitation.mlp import ACTIVATIONS, check_layer_widths, check_weights_cover, mlp_weight_count
+from imitation.observation_encoding import (
     ObservationLayout,
     check_image_fields,
-    check_layer_widths,
-    check_weights_cover,
     leaf_frames,
-    mlp_weight_count,
     observation_layout,
     observation_size,
     one_hot_or_flat,

@@ -2,7 +2,7 @@
 functions and TYPE_CHECKING ones included, goes down the layers, never up:
 
     base (errors, limits, output, seeding, checkpoints, runs, bundled)
-      → envs → data → models (policies, rewards) → experts → learners (algorithms)
+      → envs → data → models (policies, rewards, observation_encoding, mlp) → experts → learners (algorithms)
       → evaluation → jobs → cli
 
 so data never imports learners or jobs, learners never import evaluation, jobs or the CLI,
@@ -22,6 +22,8 @@ PREFIXES = {
     "imitation.data": "data",
     "imitation.policies": "models",
     "imitation.rewards": "models",
+    "imitation.observation_encoding": "models",  # how observations enter policies and reward models
+    "imitation.mlp": "models",
     "imitation.experts": "experts",
     "imitation.algorithms": "learners",
     "imitation.evaluation": "evaluation",

@@ -11,11 +11,11 @@ import pytest
 import torch
 
 from imitation.errors import ImitationError
+from imitation.mlp import check_layer_widths
 from imitation.policies import (
     PolicyConfig,
     RunningMeanStd,
     SingleObservationPolicy,
-    check_layer_widths,
     check_policy_fits_env,
     load_policy,
     make_policy,

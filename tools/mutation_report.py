@@ -1,7 +1,8 @@
 """Mutation testing of the numerical core with mutmut, and its score per module (`make mutate`).
 
 The core is every function of the modules SCOPE names (mutmut's own names, matched as
-prefixes): PPO (its formulas, update, rollout collection, state and config), the policies, BC,
+prefixes): PPO (its formulas, update, rollout collection, state and config), the policies (with
+the observation encoding and MLPs they share with the reward models), BC,
 DAgger, tabular MaxEnt IRL and its planning, EPIC, GCL, the reward models and the loader's
 column placement; and since issue 50 policy gradient, policy search, apprenticeship learning,
 GAIL/AIRL and their discriminator loop, PPO's rollouts and DAgger's rounds on Ray workers, the
@@ -36,6 +37,8 @@ DETECTED = ("killed", "timeout", "caught by type check", "segfault")
 SCOPE = (
     "imitation.algorithms.ppo.",
     "imitation.policies.",
+    "imitation.observation_encoding.",
+    "imitation.mlp.",
     "imitation.algorithms.bc.",
     "imitation.algorithms.dagger.",
     "imitation.algorithms.maxent_irl.",

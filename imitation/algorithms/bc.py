@@ -59,14 +59,9 @@ from imitation.data.stream import StreamingLoader
 from imitation.encoders import CNNConfig, cnn_activation_count, cnn_weight_count
 from imitation.errors import ConfigError, ImitationError
 from imitation.flat_adam import FlatAdam
-from imitation.policies import (
-    ActorCritic,
-    RunningMeanStd,
-    action_logits_size,
-    mlp_weight_count,
-    observation_layout,
-    observation_size,
-)
+from imitation.mlp import mlp_weight_count
+from imitation.observation_encoding import observation_layout, observation_size
+from imitation.policies import ActorCritic, RunningMeanStd, action_logits_size
 
 LOSSES = ("nll", "mse")
 STEPS = ("all", "human")

@@ -31,7 +31,9 @@ from torch import nn
 
 from imitation.errors import ImitationError
 from imitation.experts.sb3_zip import SB3Zip, read_activation, read_sb3_zip, read_space
-from imitation.policies import ACTIVATIONS, ActorCritic, action_logits_size, make_policy, observation_size
+from imitation.mlp import ACTIVATIONS
+from imitation.observation_encoding import observation_size
+from imitation.policies import ActorCritic, action_logits_size, make_policy
 
 # SB3 module names → ours. The trunks are nn.Sequential(Linear, activation, ...) in both, so
 # hidden-layer indices carry over unchanged.

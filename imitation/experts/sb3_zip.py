@@ -38,7 +38,7 @@ import torch
 from imitation.errors import ImitationError
 from imitation.inputs import check_input
 from imitation.limits import LIMITS, check_zip_member, over_limit
-from imitation.policies import ACTIVATIONS
+from imitation.mlp import ACTIVATIONS
 
 SPACE_TYPE = re.compile(r"<class '(?:gym|gymnasium)\.spaces\.\w+\.(\w+)'>")
 ACTIVATION_MODULE = "torch.nn.modules.activation"

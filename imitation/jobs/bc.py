@@ -46,15 +46,8 @@ from imitation.jobs.loop import Checkpointing
 from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
-from imitation.policies import (
-    ActorCritic,
-    SingleObservationPolicy,
-    acting_env,
-    check_cnn_size,
-    make_policy,
-    observation_layout,
-    policy_tensors,
-)
+from imitation.observation_encoding import check_cnn_size, observation_layout
+from imitation.policies import ActorCritic, SingleObservationPolicy, acting_env, make_policy, policy_tensors
 from imitation.progress import activity
 from imitation.seeding import seed_everything
 
