@@ -15,6 +15,7 @@ import imitation.envs  # noqa: F401  (registers the ids)
 from imitation.algorithms.adversarial import (
     AdversarialConfig,
     AdversarialImitation,
+    DiscriminatorLearner,
     Steps,
     discriminator_loss,
     input_gradient_penalty,
@@ -24,7 +25,7 @@ from imitation.algorithms.gail import GAILDiscriminator
 from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.checkpoints import snapshot
 from imitation.data.dataset import DemoDataset
-from imitation.data.loader import load_transitions, transitions_to_torch
+from imitation.data.loader import TransitionTensors, load_transitions, transitions_to_torch
 from imitation.envs.rollout import Rollout
 from imitation.errors import ConfigError
 from imitation.jobs.loop import Checkpointing, run
@@ -228,8 +229,12 @@ def test_all_negatives_from_the_latest_rollout_is_a_pool_of_one() -> None:
 def test_the_discriminator_steps_every_policy_updates_updates() -> None:
     config = PPOConfig(env_id=ENV_ID, total_steps=4 * 256, **ppo_settings(ENV_ID) | {"device": "cpu"})
     learner = make_learner("airl", 0, config, policy_updates=2)
-    run(learner)
-    assert learner.discriminator.learned == 2 and learner.ppo.updates == 4
+    learned = []
+    while not learner.done:
+        learner.step()
+        learned.append(learner.discriminator.learned)
+    # Rounds at updates 0 and 2: the first PPO update already reads a trained discriminator.
+    assert learned == [1, 1, 2, 2] and learner.ppo.updates == 4
 
 
 @pytest.mark.parametrize("method", ["gail", "airl"])
@@ -250,6 +255,7 @@ def test_a_discriminator_restored_from_its_checkpoint_goes_on_exactly_as_the_ori
     copy = make_learner(method, 1, config, pool_rollouts=2).discriminator  # other weights: the checkpoint must set them
     copy.load_state_dict(checkpoint)
     assert copy.learned == 2 and len(copy.rollouts) == 2
+    assert copy.last == original.last and set(copy.last) == {"discriminator_loss", "demo_accuracy", "sample_accuracy"}
     results = []
     for learner in (original, copy):
         steps = learner.add_rollout(rollouts[2])
@@ -278,12 +284,17 @@ def test_the_discriminator_rides_in_ppos_checkpoints_and_resumes_with_them() -> 
     [
         ({"method": "gan"}, "method"),
         ({"inputs": "a"}, "inputs"),
+        ({"gail_reward": "log"}, "gail_reward"),
+        ({"batch_size": 0}, "batch_size"),
         ({"discriminator_steps": 0}, "discriminator_steps"),
         ({"policy_updates": 0}, "policy_updates"),
         ({"pool_rollouts": 0}, "pool_rollouts"),
         ({"latest_share": 1.5}, "latest_share"),
         ({"latest_share": float("nan")}, "latest_share"),
         ({"learning_rate": float("nan")}, "learning_rate"),
+        ({"learning_rate": 0.0}, "learning_rate"),
+        ({"learning_rate": 1e30}, "learning_rate"),
+        ({"gradient_penalty": float("inf")}, "gradient_penalty"),
         ({"gradient_penalty": -1.0}, "gradient_penalty"),
         ({"policy_entropy": float("inf")}, "policy_entropy"),
     ],
@@ -292,3 +303,91 @@ def test_config_out_of_range_is_refused_naming_the_field(changes: dict, field: s
     with pytest.raises(ConfigError) as error:
         AdversarialConfig(**changes).validate()
     assert error.value.field == field
+
+
+# ------------------------------------------------------------------------------------------------
+# Rounds on hand-made steps: a linear GAIL logit of the state alone, demos and rollouts given as lists.
+
+
+def transitions(states: list[list[float]]) -> TransitionTensors:
+    observations, n = torch.tensor(states), len(states)
+    return TransitionTensors(
+        observations=observations,
+        actions=torch.zeros(n, dtype=torch.long),
+        rewards=torch.zeros(n),
+        next_observations=observations.clone(),
+        terminated=torch.zeros(n, dtype=torch.bool),
+        truncated=torch.zeros(n, dtype=torch.bool),
+        episode_index=torch.zeros(n, dtype=torch.long),
+    )
+
+
+def one_copy_rollout(states: list[list[float]]) -> Rollout:
+    observations, length = torch.tensor(states)[:, None], len(states)
+    return Rollout(
+        observations=observations,
+        actions=torch.zeros(length, 1, dtype=torch.long),
+        env_actions=torch.zeros(length, 1, dtype=torch.long),
+        next_observations=observations.clone(),
+        log_probs=torch.zeros(length, 1),
+        env_rewards=torch.zeros(length, 1),
+        terminated=torch.zeros(length, 1, dtype=torch.bool),
+        truncated=torch.zeros(length, 1, dtype=torch.bool),
+    )
+
+
+def test_a_round_reports_its_steps_mean_loss_and_accuracies_and_leaves_d_in_eval_mode() -> None:
+    """logit = 2 s₀ and every state's s₀ = ¼: each of the 3 steps sees logit ½ on all 8 steps of its
+    minibatch, so its cross-entropy is softplus(−½) + softplus(½), ∇_s logit = (2, 0) gives
+    E‖∇_x logit‖² = 4, and λ = ½ adds 2. A learning rate of 1e-12 keeps the weights where they were."""
+    discriminator = GAILDiscriminator(linear([2.0, 0.0]))
+    config = AdversarialConfig(batch_size=4, discriminator_steps=3, learning_rate=1e-12, gradient_penalty=0.5)
+    learner = DiscriminatorLearner(discriminator, transitions([[0.25, 1.0]] * 5), config)
+    learner.add_rollout(one_copy_rollout([[0.25, -1.0]] * 6))
+    statistics = learner.learn(None)  # GAIL's logit reads no policy
+    cross_entropy = math.log1p(math.exp(-0.5)) + math.log1p(math.exp(0.5))
+    # Demo steps (logit ½ > 0) all told apart, policy steps (logit ½ ≥ 0) none.
+    expected = {"discriminator_loss": cross_entropy + 2.0, "demo_accuracy": 1.0, "sample_accuracy": 0.0}
+    assert statistics == pytest.approx(expected)
+    assert learner.last == statistics and learner.learned == 1
+    assert not discriminator.training
+    assert [int(state["step"]) for state in learner.optimizer.state.values()] == [3, 3]  # weight and bias, 3 steps each
+    # A discriminator that cannot tell anything apart (D = ½ everywhere) tells no step apart: 2 ln 2, no
+    # penalty. One step only: the next would read weights that the first step moved.
+    one_step = AdversarialConfig(batch_size=4, discriminator_steps=1, learning_rate=1e-12, gradient_penalty=0.5)
+    undecided = DiscriminatorLearner(GAILDiscriminator(linear([0.0, 0.0])), transitions([[0.25, 1.0]] * 5), one_step)
+    undecided.add_rollout(one_copy_rollout([[0.25, -1.0]] * 6))
+    expected = {"discriminator_loss": 2 * math.log(2.0), "demo_accuracy": 0.0, "sample_accuracy": 0.0}
+    assert undecided.learn(None) == pytest.approx(expected)
+
+
+def test_the_first_rollout_widens_the_demos_spread_once_and_a_warm_start_keeps_its_statistics() -> None:
+    """On an unbounded space the statistics are the demos' mean and, per dimension, the larger std
+    of the demos' and the first rollout's states; later rollouts change nothing, and a discriminator
+    started from a saved one keeps the statistics its weights were fitted to."""
+    space = gym.spaces.Box(-np.inf, np.inf, (2,), np.float32)
+    demos = [[0.0, 0.0], [2.0, 0.0], [0.0, 2.0], [2.0, 2.0]]  # mean (1, 1), std √(4/3) each
+    first, wide = [[0.0, 0.0], [4.0, 0.0]] * 2, [[0.0, 0.0], [40.0, 40.0]] * 2  # first: std (√(16/3), 0)
+
+    def statistics_after(
+        rollouts: list[list[list[float]]], *, fit_statistics: bool, through_learner: bool = False
+    ) -> list[list[float]]:
+        net = make_reward_model(space, gym.spaces.Discrete(2), hidden_sizes=[], inputs="s", normalize_observations=True)
+        config = AdversarialConfig(pool_rollouts=2)
+        if through_learner:  # AdversarialImitation fits by default
+            settings = {"n_envs": 1, "n_steps": 8, "total_steps": 8, "batch_size": 8, "hidden_sizes": [4], "device": "cpu"}
+            ppo = PPO(PPOConfig(env_id="CartPole-v1", **settings))
+            ppo.close()
+            side = AdversarialImitation(ppo, GAILDiscriminator(net), transitions(demos), config).discriminator
+        else:
+            warm_start = {} if fit_statistics else {"fit_statistics": False}  # fitting is the default
+            side = DiscriminatorLearner(GAILDiscriminator(net), transitions(demos), config, **warm_start)
+        for states in rollouts:
+            side.add_rollout(one_copy_rollout(states))
+        return [net.observation_mean.tolist(), net.observation_std.tolist()]
+
+    fitted = [[1.0, 1.0], [math.sqrt(16 / 3), math.sqrt(4 / 3)]]
+    assert statistics_after([first], fit_statistics=True) == [pytest.approx(row) for row in fitted]
+    assert statistics_after([first, wide], fit_statistics=True) == [pytest.approx(row) for row in fitted]
+    assert statistics_after([first], fit_statistics=True, through_learner=True) == [pytest.approx(row) for row in fitted]
+    assert statistics_after([first], fit_statistics=False) == statistics_after([], fit_statistics=False)
