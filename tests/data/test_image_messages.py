@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import io
 import struct
+import threading
+import time
 import zlib
 
 import numpy as np
@@ -14,7 +16,8 @@ from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from PIL import Image
 
-from imitation.data.mcap.images import FrameError, _one_line, decode_frame, encode_frame, encode_frames
+from imitation.data.mcap import images
+from imitation.data.mcap.images import FrameError, _map, _one_line, decode_frame, encode_frame, encode_frames
 
 TIMES = np.array([0, 999_999_999, 1_000_000_000, 1_700_000_123_456_789_012], dtype=np.int64)
 
@@ -143,3 +146,35 @@ def test_a_png_pillow_warns_about_but_reads_decodes_to_its_picture() -> None:
     data = _rgb_png(6, 4, rows, (b"acTL", struct.pack(">II", 0, 0)))
     with pytest.warns(UserWarning, match="Invalid APNG"):
         assert np.array_equal(decode_frame("png", (4, 6, 3), _compressed("png", data)), frame)
+
+
+def _threads_used(count: int, meet: int) -> list[int]:
+    """The thread each of `_map`'s `count` calls ran on, in call order. Every `meet` calls wait for
+    each other, so that they run at once on `meet` threads or time out, then stay a while, so
+    that a pool allowed more threads starts more for the calls still queued."""
+    barrier = threading.Barrier(meet, timeout=5)
+
+    def call(i: int) -> tuple[int, int]:
+        if meet > 1:
+            barrier.wait()
+            time.sleep(0.02)
+        return i, threading.get_ident()
+
+    results = _map(call, count)
+    assert [i for i, _ in results] == list(range(count))
+    return [ident for _, ident in results]
+
+
+def test_frames_are_shared_over_threads_only_from_four_and_on_at_most_half_as_many_threads(monkeypatch) -> None:
+    main = threading.get_ident()
+    monkeypatch.setattr(images, "_THREADS", 8)
+    assert _threads_used(3, 1) == [main] * 3  # too few to share: the calling thread does them
+    four = _threads_used(4, 2)
+    assert main not in four and len(set(four)) == 2  # ⌈4/2⌉ threads
+    eight = _threads_used(8, 4)
+    assert main not in eight and len(set(eight)) == 4  # ⌈8/2⌉ threads, fewer than _THREADS
+    assert len(set(_threads_used(24, 8))) == 8  # at most _THREADS, short of ⌈24/2⌉
+    monkeypatch.setattr(images, "_THREADS", 2)
+    assert len(set(_threads_used(6, 2)) - {main}) == 2
+    monkeypatch.setattr(images, "_THREADS", 1)
+    assert _threads_used(8, 1) == [main] * 8  # one thread: no pool
