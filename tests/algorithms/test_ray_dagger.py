@@ -7,6 +7,8 @@ the learner's side on a real local Ray of 2 CPUs (`RayRounds`)."""
 from __future__ import annotations
 
 import functools
+import os
+import sys
 from pathlib import Path
 
 import gymnasium as gym
@@ -155,5 +157,53 @@ def test_the_round_on_two_ray_workers_is_each_workers_seeds_learner_and_draws(tm
         expert_round = rounds.collect(None, ROUND + 1, BETA, seeds[:1])
         assert len(expert_round) == 1  # worker 1 had no seed to play: no shard
         check_shard(expert_round[0], None, 0, seeds[:1], round_index=ROUND + 1, metadata=METADATA | {"worker": 0})
+        assert local_ray.available_resources().get("CPU", 0) == 0  # each worker holds one of the 2 CPUs
+    finally:
+        rounds.close()
+
+
+class DiesOnce(gym.Wrapper):
+    """Ends its process (as a killed worker's ends) on the reset with `seed`, the first time only:
+    `marker` records that it happened."""
+
+    def __init__(self, env: gym.Env, marker: str, seed: int) -> None:
+        super().__init__(env)
+        self.marker, self.seed = Path(marker), seed
+
+    def reset(self, *, seed=None, options=None):
+        if seed == self.seed and not self.marker.exists():
+            self.marker.touch()
+            os._exit(1)
+        return self.env.reset(seed=seed, options=options)
+
+
+def dies_once(marker: str, seed: int):
+    env, expert = MAKE()
+    return DiesOnce(env, marker, seed), expert
+
+
+def test_a_worker_that_dies_mid_round_is_restarted_and_its_shard_finished_as_if_uninterrupted(
+    tmp_path: Path, local_ray
+) -> None:
+    """Worker 1's process ends as its second episode starts: Ray restarts it and reruns its
+    collection, which keeps the episode the shard holds and plays the rest with the same draws."""
+    local_ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers cannot import this file
+    policy = learner()
+    seeds = [400, 401, 402, 403]
+    marker = tmp_path / "died"
+    rounds = RayRounds(
+        2,
+        functools.partial(dies_once, str(marker), seeds[3]),
+        round_dir=tmp_path,
+        env_id=ENV_ID,
+        mode="label",
+        seed=SEED,
+        metadata={"note": METADATA["note"]},
+    )
+    try:
+        shards = rounds.collect(policy, ROUND, BETA, seeds)
+        assert marker.exists()
+        for k, path in enumerate(shards):
+            check_shard(path, policy, k, seeds[k::2], metadata=METADATA | {"worker": k})
     finally:
         rounds.close()
