@@ -438,10 +438,18 @@ def test_a_rollout_cuts_running_episodes_and_carries_them_over() -> None:
         first = learner.collect()
         reached = [np.array(observation) for observation in learner.observations]
         second = learner.collect()
-        for _ in range(5):
-            seventh = learner.collect()
+        later = [learner.collect() for _ in range(5)]
+        seventh = later[-1]
     finally:
         learner.close()
+    assert learner.global_step == 7 * 60
+    # Each copy's first episode, 200 steps over seven rollouts: its return sums the pieces of it in
+    # each (copy 0's first in every batch; the seventh holds both episodes' last 20 steps first).
+    pieces = [batch.rewards for batch in (first, second, *later[:-1])]
+    for copy in range(2):
+        expected = sum(float(rewards[30 * copy : 30 * copy + 30].sum()) for rewards in pieces)
+        expected += float(seventh.rewards[20 * copy : 20 * copy + 20].sum())
+        assert seventh.episode_returns[copy] == pytest.approx(expected, rel=1e-5)
     assert len(first.rewards) == len(second.rewards) == 60 == first.pieces * 30
     assert first.truncated.tolist() == [False] * 29 + [True] + [False] * 29 + [True]
     assert first.episode_returns == [] and len(seventh.episode_returns) == 2  # steps 180–210 end both episodes

@@ -7,13 +7,17 @@ batches CartPole-v1 (which terminates) really produced, against a per-step resta
 from __future__ import annotations
 
 import dataclasses
+import math
+import time
 
+import gymnasium as gym
+import numpy as np
 import pytest
 import torch
 
 from imitation.algorithms.policy_gradient import Batch, PGConfig, PolicyGradient
 from imitation.checkpoints import snapshot, unprefixed
-from imitation.errors import ImitationError
+from imitation.errors import ConfigError, ImitationError
 from imitation.policies import ActorCritic, PolicyConfig
 
 GAMMA = 0.5
@@ -144,3 +148,238 @@ def test_the_checkpoint_alone_rebuilds_the_policy_and_a_damaged_one_is_one_line_
             learner.load_state_dict(({name: t for name, t in tensors.items() if name != "policy.value_head.weight"}, state))
     finally:
         learner.close()
+
+
+def reward_to_go_by_hand(batch: Batch, gamma: float) -> torch.Tensor:
+    """G_t = r_t + γ G_{t+1}, restarted at each episode's end (none of these is truncated)."""
+    assert not batch.truncated.any()
+    returns, running = [], 0.0
+    for t in reversed(range(len(batch.rewards))):
+        running = float(batch.rewards[t]) + (0.0 if batch.terminated[t] else gamma * running)
+        returns.append(running)
+    return torch.tensor(returns[::-1])
+
+
+def test_a_steps_row_restates_its_batch_the_pre_update_networks_and_the_annealed_learning_rates() -> None:
+    """REINFORCE with a baseline on CartPole-v1 (whose random-policy episodes terminate well inside
+    the 40-step batch): every field of the row recomputed from the same batch, collected by a twin
+    learner with the same seed and generator state, and its networks before the step; the second
+    row's learning rate has fallen by the share of the total steps already taken."""
+    config = PGConfig(
+        env_id="CartPole-v1",
+        estimator="baseline",
+        gamma=0.9,
+        n_envs=2,
+        batch_steps=40,
+        total_steps=400,
+        hidden_sizes=[8],
+        entropy_coef=0.01,
+        value_steps=1,
+        learning_rate=0.02,
+        value_learning_rate=0.03,
+    )
+    learner, twin = PolicyGradient(config), PolicyGradient(config)
+    try:
+        generator = torch.get_rng_state()
+        batch = twin.collect()
+        with torch.no_grad():
+            values = twin.policy.value(batch.features)
+            returns = reward_to_go_by_hand(batch, 0.9)
+            weights = returns - values
+            log_probs, entropy = twin.policy.log_prob_and_entropy(twin.policy.distribution(batch.features), batch.actions)
+            surrogate = -(log_probs * weights / (weights.std() + 1e-8)).sum() / batch.pieces
+        torch.set_rng_state(generator)
+        started = time.perf_counter()
+        row = learner.step()
+        elapsed = time.perf_counter() - started
+        clock = learner.clock.seconds
+        second = learner.step()
+        value_rate = learner.value_optimizer.param_groups[0]["lr"]
+    finally:
+        learner.close()
+        twin.close()
+    steps, episodes = len(batch.rewards), len(batch.episode_returns)
+    losses = ("policy_loss", "value_loss", "explained_variance", "entropy")
+    timings = ("learning_rate", "steps_per_second", "seconds_update")
+    assert row.keys() == {"step", "return", "batch_return", "episodes", *losses, *timings}
+    assert row["step"] == steps
+    assert row["episodes"] == episodes == batch.pieces and episodes >= 2
+    assert row["return"] == row["batch_return"] == pytest.approx(sum(batch.episode_returns) / episodes)
+    assert row["policy_loss"] == pytest.approx(float(surrogate - 0.01 * entropy.mean()), rel=1e-5)
+    assert row["entropy"] == pytest.approx(float(entropy.mean()), rel=1e-6)
+    assert row["value_loss"] == pytest.approx(float(0.5 * ((values - returns) ** 2).mean()), rel=1e-5)
+    explained = 1.0 - float(torch.var(returns - values) / (torch.var(returns) + 1e-8))
+    assert row["explained_variance"] == pytest.approx(explained, rel=1e-5)
+    assert row["learning_rate"] == 0.02, "nothing is annealed before the first step"
+    assert 0 < row["seconds_update"] < elapsed
+    assert steps / clock <= row["steps_per_second"] and steps / row["steps_per_second"] <= elapsed
+    remaining = 1.0 - steps / 400
+    assert second["learning_rate"] == pytest.approx(remaining * 0.02) and value_rate == pytest.approx(remaining * 0.03)
+    assert learner.batches == 2 and second["step"] == learner.global_step > steps
+
+
+def test_a_row_without_a_critic_or_a_finished_episode_holds_nan_there() -> None:
+    """Reward-to-go fits no critic: no value loss, no explained variance. A first 30-step rollout of
+    Pendulum-v1 (200-step episodes) finishes no episode: no return yet."""
+    no_critic = PolicyGradient(
+        PGConfig(env_id="CartPole-v1", estimator="reward-to-go", n_envs=1, batch_steps=20, total_steps=100, hidden_sizes=[8])
+    )
+    cut = PolicyGradient(
+        PGConfig(env_id="Pendulum-v1", estimator="actor-critic", n_envs=1, rollout_steps=30, total_steps=90, hidden_sizes=[8])
+    )
+    try:
+        rows = no_critic.step(), cut.step()
+    finally:
+        no_critic.close()
+        cut.close()
+    assert math.isnan(rows[0]["value_loss"]) and math.isnan(rows[0]["explained_variance"])
+    assert not math.isnan(rows[0]["return"]) and rows[0]["episodes"] >= 1
+    assert math.isnan(rows[1]["return"]) and math.isnan(rows[1]["batch_return"]) and rows[1]["episodes"] == 0
+    assert not math.isnan(rows[1]["value_loss"]) and not math.isnan(rows[1]["explained_variance"])
+
+
+def test_a_gradient_clipped_to_a_tiny_norm_barely_moves_the_policy() -> None:
+    """Adam's first step moves each weight by about the learning rate whatever the gradient's scale,
+    unless the gradient is far below its ε (1e-8): clipped to norm 1e-12, the actor barely moves;
+    the critic, which is not clipped, moves as usual."""
+    moved = {}
+    for max_grad_norm in (None, 1e-12):
+        learner = learner_with_critic_s0(max_grad_norm=max_grad_norm, gae_lambda=0.0, learning_rate=0.1, value_learning_rate=0.1)
+        try:
+            before = [p.detach().clone() for p in (*learner.actor_parameters, *learner.critic_parameters)]
+            learner.step()
+            after = [p.detach() for p in (*learner.actor_parameters, *learner.critic_parameters)]
+            actor = len(learner.actor_parameters)
+        finally:
+            learner.close()
+        changes = [float((a - b).abs().max()) for a, b in zip(after, before)]
+        moved[max_grad_norm] = (max(changes[:actor]), max(changes[actor:]))
+    assert moved[None][0] > 0.05 and moved[1e-12][0] < 1e-3
+    assert moved[None][1] > 0.05 and moved[1e-12][1] > 0.05
+
+
+def test_config_bounds_are_inclusive_where_the_maths_allows_and_errors_name_their_config() -> None:
+    accepted = [
+        {"estimator": "actor-critic", "rollout_steps": 1, "n_envs": 2, "total_steps": 2},
+        {"total_steps": 2000, "batch_steps": 2000},  # exactly one batch
+        {"gamma": 0.0, "gae_lambda": 1.0},
+        {"gamma": 1.0, "gae_lambda": 0.0},
+    ]
+    for changes in accepted:
+        PGConfig(env_id="CartPole-v1", **changes).validate()
+    refused = [
+        ({"learning_rate": 0.0}, "learning_rate must be a positive number below 1e30, got 0.0"),
+        ({"value_learning_rate": 1e30}, "value_learning_rate must be a positive number below 1e30, got 1e+30"),
+        ({"estimator": "actor-critic", "rollout_steps": 0}, "rollout_steps must be at least 1, got 0"),
+        ({"value_steps": 0}, "value_steps must be at least 1, got 0"),
+    ]
+    for changes, message in refused:
+        with pytest.raises(ConfigError) as error:
+            PGConfig(env_id="CartPole-v1", **changes).validate()
+        assert str(error.value) == message and error.value.owner == "PGConfig"
+
+
+def test_rewards_are_divided_by_the_running_std_of_the_discounted_return() -> None:
+    """CartPole-v1 pays 1 a step. The scaler starts at mean 0, variance 1 and a count of 1e-4, and
+    folds in the batch's running discounted returns x_t = 1 + γ x_{t-1} (restarted with each
+    episode) by Chan et al.'s pooled moments; every reward is then 1 / √(var + 1e-8)."""
+    config = PGConfig(
+        env_id="CartPole-v1", estimator="reward-to-go", gamma=0.9, n_envs=2, batch_steps=60, total_steps=600,
+        hidden_sizes=[8], normalize_rewards=True,
+    )
+    learner = PolicyGradient(config)
+    try:
+        batch = learner.collect()
+    finally:
+        learner.close()
+    running, discounted = 0.0, []
+    for end in (batch.terminated | batch.truncated).tolist():
+        running = 1.0 + 0.9 * running
+        discounted.append(running)
+        running = 0.0 if end else running
+    x, prior = np.array(discounted), 1e-4
+    n, mean = len(x), x.mean()
+    var = (prior + x.var() * n + mean**2 * prior * n / (prior + n)) / (prior + n)
+    assert batch.terminated.sum() >= 2
+    assert batch.rewards.tolist() == pytest.approx([1.0 / math.sqrt(var + 1e-8)] * n, rel=1e-6)
+
+
+@pytest.mark.parametrize(("env_id", "bound"), [("CartPole-v1", 10.0), ("Pendulum-v1", -10.0)])
+def test_scaled_rewards_are_clipped_to_ten_either_way(env_id: str, bound: float) -> None:
+    """A scaler that has seen 1e12 returns of variance 1e-10 makes every reward of these envs (1 a
+    step; Pendulum's below −1e-3 wherever the pole starts) ten thousand times its std: clipped."""
+    config = PGConfig(
+        env_id=env_id, estimator="actor-critic", n_envs=1, rollout_steps=10, total_steps=10, hidden_sizes=[8],
+        normalize_rewards=True,
+    )
+    learner = PolicyGradient(config)
+    try:
+        assert learner.reward_scaler is not None
+        learner.reward_scaler.var.fill_(1e-10)
+        learner.reward_scaler.count.fill_(1e12)
+        batch = learner.collect()
+    finally:
+        learner.close()
+    assert batch.rewards.tolist() == [bound] * 10
+
+
+def test_recent_returns_are_the_last_twenty_episodes_and_fixed_rates_stay_fixed() -> None:
+    config = PGConfig(
+        env_id="CartPole-v1", estimator="baseline", n_envs=4, batch_steps=600, total_steps=2400, hidden_sizes=[8],
+        anneal_lr=False, learning_rate=0.02, value_learning_rate=0.03,
+    )
+    learner = PolicyGradient(config)
+    try:
+        batch = learner.collect()
+        assert len(batch.episode_returns) > 20 and list(learner.recent_returns) == batch.episode_returns[-20:]
+        rows = [learner.step(), learner.step()]
+        rates = [group["lr"] for optimizer in (learner.optimizer, learner.value_optimizer) for group in optimizer.param_groups]
+    finally:
+        learner.close()
+    assert [row["learning_rate"] for row in rows] == [0.02, 0.02] and rates == [0.02, 0.03]
+
+
+class DictObservationEnv(gym.Env):
+    """A position and a velocity as two Dict leaves: observations policy gradient does not take."""
+
+    observation_space = gym.spaces.Dict(
+        {"position": gym.spaces.Box(-1.0, 1.0, (1,), np.float32), "velocity": gym.spaces.Box(-1.0, 1.0, (1,), np.float32)}
+    )
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return {"position": np.zeros(1, np.float32), "velocity": np.zeros(1, np.float32)}, {}
+
+    def step(self, action):
+        return self.reset()[0], 0.0, True, False, {}
+
+
+def test_dict_observations_are_refused_in_one_line_naming_policy_gradient() -> None:
+    gym.register(id="imitation-tests/DictObservation-v0", entry_point=DictObservationEnv)
+    try:
+        with pytest.raises(ImitationError, match=r"^policy gradient takes Box or Discrete observations, not "):
+            PolicyGradient(PGConfig(env_id="imitation-tests/DictObservation-v0", batch_steps=10, total_steps=10))
+    finally:
+        gym.registry.pop("imitation-tests/DictObservation-v0")
+
+
+def test_a_checkpoint_before_the_first_rollout_holds_no_episode_and_resumes_as_the_fresh_run() -> None:
+    """Rollouts carry episodes across batches, but before the first one there is none in progress:
+    nothing to replay, and the resumed learner resets its copies as the fresh run does."""
+    config = PGConfig(env_id="Pendulum-v1", estimator="actor-critic", n_envs=2, rollout_steps=20, total_steps=80, hidden_sizes=[8])
+    fresh = PolicyGradient(config)
+    try:
+        expected = fresh.collect()
+    finally:
+        fresh.close()
+    first, resumed = PolicyGradient(config), PolicyGradient(config)
+    try:
+        tensors, state = snapshot(*first.state_dict())
+        assert state["episodes_in_progress"] is None and not any(name.startswith("episode_actions") for name in tensors)
+        resumed.load_state_dict((tensors, state))
+        batch = resumed.collect()
+    finally:
+        first.close()
+        resumed.close()
+    assert torch.equal(batch.features, expected.features) and torch.equal(batch.rewards, expected.rewards)
