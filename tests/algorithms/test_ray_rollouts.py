@@ -8,12 +8,15 @@ and on a real local Ray of 2 CPUs."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 import torch
 
 from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.algorithms.ray_rollouts import INLINE_BYTES, RayRollouts, RolloutWorker, split_copies
+from imitation.errors import ImitationError
 
 pytest.importorskip("ray", reason="the Ray tests need the optional extra: pip install 'imitation-mcap[ray]'")
 
@@ -145,6 +148,137 @@ def test_two_ray_workers_return_pi_ks_values_and_bootstraps(hidden: list[int], l
         assert learner.global_step == N_ENVS * N_STEPS
         assert all(remote.seconds[name] > 0 for name in ("start", "broadcast", "wait", "gather", "worker_collect"))
         assert learner.timers["env"] > 0 and learner.timers["inference"] > 0
+    finally:
+        learner.close()
+        remote.close()
+
+
+def test_split_copies_gives_each_of_as_many_workers_as_copies_one_and_refuses_more_or_none() -> None:
+    assert split_copies(4, 4) == [(0, 1), (1, 1), (2, 1), (3, 1)]
+    for workers in (0, 5):
+        refusal = rf"^--workers {workers}: must be between 1 and the number of env copies \(4\)$"
+        with pytest.raises(ImitationError, match=refusal):
+            split_copies(4, workers)
+
+
+def test_a_gatherer_starts_with_no_time_counted_and_closes_before_any_rollout() -> None:
+    """A run stopped before its first rollout closes a gatherer whose actors never started."""
+    gatherer = RayRollouts(N_ENVS, 2)
+    assert gatherer.seconds == dict.fromkeys(("start", "broadcast", "wait", "gather", "worker_collect", "worker_load"), 0.0)
+    gatherer.close()
+    assert gatherer.workers == []
+
+
+def test_a_worker_is_a_one_thread_cpu_learner_whose_copies_start_where_the_single_process_run_puts_them() -> None:
+    """Started on a learner that has made 3 updates (a resumed run), worker copies 1 and 2 are reset
+    as the single-process learner resets its copies 1 and 2 at its fourth rollout, whatever device
+    and threads the learner itself uses; its segment's timings lie within the call."""
+    threads = torch.get_num_threads()
+    local = PPO(config())
+    local.updates = 3
+    local.collect_rollout()
+    try:
+        worker = RolloutWorker(config(device="cuda", threads=2), 1, 2, 3)
+        try:
+            assert torch.get_num_threads() == 1 and worker.learner.device == torch.device("cpu")
+            started = time.perf_counter()
+            segment = worker.collect(weights(local))
+            elapsed = time.perf_counter() - started
+            timers = dict(worker.learner.timers)
+        finally:
+            worker.close()
+    finally:
+        local.close()
+        torch.set_num_threads(threads)
+    assert np.array_equal(segment["observations"][0], local.rollout_storage.observations[0, 1:3].numpy())
+    assert segment["observations"].shape == (N_STEPS, 2, 3)
+    assert segment["seconds_load"] > 0 and segment["seconds_collect"] > 0
+    assert segment["seconds_load"] + segment["seconds_collect"] <= elapsed
+    # The env's and the forward passes' time, measured inside the collection, is the worker's to report once.
+    assert segment["seconds_env"] > 0 and segment["seconds_inference"] > 0
+    assert segment["seconds_env"] + segment["seconds_inference"] <= segment["seconds_collect"]
+    assert timers == {"env": 0.0, "inference": 0.0, "update": 0.0}
+
+
+PIXELS = dict(
+    env_id="CartPole-v1",
+    pixels={"size": [36, 36], "grayscale": True},
+    frame_stack=2,
+    n_steps=8,
+    total_steps=32,
+    batch_size=8,
+    cnn={"channels": [4], "kernels": [8], "strides": [4], "features": 16},
+)
+
+
+def test_dict_observations_gather_leaf_by_leaf_into_their_copies_columns() -> None:
+    """Rendered frames beside the state: with one worker the rollout equals the local one leaf for
+    leaf; with two, each leaf's columns hold the segment of the worker that stepped those copies."""
+    settings = config(**PIXELS)
+    local = PPO(settings)
+    try:
+        local.collect_rollout()
+        alone = gathered_in_this_process(settings, 1)
+        for name in local.rollout_storage.__dataclass_fields__:
+            expected, gathered = getattr(local.rollout_storage, name), getattr(alone.rollout_storage, name)
+            for key in expected if isinstance(expected, dict) else [None]:
+                pair = (expected[key], gathered[key]) if key is not None else (expected, gathered)
+                assert torch.equal(*pair), (name, key)
+        assert alone.observations.keys() == local.observations.keys() == {"pixels", "state"}
+        for key, leaf in local.observations.items():
+            assert np.array_equal(alone.observations[key], leaf), key
+        alone.close()
+    finally:
+        local.close()
+    learner = PPO(settings)
+    gatherer = RayRollouts(settings.n_envs, 2)
+    segments = []
+    for first, count in gatherer.shares:
+        worker = RolloutWorker(settings, first, count, 0)
+        segments.append(worker.collect(weights(learner)))
+        worker.close()
+    gatherer._gather(learner, segments)
+    learner.close()
+    for (first, count), segment in zip(gatherer.shares, segments):
+        for name in ("observations", "next_observations"):
+            for key in ("pixels", "state"):
+                column = getattr(learner.rollout_storage, name)[key][:, first : first + count]
+                assert np.array_equal(column.numpy(), segment[name][key]), (name, key, first)
+    for key in ("pixels", "state"):
+        assert np.array_equal(learner.observations[key], np.concatenate([s["last_observations"][key] for s in segments]))
+
+
+def test_each_rollout_adds_its_time_and_a_killed_worker_is_restarted_and_its_collection_retried(local_ray) -> None:
+    """The actors start once, each holding one CPU, and every later rollout adds its share of the
+    time to the totals (set high here, so that a total replaced or taken from shows). A worker
+    killed while it collects comes back, and the collection it was running is run again."""
+    ray = local_ray
+    settings = config(n_steps=2048, total_steps=4 * N_ENVS * 2048)
+    remote = RayRollouts(N_ENVS, 2)
+    learner = PPO(settings, remote=remote)
+    try:
+        started = time.perf_counter()
+        learner.collect_rollout()
+        assert 0 < remote.seconds["start"] < time.perf_counter() - started
+        for worker in remote.workers:
+            assigned = worker.__ray_call__.remote(lambda _: ray.get_runtime_context().get_assigned_resources())
+            assert ray.get(assigned) == {"CPU": 1.0}
+        remote.seconds = dict.fromkeys(remote.seconds, 1000.0)
+        learner.timers = dict.fromkeys(learner.timers, 1000.0)
+        started = time.perf_counter()
+        learner.collect_rollout()
+        elapsed = time.perf_counter() - started
+        assert remote.seconds["start"] == 1000.0, "the actors started once"
+        for name in ("broadcast", "wait", "gather", "worker_collect", "worker_load"):
+            assert 1000.0 < remote.seconds[name] <= 1000.0 + elapsed, name
+        for name in ("env", "inference"):
+            assert 1000.0 < learner.timers[name] <= 1000.0 + elapsed, name
+        victim = remote.workers[0]
+        pending = victim.collect.remote(weights(learner))
+        time.sleep(0.2)  # well inside its 4,096 steps
+        ray.kill(victim, no_restart=False)
+        segment = ray.get(pending)
+        assert segment["observations"].shape == (2048, 2, 3) and len(segment["returns"]) >= 2
     finally:
         learner.close()
         remote.close()
