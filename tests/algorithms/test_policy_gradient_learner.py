@@ -383,3 +383,15 @@ def test_a_checkpoint_before_the_first_rollout_holds_no_episode_and_resumes_as_t
         first.close()
         resumed.close()
     assert torch.equal(batch.features, expected.features) and torch.equal(batch.rewards, expected.rewards)
+
+
+def test_a_critic_off_constant_targets_explains_less_than_nothing() -> None:
+    """At γ = 0 every CartPole-v1 target is its reward, 1: the targets' variance is 0, and the
+    explained variance 1 − Var(G − V) / (Var(G) + 1e-8) of an untrained critic is far below 0."""
+    config = PGConfig(env_id="CartPole-v1", estimator="baseline", gamma=0.0, n_envs=1, batch_steps=20, total_steps=100, hidden_sizes=[8])
+    learner = PolicyGradient(config)
+    try:
+        row = learner.step()
+    finally:
+        learner.close()
+    assert row["explained_variance"] < -1.0
