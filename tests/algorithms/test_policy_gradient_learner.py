@@ -244,7 +244,8 @@ def test_a_gradient_clipped_to_a_tiny_norm_barely_moves_the_policy() -> None:
     the critic, which is not clipped, moves as usual."""
     moved = {}
     for max_grad_norm in (None, 1e-12):
-        learner = learner_with_critic_s0(max_grad_norm=max_grad_norm, gae_lambda=0.0, learning_rate=0.1, value_learning_rate=0.1)
+        rates = {"learning_rate": 0.1, "value_learning_rate": 0.1}
+        learner = learner_with_critic_s0(max_grad_norm=max_grad_norm, gae_lambda=0.0, **rates)
         try:
             before = [p.detach().clone() for p in (*learner.actor_parameters, *learner.critic_parameters)]
             learner.step()
@@ -367,7 +368,9 @@ def test_dict_observations_are_refused_in_one_line_naming_policy_gradient() -> N
 def test_a_checkpoint_before_the_first_rollout_holds_no_episode_and_resumes_as_the_fresh_run() -> None:
     """Rollouts carry episodes across batches, but before the first one there is none in progress:
     nothing to replay, and the resumed learner resets its copies as the fresh run does."""
-    config = PGConfig(env_id="Pendulum-v1", estimator="actor-critic", n_envs=2, rollout_steps=20, total_steps=80, hidden_sizes=[8])
+    config = PGConfig(
+        env_id="Pendulum-v1", estimator="actor-critic", n_envs=2, rollout_steps=20, total_steps=80, hidden_sizes=[8]
+    )
     fresh = PolicyGradient(config)
     try:
         expected = fresh.collect()
@@ -388,10 +391,124 @@ def test_a_checkpoint_before_the_first_rollout_holds_no_episode_and_resumes_as_t
 def test_a_critic_off_constant_targets_explains_less_than_nothing() -> None:
     """At γ = 0 every CartPole-v1 target is its reward, 1: the targets' variance is 0, and the
     explained variance 1 − Var(G − V) / (Var(G) + 1e-8) of an untrained critic is far below 0."""
-    config = PGConfig(env_id="CartPole-v1", estimator="baseline", gamma=0.0, n_envs=1, batch_steps=20, total_steps=100, hidden_sizes=[8])
+    config = PGConfig(
+        env_id="CartPole-v1", estimator="baseline", gamma=0.0, n_envs=1, batch_steps=20, total_steps=100, hidden_sizes=[8]
+    )
     learner = PolicyGradient(config)
     try:
         row = learner.step()
     finally:
         learner.close()
     assert row["explained_variance"] < -1.0
+
+
+class ScriptedEnv(gym.Env):
+    """Two state numbers, the step count twice; reward 1; episodes of `length` steps that end with
+    the flags given. `fault` puts a non-finite value in the reset state, or in the reward or the
+    next state of step `at`."""
+
+    observation_space = gym.spaces.Box(-np.inf, np.inf, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def __init__(self, length: int = 10, ends: tuple[bool, bool] = (True, False), fault: str = "", at: int = 0) -> None:
+        self.length, self.ends, self.fault, self.at = length, ends, fault, at
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return np.array([np.nan if self.fault == "reset" else 0.0, 0.0], np.float32), {}
+
+    def step(self, action):
+        self.t += 1
+        observation, reward = np.full(2, float(self.t), np.float32), 1.0
+        if self.t == self.at and self.fault == "reward":
+            reward = float("nan")
+        if self.t == self.at and self.fault == "observation":
+            observation[1] = np.inf
+        over = self.t >= self.length
+        return observation, reward, over and self.ends[0], over and self.ends[1], {}
+
+
+@pytest.fixture(scope="module")
+def scripted_envs():
+    ids = {
+        "imitation-tests/EndsBothWays-v0": {"length": 2, "ends": (True, True)},
+        "imitation-tests/NaNReward-v0": {"fault": "reward", "at": 3},
+        "imitation-tests/InfObservation-v0": {"fault": "observation", "at": 2},
+        "imitation-tests/NaNReset-v0": {"fault": "reset"},
+    }
+    for env_id, kwargs in ids.items():
+        gym.register(id=env_id, entry_point=ScriptedEnv, kwargs=kwargs)
+    yield
+    for env_id in ids:
+        gym.registry.pop(env_id)
+
+
+def test_a_step_that_terminates_and_is_truncated_at_once_counts_as_terminated(scripted_envs) -> None:
+    """No bootstrap after a termination, whatever the time limit says: no final state kept, and
+    TD(0)'s advantage of the last step is its reward minus V(s)."""
+    config = PGConfig(
+        env_id="imitation-tests/EndsBothWays-v0", estimator="actor-critic", gae_lambda=0.0, n_envs=1, batch_steps=6,
+        total_steps=60,
+    )
+    learner = PolicyGradient(config)
+    try:
+        batch = learner.collect()
+        weights, _, values = learner.weights(batch)
+    finally:
+        learner.close()
+    assert batch.terminated.tolist() == [False, True] * 3 and not batch.truncated.any()
+    assert not batch.final_features.any()
+    torch.testing.assert_close(weights[1::2], 1.0 - values[1::2])
+
+
+@pytest.mark.filterwarnings("ignore:.*is not within the observation space")
+@pytest.mark.parametrize(
+    ("env_id", "what", "step"),
+    [
+        ("imitation-tests/NaNReward-v0", "reward", 3),
+        ("imitation-tests/InfObservation-v0", "observation", 2),
+        ("imitation-tests/NaNReset-v0", "observation", 0),
+    ],
+)
+def test_a_non_finite_value_from_the_env_stops_the_batch_naming_the_env_step(
+    scripted_envs, env_id: str, what: str, step: int
+) -> None:
+    learner = PolicyGradient(PGConfig(env_id=env_id, n_envs=1, batch_steps=20, total_steps=100))
+    try:
+        with pytest.raises(ImitationError) as error:
+            learner.collect()
+    finally:
+        learner.close()
+    assert str(error.value) == (
+        f"{env_id}: the environment returned a non-finite {what} at env step {step}; "
+        "policy gradient needs finite observations and rewards"
+    )
+
+
+def test_the_policy_loss_divides_the_weights_by_their_std_unless_told_not_to_or_given_one() -> None:
+    """−Σ log π(a|s) w / m on two hand-made steps of one piece, w = (1, 3) divided by its std √2,
+    or taken as it is; equal weights (std 0) are divided by 1e-8; a single weight has no std and is
+    taken as it is."""
+    learner = learner_with_critic_s0(normalize_advantages=True)
+    raw = learner_with_critic_s0(normalize_advantages=False)
+    try:
+        batch = hand_batch()
+        two = Batch(batch.features[:2], batch.actions[:2], batch.rewards[:2], batch.terminated[:2], batch.truncated[:2],
+                    batch.final_features[:2], [], 1)
+        one = Batch(batch.features[:1], batch.actions[:1], batch.rewards[:1], batch.terminated[:1], batch.truncated[:1],
+                    batch.final_features[:1], [], 1)
+        with torch.no_grad():
+            log_probs = learner.policy.log_prob(learner.policy.distribution(two.features), two.actions)
+
+            def loss(model: PolicyGradient, chosen: Batch, weights: list[float]) -> float:
+                return float(model.policy_loss(chosen, torch.tensor(weights))[0])
+
+            surrogate = float(-(log_probs * torch.tensor([1.0, 3.0])).sum())
+            assert loss(learner, two, [1.0, 3.0]) == pytest.approx(surrogate / math.sqrt(2))
+            assert loss(raw, two, [1.0, 3.0]) == pytest.approx(surrogate)
+            assert loss(learner, two, [2.0, 2.0]) == pytest.approx(float(-(log_probs * 2.0).sum()) / 1e-8)
+            assert loss(learner, one, [2.0]) == pytest.approx(float(-(log_probs[0] * 2.0)))
+    finally:
+        learner.close()
+        raw.close()
