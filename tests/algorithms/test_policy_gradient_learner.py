@@ -433,6 +433,7 @@ class ScriptedEnv(gym.Env):
 def scripted_envs():
     ids = {
         "imitation-tests/EndsBothWays-v0": {"length": 2, "ends": (True, True)},
+        "imitation-tests/ThreeSteps-v0": {"length": 3},
         "imitation-tests/NaNReward-v0": {"fault": "reward", "at": 3},
         "imitation-tests/InfObservation-v0": {"fault": "observation", "at": 2},
         "imitation-tests/NaNReset-v0": {"fault": "reset"},
@@ -460,6 +461,22 @@ def test_a_step_that_terminates_and_is_truncated_at_once_counts_as_terminated(sc
     assert batch.terminated.tolist() == [False, True] * 3 and not batch.truncated.any()
     assert not batch.final_features.any()
     torch.testing.assert_close(weights[1::2], 1.0 - values[1::2])
+
+
+def test_every_copy_steps_in_each_round_until_the_batch_is_full(scripted_envs) -> None:
+    """Two copies of 3-step episodes and a 4-step batch: both copies step side by side, so the
+    batch is full at their first episodes' ends (6 steps, one episode each), and neither starts
+    another."""
+    config = PGConfig(
+        env_id="imitation-tests/ThreeSteps-v0", estimator="reward-to-go", n_envs=2, batch_steps=4, total_steps=40
+    )
+    learner = PolicyGradient(config)
+    try:
+        batch = learner.collect()
+    finally:
+        learner.close()
+    assert batch.episode_returns == [3.0, 3.0] and batch.terminated.tolist() == [False, False, True] * 2
+    assert learner.episodes == 2 and learner.global_step == 6
 
 
 @pytest.mark.filterwarnings("ignore:.*is not within the observation space")
