@@ -343,8 +343,9 @@ def test_a_round_reports_its_steps_mean_loss_and_accuracies_and_leaves_d_in_eval
     discriminator = GAILDiscriminator(linear([2.0, 0.0]))
     config = AdversarialConfig(batch_size=4, discriminator_steps=3, learning_rate=1e-12, gradient_penalty=0.5)
     learner = DiscriminatorLearner(discriminator, transitions([[0.25, 1.0]] * 5), config)
-    learner.add_rollout(one_copy_rollout([[0.25, -1.0]] * 6))
-    statistics = learner.learn(None)  # GAIL's logit reads no policy
+    pooled = learner.add_rollout(one_copy_rollout([[0.25, -1.0]] * 6))
+    statistics = learner.learn(None)  # GAIL's logit reads no policy, nor does its reward (the logit here)
+    assert learner.policy_rewards(pooled, None).tolist() == pytest.approx([0.5] * 6)
     cross_entropy = math.log1p(math.exp(-0.5)) + math.log1p(math.exp(0.5))
     # Demo steps (logit ½ > 0) all told apart, policy steps (logit ½ ≥ 0) none.
     expected = {"discriminator_loss": cross_entropy + 2.0, "demo_accuracy": 1.0, "sample_accuracy": 0.0}
