@@ -383,6 +383,9 @@ def test_gae_at_zero_is_td0_and_at_one_the_reward_to_go_minus_v() -> None:
         "actor-critic", REWARDS, VALUES, NEXT_VALUES, TERMINATED, TRUNCATED, gamma=0.5, gae_lambda=1.0
     )
     assert torch.allclose(weights, monte_carlo) and torch.allclose(targets, monte_carlo + VALUES)
+    # λ = 1 is the default: without n, actor-critic's advantage is then the Monte Carlo one.
+    weights, _ = policy_gradient_weights("actor-critic", REWARDS, VALUES, NEXT_VALUES, TERMINATED, TRUNCATED, gamma=0.5)
+    assert torch.allclose(weights, monte_carlo)
 
 
 def test_the_estimators_weights_and_critic_targets() -> None:
