@@ -215,9 +215,10 @@ def test_the_pool_is_read_as_its_rollouts_one_after_another() -> None:
     learner = pooled_learner(3, 0.0).discriminator
     learner.rollouts[1] = learner.rollouts[1].select(torch.arange(100))  # rollouts of unequal lengths too
     pool = learner.rollouts[0].cat(*learner.rollouts[1:])
-    index = torch.tensor([611, 0, 255, 256, 355, 356, 300, 0, 611])
-    for name in Steps.__dataclass_fields__:
-        assert torch.equal(getattr(learner.pool_select(index), name), getattr(pool.select(index), name)), name
+    # The second index draws one step from each of two rollouts.
+    for index in (torch.tensor([611, 0, 255, 256, 355, 356, 300, 0, 611]), torch.tensor([300, 5])):
+        for name in Steps.__dataclass_fields__:
+            assert torch.equal(getattr(learner.pool_select(index), name), getattr(pool.select(index), name)), name
 
 
 def test_all_negatives_from_the_latest_rollout_is_a_pool_of_one() -> None:
