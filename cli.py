@@ -187,24 +187,19 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def cmd_train_ppo(args: argparse.Namespace) -> int:
     from imitation.envs.pixels import PixelRecipe
-    from imitation.jobs.ppo import observation_fields, ppo_job
-    from imitation.jobs.presets import ppo_config
+    from imitation.jobs.ppo import train_ppo
 
     pixels = (
         {"pixels": PixelRecipe.parse(args.pixels, grayscale=args.grayscale, crop=args.crop).to_json()} if args.pixels else {}
     )
-    # A pixel reward, and the run --resume continues, say how the env is observed: no flags needed.
-    fields = observation_fields(
-        _fields(args, "PPOConfig") | pixels, reward_run=args.reward, resume=args.out if args.resume else None
-    )
-    config = ppo_config(args.env, learned_reward=args.reward is not None, **fields)
-    result = ppo_job(
-        config,
+    config, result = train_ppo(
+        args.env,
         args.out,
+        _fields(args, "PPOConfig") | pixels,
         reward_run=args.reward,
         shaped=args.shaped,
-        progress=not args.quiet,
         resume=args.resume,
+        progress=not args.quiet,
         workers=_workers(args),
     )
     if args.json:

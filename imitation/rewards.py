@@ -315,26 +315,50 @@ def _net_tensors(model: RewardNet, key: str) -> dict[str, torch.Tensor]:
     return {f"{key}.{name}": tensor for name, tensor in model.state_dict().items()}
 
 
+@dataclass(frozen=True)
+class RewardRun:
+    """A reward run directory (`train irl`'s), read once: its config.json, its reward model (on
+    the CPU, in eval mode) and the weights AIRL's shaping potential h is built from on demand."""
+
+    path: str
+    config: dict[str, Any]
+    reward: RewardNet
+    weights: dict[str, torch.Tensor]
+
+    def potential(self) -> RewardNet:
+        """AIRL's shaping potential h, saved beside its reward g."""
+        if "potential" not in self.config:
+            raise ImitationError(
+                f"{self.path}: holds no shaping potential h (a {str(self.config.get('kind', 'unknown'))[:40]!r} run); "
+                "only `train irl --method airl` saves one"
+            )
+        return _saved_net(self.path, self.config, self.weights, "potential", "shaping potential")
+
+    @staticmethod
+    def of(path: str | os.PathLike, config: dict[str, Any], weights: dict[str, torch.Tensor]) -> RewardRun:
+        """The reward run of the run directory `path` whose config and weights were read
+        (`read_run`); one-line errors for any other run or a damaged one."""
+        if config.get("kind") != "reward" and "reward" not in config:
+            raise ImitationError(
+                f"{path}: not a reward model (a {str(config.get('kind', 'unknown'))[:40]!r} run); pass the run directory "
+                "of `train irl`"
+            )
+        return RewardRun(str(path), config, _saved_net(path, config, weights, "reward", "reward model"), weights)
+
+
+def read_reward_run(path: str | os.PathLike) -> RewardRun:
+    """The reward run directory `path` (`RewardRun.of`)."""
+    return RewardRun.of(path, *read_run(path))
+
+
 def load_reward(path: str | os.PathLike) -> RewardNet:
     """The reward model of a run directory, on the CPU, in eval mode."""
-    config, weights = read_run(path)
-    if config.get("kind") != "reward" and "reward" not in config:
-        raise ImitationError(
-            f"{path}: not a reward model (a {str(config.get('kind', 'unknown'))[:40]!r} run); pass the run directory of "
-            "`train irl`"
-        )
-    return _saved_net(path, config, weights, "reward", "reward model")
+    return read_reward_run(path).reward
 
 
 def load_potential(path: str | os.PathLike) -> RewardNet:
-    """AIRL's shaping potential h of a run directory, on the CPU, in eval mode."""
-    config, weights = read_run(path)
-    if "potential" not in config:
-        raise ImitationError(
-            f"{path}: holds no shaping potential h (a {str(config.get('kind', 'unknown'))[:40]!r} run); only "
-            "`train irl --method airl` saves one"
-        )
-    return _saved_net(path, config, weights, "potential", "shaping potential")
+    """AIRL's shaping potential h of a reward run directory, on the CPU, in eval mode."""
+    return read_reward_run(path).potential()
 
 
 def _saved_net(

@@ -4,6 +4,7 @@ state, each against a hand computation."""
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 from typing import Any
@@ -384,3 +385,22 @@ def test_state_rewards_of_a_reward_that_reads_actions_are_refused(inputs: str) -
     model = make_reward_model(gym.spaces.Discrete(9), gym.spaces.Discrete(4), inputs=inputs, hidden_sizes=[])
     with pytest.raises(ImitationError, match=f"need a reward of the state alone .*takes '{inputs}'"):
         all_state_rewards(model, 9)
+
+
+def test_train_ppo_reads_its_reward_run_once_and_optimises_that_reward(tmp_path, monkeypatch) -> None:
+    """`train ppo --reward RUN` read the run directory three times (the observation fields, the
+    model, the demos); now once, and the run it writes names the reward it optimised."""
+    from imitation import rewards
+    from imitation.jobs.ppo import train_ppo
+
+    model = make_reward_model(gym.spaces.Box(-np.inf, np.inf, (4,), np.float32), gym.spaces.Discrete(2), hidden_sizes=[4])
+    reward_run = save_reward_run(model, tmp_path / "reward", env_id="CartPole-v1", source="test")
+    reads: list[str] = []
+    read_run = rewards.read_run
+    monkeypatch.setattr(rewards, "read_run", lambda path: reads.append(str(path)) or read_run(path))
+    flags = {"total_steps": 256, "n_envs": 2, "seed": 0}
+    config, result = train_ppo("CartPole-v1", tmp_path / "ppo", flags, reward_run=str(reward_run), progress=False)
+    assert reads == [str(reward_run)]
+    assert config.total_steps == 256 and result["steps"] == 256
+    saved = json.loads((tmp_path / "ppo" / "config.json").read_text())
+    assert saved["reward_run"] == str(reward_run) and saved["source"] == f"--reward {reward_run}"

@@ -47,8 +47,8 @@ from imitation.jobs.run_config import RunConfig, config_json
 from imitation.policies import SingleObservationPolicy, load_policy
 from imitation.progress import progress_bar
 from imitation.ray_engine import RETRIES, Workers, ray_get
-from imitation.rewards import RewardNet, load_reward
-from imitation.runs import RunWriter, has_checkpoint, read_run
+from imitation.rewards import RewardNet, read_reward_run
+from imitation.runs import RunWriter, has_checkpoint
 
 ROLLOUT_EPISODES = 4  # per policy, for the coverage batch
 
@@ -86,9 +86,10 @@ def evaluate_reward(
     (metrics.json), plots and report.md to directory `out` (replaced only when complete).
     With `workers`, the PPO retrainings run as Ray tasks instead of local processes."""
     config.validate()
-    model = load_reward(run)
+    saved = read_reward_run(run)
+    model = saved.reward
     _check_flat_observations(model, run)
-    run_config = RunConfig.from_json(read_run(run)[0])
+    run_config = RunConfig.from_json(saved.config)
     with closing(make_env(env_id)) as env:
         check_spaces_fit("reward model's", model.observation_space, model.action_space, env, where=f"{run}")
         writer_config = RunConfig(kind="reward-evaluation", env_id=env_id, run=str(run), evaluation=config_json(config))

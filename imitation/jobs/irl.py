@@ -36,7 +36,7 @@ from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
 from imitation.policies import acting_env, make_acting_env, policy_tensors
 from imitation.ray_engine import Workers, worker_session
-from imitation.rewards import RewardNet, load_potential, load_reward, make_reward_model, potential_tensors, reward_tensors
+from imitation.rewards import RewardNet, RewardRun, make_reward_model, potential_tensors, reward_tensors
 from imitation.runs import read_run
 from imitation.seeding import seed_everything
 
@@ -216,7 +216,7 @@ def adversarial_job(
 def start_discriminator_from(discriminator: Discriminator, run: str | os.PathLike, method: str, env_id: str) -> None:
     """`discriminator`'s networks (AIRL's g and h, GAIL's D) set to those `run`, a finished `train
     irl --method <method>` run on `env_id`, saved; one-line errors for any other run."""
-    saved, _ = read_run(run)
+    saved, weights = read_run(run)
     section = saved.get("irl")
     saved_method = section.get("method") if isinstance(section, dict) else None
     if saved_method != method:
@@ -225,7 +225,8 @@ def start_discriminator_from(discriminator: Discriminator, run: str | os.PathLik
         )
     if saved.get("env_id") != env_id:
         raise ImitationError(f"{run}: --warm-start: its discriminator learnt {saved.get('env_id')!r}, not {env_id}")
-    loaded = [load_reward(run), *([load_potential(run)] if method == "airl" else [])]
+    reward_run = RewardRun.of(run, saved, weights)
+    loaded = [reward_run.reward, *([reward_run.potential()] if method == "airl" else [])]
     names = ("g", "h") if method == "airl" else ("D",)
     for net, start, name in zip(discriminator.reward_nets(), loaded, names, strict=True):
         ours, theirs = net.config.to_json(), start.config.to_json()

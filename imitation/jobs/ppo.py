@@ -15,12 +15,12 @@ from imitation.data.spaces import check_spaces_fit
 from imitation.envs.pixels import PixelRecipe
 from imitation.errors import ImitationError
 from imitation.evaluation.plots import plot_curve
+from imitation.jobs.presets import ppo_config
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import final_evaluation, save_policy, train_to_end, training_run
 from imitation.policies import acting_env, make_acting_env
 from imitation.ray_engine import Workers, worker_session
-from imitation.rewards import RewardNet, load_potential, load_reward
-from imitation.runs import read_run
+from imitation.rewards import RewardNet, RewardRun, read_reward_run
 from imitation.seeding import seed_everything
 
 
@@ -28,7 +28,7 @@ def ppo_job(
     config: PPOConfig,
     out: str | os.PathLike,
     *,
-    reward_run: str | None = None,
+    reward_run: str | os.PathLike | RewardRun | None = None,
     shaped: bool = False,
     reward: RewardNet | None = None,
     reward_source: str | None = None,
@@ -38,20 +38,22 @@ def ppo_job(
 ) -> dict[str, Any]:
     """Train PPO into run directory `out`; the metrics also written to metrics.json. It
     optimises the env's reward, or a learned one: the reward model of run directory
-    `reward_run` (`train ppo --reward`; with `shaped`, AIRL's f, its g shaped by the potential h
-    it learnt, at this PPO's γ), or `reward` itself (described by `reward_source`).
+    `reward_run` (`train ppo --reward`, a path or the run already read; with `shaped`, AIRL's f,
+    its g shaped by the potential h it learnt, at this PPO's γ), or `reward` itself (described by
+    `reward_source`).
     `resume` continues the interrupted run in `out`.partial from its checkpoint. With
     `workers`, the rollouts run on that many Ray actors (`imitation.algorithms.ray_rollouts`)."""
     config.validate()
     seed_everything(config.seed)
     demos = None
     learned: RolloutReward | None = reward
-    if reward_run is not None:
-        learned = reward = load_reward(reward_run)
-        demos = RunConfig.from_json(read_run(reward_run)[0]).existing_demos()  # the expert reference of `eval policy`
-        reward_source = f"--reward {reward_run}"
+    saved = reward_run if reward_run is None or isinstance(reward_run, RewardRun) else read_reward_run(reward_run)
+    if saved is not None:
+        learned = reward = saved.reward
+        demos = RunConfig.from_json(saved.config).existing_demos()  # the expert reference of `eval policy`
+        reward_source = f"--reward {saved.path}"
         if shaped:
-            learned = ShapedReward(reward, load_potential(reward_run), gamma=config.gamma)
+            learned = ShapedReward(reward, saved.potential(), gamma=config.gamma)
             reward_source += " --shaped"
     elif shaped:
         raise ImitationError("--shaped: shapes the reward of an AIRL run, and no --reward was given")
@@ -63,7 +65,12 @@ def ppo_job(
                 "reward model's", reward.observation_space, reward.action_space, env, where=reward_source or "the reward"
             )
     run_config = RunConfig(
-        kind="ppo", env_id=config.env_id, reward_run=reward_run, demos=demos, source=reward_source, ppo=config_json(config)
+        kind="ppo",
+        env_id=config.env_id,
+        reward_run=saved.path if saved else None,
+        demos=demos,
+        source=reward_source,
+        ppo=config_json(config),
     )
     remote = RayRollouts(config.n_envs, workers.count) if workers else None
     with training_run(out, run_config, resume=resume) as run, worker_session(workers):
@@ -92,13 +99,34 @@ def ppo_job(
     return {"run": str(run.path), **metrics}
 
 
+def train_ppo(
+    env_id: str,
+    out: str | os.PathLike,
+    flags: dict[str, Any],
+    *,
+    reward_run: str | None = None,
+    shaped: bool = False,
+    resume: bool = False,
+    progress: bool = True,
+    workers: Workers | None = None,
+) -> tuple[PPOConfig, dict[str, Any]]:
+    """`train ppo`: the PPOConfig fields its `flags` set, completed by how a pixel reward and an
+    interrupted run observe the env (`observation_fields`) and by the env's preset, then
+    `ppo_job`; the reward run is read once. The config and the job's result."""
+    saved = read_reward_run(reward_run) if reward_run is not None else None
+    fields = observation_fields(flags, reward_run=saved, resume=out if resume else None)
+    config = ppo_config(env_id, learned_reward=saved is not None, **fields)
+    result = ppo_job(config, out, reward_run=saved, shaped=shaped, progress=progress, resume=resume, workers=workers)
+    return config, result
+
+
 # The PPOConfig fields that say how the env is observed. A pixel reward fixes them (it reads the
 # frames it was learnt on), and so does the interrupted run that --resume continues.
 OBSERVATION_FIELDS = ("pixels", "frame_stack", "observation_keys")
 
 
 def observation_fields(
-    given: dict[str, Any], *, reward_run: str | None = None, resume: str | os.PathLike | None = None
+    given: dict[str, Any], *, reward_run: RewardRun | None = None, resume: str | os.PathLike | None = None
 ) -> dict[str, Any]:
     """PPOConfig fields `given` (by flags), completed with how the env must be observed: as the
     reward model of `reward_run` was learnt (its pixel recipe, frame stack and observation keys)
@@ -115,13 +143,13 @@ def observation_fields(
     return fields
 
 
-def _reward_observation(reward_run: str | None) -> tuple[str, str, dict[str, Any]]:
+def _reward_observation(reward_run: RewardRun | None) -> tuple[str, str, dict[str, Any]]:
     """(source, verb, the observation fields) of the reward model of `reward_run`."""
     if reward_run is None:
         return "", "", {}
-    config = load_reward(reward_run).config
+    config = reward_run.reward.config
     required = {"pixels": config.pixels, "frame_stack": config.frame_stack, "observation_keys": config.observation_keys}
-    return f"the reward model of {reward_run}", "learnt on", required
+    return f"the reward model of {reward_run.path}", "learnt on", required
 
 
 def _resumed_observation(out: str | os.PathLike | None) -> tuple[str, str, dict[str, Any]]:
