@@ -17,7 +17,16 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from PIL import Image
 
 from imitation.data.mcap import images
-from imitation.data.mcap.images import FrameError, _map, _one_line, decode_frame, encode_frame, encode_frames
+from imitation.data.mcap.images import (
+    FrameError,
+    _map,
+    _one_line,
+    _split_data,
+    _varint,
+    decode_frame,
+    encode_frame,
+    encode_frames,
+)
 
 TIMES = np.array([0, 999_999_999, 1_000_000_000, 1_700_000_123_456_789_012], dtype=np.int64)
 
@@ -178,3 +187,83 @@ def test_frames_are_shared_over_threads_only_from_four_and_on_at_most_half_as_ma
     assert len(set(_threads_used(6, 2)) - {main}) == 2
     monkeypatch.setattr(images, "_THREADS", 1)
     assert _threads_used(8, 1) == [main] * 8  # one thread: no pool
+
+
+def _field(number: int, wire: int, payload: bytes) -> bytes:
+    """A protobuf field: its key, then `payload` (a length-delimited field's length varint included)."""
+    return _varint_bytes(number << 3 | wire) + payload
+
+
+def _varint_bytes(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        out.append(value & 0x7F | (0x80 if value > 0x7F else 0))
+        value >>= 7
+        if not value:
+            return bytes(out)
+
+
+def _delimited(number: int, payload: bytes) -> bytes:
+    return _field(number, 2, _varint_bytes(len(payload)) + payload)
+
+
+def test_a_varint_is_read_to_its_last_byte_and_at_most_ten_bytes() -> None:
+    cases = {
+        b"\x00": (0, 1),
+        b"\x7f": (127, 1),
+        b"\x80\x01": (128, 2),
+        b"\xac\x02": (300, 2),
+        b"\xff" * 9 + b"\x01": (2**64 - 1, 10),
+        b"\x80" * 9 + b"\x00": (0, 10),
+    }
+    for data, expected in cases.items():
+        assert _varint(memoryview(data), 0) == expected, data
+        assert _varint(memoryview(b"\x05\x07" + data + b"\x01"), 2) == (expected[0], expected[1] + 2), data
+    for data in (b"", b"\x80", b"\xff\xff", b"\xff" * 10 + b"\x01", b"\x80" * 10 + b"\x00"):
+        assert _varint(memoryview(data), 0) == (-1, -1), data  # runs past the end or ten bytes
+
+
+def test_the_data_field_is_cut_out_of_a_message_of_every_wire_type_as_a_view() -> None:
+    pixels = bytes(range(256)) * 2  # a length of two varint bytes
+    before = _delimited(1, b"") + _field(4, 0, _varint_bytes(300)) + _field(5, 1, bytes(range(8)))
+    after = _field(7, 5, b"\x01\x02\x03\x04") + _delimited(3, b"png") + _field(8, 0, b"\x00")
+    message = before + _delimited(2, pixels) + after
+    split = _split_data(message, 2)
+    assert split is not None
+    rest, data = split
+    assert rest == before + after and bytes(data) == pixels
+    assert np.shares_memory(np.frombuffer(data, np.uint8), np.frombuffer(message, np.uint8))
+    # The data field first or last, and alone.
+    for whole, expected_rest in (
+        (_delimited(2, b"xy") + after, after),
+        (before + _delimited(2, b"xy"), before),
+        (_delimited(2, b"xy"), b""),
+    ):
+        split = _split_data(whole, 2)
+        assert split is not None and split[0] == expected_rest and bytes(split[1]) == b"xy"
+    # A message holding an empty timestamp (time 0) and a raw frame's varint fields splits too.
+    raw = encode_frame("raw", np.arange(12, dtype=np.uint8).reshape(2, 2, 3), 0, jpeg_quality=90)
+    split = _split_data(raw, 6)
+    assert split is not None and bytes(split[1]) == bytes(range(12))
+    assert RawImage.FromString(split[0]) == RawImage(width=2, height=2, encoding="rgb8", step=6, timestamp={})
+
+
+def test_a_message_the_split_cannot_read_is_left_to_protobuf_whole() -> None:
+    data = _delimited(2, b"pixels")
+    refused = {
+        "no data field": _delimited(3, b"png"),
+        "data twice": data + data,
+        "data as a varint": _field(2, 0, b"\x05"),
+        "data as a fixed32 after the real one": data + _field(2, 5, b"\x00" * 4),
+        "a group": _field(9, 3, b"") + data,
+        "wire type 6": data + _field(9, 6, b""),
+        "wire type 7": _field(9, 7, b"") + data,
+        "a cut varint field": data + _field(4, 0, b"\x80"),
+        "a cut fixed64": data + _field(5, 1, b"\x00" * 7),
+        "a cut fixed32": data + _field(7, 5, b"\x00" * 3),
+        "a cut length": data + _field(3, 2, b"\x80"),
+        "a cut data field": _field(2, 2, b"\x07pixels"),
+        "a key over ten bytes": b"\x80" * 10 + b"\x00" + data,
+    }
+    for name, message in refused.items():
+        assert _split_data(message, 2) is None, name
