@@ -14,8 +14,10 @@ import numpy as np
 import pytest
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from google.protobuf.message import DecodeError
 from PIL import Image
 
+from imitation.data.frame_transform import FrameTransform
 from imitation.data.mcap import images
 from imitation.data.mcap.images import (
     FrameError,
@@ -24,6 +26,7 @@ from imitation.data.mcap.images import (
     _split_data,
     _varint,
     decode_frame,
+    decode_frames,
     encode_frame,
     encode_frames,
 )
@@ -267,3 +270,39 @@ def test_a_message_the_split_cannot_read_is_left_to_protobuf_whole() -> None:
     }
     for name, message in refused.items():
         assert _split_data(message, 2) is None, name
+
+
+def test_an_unknown_codec_a_message_protobuf_refuses_and_another_format_are_named_in_one_line() -> None:
+    with pytest.raises(FrameError) as error:
+        decode_frame("gif", (2, 2, 3), b"")
+    assert str(error.value) == "unknown image codec 'gif' (this reader knows png, jpeg, raw, webp)"
+    with pytest.raises(FrameError) as error:
+        decode_frame("g" * 50, (2, 2, 3), b"")
+    assert str(error.value) == f"unknown image codec '{'g' * 40}' (this reader knows png, jpeg, raw, webp)"
+    garbage = b"\xff\xff\xff\xff not protobuf"
+    try:
+        CompressedImage.FromString(garbage)
+    except DecodeError as refusal:
+        reason = " ".join(str(refusal).split())[:120]
+    with pytest.raises(FrameError) as error:
+        decode_frame("png", (2, 2, 3), garbage)
+    assert str(error.value) == f"not a foxglove.CompressedImage message ({reason})"
+    png = CompressedImage.FromString(encode_frame("png", np.zeros((2, 2, 3), np.uint8), 0, jpeg_quality=90)).data
+    with pytest.raises(FrameError) as error:
+        decode_frame("png", (2, 2, 3), _compressed("y" * 50, png))
+    assert str(error.value) == f"format '{'y' * 40}', but the channel's codec is 'png'"
+
+
+def test_frames_decoded_with_a_transform_are_each_frame_transformed_one_at_a_time() -> None:
+    rng = np.random.default_rng(3)
+    episode = rng.integers(0, 256, (5, 6, 8, 3), dtype=np.uint8)
+    messages = encode_frames("png", episode, np.arange(5), jpeg_quality=90)
+    transform = FrameTransform(size=(2, 3), crop=(1, 2, 4, 5))
+    decoded = decode_frames("png", (6, 8, 3), messages, topic="/camera", episode=0, transform=transform)
+    assert decoded.shape == (5, 2, 3, 3) and decoded.dtype == np.uint8
+    assert np.array_equal(decoded, np.stack([transform(frame) for frame in episode]))
+    cropped = decode_frames(
+        "png", (6, 8, 3), messages, topic="/camera", episode=0, transform=FrameTransform(crop=(1, 2, 4, 5))
+    )
+    assert np.array_equal(cropped, episode[:, 1:5, 2:7])
+    assert np.array_equal(decode_frames("png", (6, 8, 3), messages, topic="/camera", episode=0), episode)
