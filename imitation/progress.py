@@ -178,6 +178,15 @@ def progress_bar(
     return tqdm(total=total, initial=initial, desc=desc, unit=unit, disable=not enabled, dynamic_ncols=True)
 
 
+def progress_over(items: Iterable[Any], *, total: int, desc: str, unit: str, enabled: bool = True) -> Iterator[Any]:
+    """`items`, one by one, counted by `progress_bar` (a bar on a terminal, lines with a heartbeat
+    on a log); the bar is closed however the loop ends."""
+    with progress_bar(total=total, desc=desc, unit=unit, enabled=enabled) as bar:
+        for item in items:
+            yield item
+            bar.update()
+
+
 class Activity:
     """Long work that is not a loop of steps, as `activity` reports it: `status` is what the
     lines say of how far it has come (the work sets it as it goes)."""

@@ -16,7 +16,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from tqdm import tqdm
 
 from imitation.data.convert.endings import SourceEnds
 from imitation.data.mcap.images import DEFAULT_JPEG_QUALITY, DEFAULT_WEBP_QUALITY
@@ -24,6 +23,7 @@ from imitation.data.mcap.writer import DemoWriter
 from imitation.data.spaces import describe_space
 from imitation.data.types import Episode, first_nonfinite
 from imitation.errors import ImitationError
+from imitation.progress import progress_over
 
 
 @dataclass
@@ -185,4 +185,4 @@ def write_converted(
 
 
 def _bar(episodes: list[Episode], progress: bool) -> Iterator[Episode]:
-    yield from tqdm(episodes, desc="write", unit="episode", disable=None if progress else True, dynamic_ncols=True)
+    yield from progress_over(episodes, total=len(episodes), desc="write", unit="episode", enabled=progress)

@@ -355,7 +355,8 @@ def _read_v30(
     where each video feature keeps each episode's frames (from meta/episodes)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
-    from tqdm import tqdm
+
+    from imitation.progress import progress_over
 
     videos = _v30_video_files(root, info, video_keys)
     files = sorted((root / "data").glob("*/*.parquet"))
@@ -363,7 +364,7 @@ def _read_v30(
         raise ImitationError(f"{root / 'data'}: no frames (a v3.0 dataset keeps them in data/chunk-*/file-*.parquet)")
     parts: dict[str, list[np.ndarray]] = {key: [] for key in [*wanted, *optional]}
     blobs: dict[str, list[Any]] = {key: [] for key in image_keys}
-    for path in tqdm(files, desc="read", unit="file", disable=None if progress else True, dynamic_ncols=True):
+    for path in progress_over(files, total=len(files), desc="read", unit="file", enabled=progress):
         try:
             present = _present(path, optional)
             table = pq.read_table(path, columns=[*wanted, *present, *image_keys])
@@ -488,7 +489,8 @@ def _read_v21(
     """As `_read_v30`, from v2.1's one parquet (and one video file per video feature) per episode."""
     import pyarrow as pa
     import pyarrow.parquet as pq
-    from tqdm import tqdm
+
+    from imitation.progress import progress_over
 
     episodes_path = root / "meta" / "episodes.jsonl"
     try:
@@ -510,9 +512,7 @@ def _read_v21(
     parts: dict[str, list[np.ndarray]] = {key: [] for key in [*wanted, *optional]}
     blobs: dict[str, list[Any]] = {key: [] for key in image_keys}
     videos: dict[str, dict[int, tuple[str | None, float | None]]] = {key: {} for key in video_keys}
-    for line, entry in enumerate(
-        tqdm(listed, desc="read", unit="episode", disable=None if progress else True, dynamic_ncols=True), 1
-    ):
+    for line, entry in enumerate(progress_over(listed, total=len(listed), desc="read", unit="episode", enabled=progress), 1):
         try:
             index = int(entry["episode_index"])
             length = int(entry.get("length", -1))
@@ -626,7 +626,7 @@ def _build(
     warnings: list[str],
     progress: bool,
 ) -> Converted:
-    from tqdm import tqdm
+    from imitation.progress import progress_over
 
     columns = read.columns
     episode_index = columns["episode_index"].reshape(-1).astype(np.int64)
@@ -660,8 +660,7 @@ def _build(
         rows = sum(int(bounds[k + 1] - bounds[k]) for k in kept)
         ImageBudget(str(root), leaves.budget.source_bytes).take(rows * frame_bytes)
     episodes = []
-    bar = tqdm(kept, desc="decode", unit="episode", disable=None if progress and cameras else True, dynamic_ncols=True)
-    for k in bar:
+    for k in progress_over(kept, total=len(kept), desc="decode", unit="episode", enabled=progress and bool(cameras)):
         start, end = int(bounds[k]), int(bounds[k + 1])
         steps = end - start - 1
         # Without the sidecar the demo stops one step before the episode ended: truncated (see `ends` below).

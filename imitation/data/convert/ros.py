@@ -39,7 +39,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from tqdm import tqdm
 
 from imitation.data.convert.bags import Bag, TopicInfo, extra_bytes_warnings
 from imitation.data.convert.converted import Converted
@@ -59,6 +58,7 @@ from imitation.data.kept_frames import KeptFrames
 from imitation.data.types import Episode, Tree
 from imitation.errors import ImitationError
 from imitation.limits import LIMITS, ImageBudget, input_bytes, over_limit
+from imitation.progress import progress_bar
 
 _STAMP = parse_field("header.stamp")
 
@@ -203,7 +203,7 @@ def bag_to_episodes(
     markers: list[int] = []
     wanted = set(by_topic) | ({marker_topic} if marker_topic else set())
     total = sum(topics[t].count for t in wanted)
-    bar = tqdm(total=total, desc="read", unit="msg", disable=None if progress else True, dynamic_ncols=True)
+    bar = progress_bar(total=total, desc="read", unit="msg", enabled=progress)
     with bar:
         for topic, log_ns, message in bag.messages(sorted(wanted)):
             bar.update()

@@ -24,7 +24,6 @@ from typing import Any, BinaryIO
 import gymnasium as gym
 import numpy as np
 from mcap.writer import CompressionType, Writer
-from tqdm import tqdm
 
 from imitation import __version__
 from imitation.data.mcap.format import EpisodeFacts, Field, to_json_text
@@ -36,6 +35,7 @@ from imitation.data.spaces import LeafPath, space_to_json
 from imitation.data.types import Episode, Tree
 from imitation.errors import DemoFileError, ImitationError
 from imitation.output import OutputLock, check_target, create_exclusive, lstat_kind, writing
+from imitation.progress import progress_over
 
 STEP_TOPIC = "/step"
 EPISODE_TOPIC = "/episode"
@@ -198,14 +198,7 @@ def _write(demo: DemoFile, stream: BinaryIO, partial: Path, out: Path, *, progre
                     json.dumps({"type": "object", "title": "imitation episode marker"}).encode(),
                 ),
             )
-            bar = tqdm(
-                zip(demo.episodes, demo),
-                total=len(demo),
-                desc="export",
-                unit="episode",
-                disable=None if progress else True,
-                dynamic_ncols=True,
-            )
+            bar = progress_over(zip(demo.episodes, demo), total=len(demo), desc="export", unit="episode", enabled=progress)
             with demo.byte_source() as source:
                 for facts, episode in bar:
                     frames = _frames(demo, source, facts, cameras) if cameras else []

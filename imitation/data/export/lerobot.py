@@ -29,7 +29,6 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
-from tqdm import tqdm
 
 from imitation.data.convert.lerobot import SIDECAR, lerobot_quietly
 from imitation.data.mcap.format import to_json_text
@@ -38,6 +37,7 @@ from imitation.data.spaces import space_leaves, space_to_json
 from imitation.data.types import Episode, tree_leaves
 from imitation.errors import ImitationError
 from imitation.output import OutputLock, as_the_umask_allows, check_target, writing
+from imitation.progress import progress_over
 
 
 def _feature_names(space: gym.Space, role: str) -> dict[tuple[str, ...], str]:
@@ -136,14 +136,7 @@ def _write(
             )
             try:
                 for index, episode in enumerate(
-                    tqdm(
-                        demo,
-                        total=len(demo),
-                        desc="export",
-                        unit="episode",
-                        disable=None if progress else True,
-                        dynamic_ncols=True,
-                    )
+                    progress_over(demo, total=len(demo), desc="export", unit="episode", enabled=progress)
                 ):
                     for frame in _frames(episode, observation_names, action_names, features, task):
                         dataset.add_frame(frame)
