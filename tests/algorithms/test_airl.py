@@ -1,15 +1,19 @@
-"""AIRL's shaped reward f = g + γ (1 − d) h(s') − h(s) (imitation.algorithms.airl) on a rollout of
-several envs, with a reward g of (s, a, s'): each step's f computed by hand from g's and h's
-weights, in the rollout's (T, n_envs) layout."""
+"""AIRL (imitation.algorithms.airl) with a reward g of (s, a, s'): the shaped reward
+f = g + γ (1 − d) h(s') − h(s) on a rollout of several envs, in its (T, n_envs) layout, and the
+discriminator's logit f − log π and PPO reward f − α log π, each computed by hand from g's and
+h's weights; a potential h must be of the state alone."""
 
 from __future__ import annotations
+
+import math
 
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
 
-from imitation.algorithms.airl import ShapedReward
+from imitation.algorithms.adversarial import Steps
+from imitation.algorithms.airl import AIRLDiscriminator, ShapedReward
 from imitation.envs.rollout import Rollout
 from imitation.rewards import RewardNet, make_reward_model
 
@@ -54,3 +58,30 @@ def test_a_shaped_reward_of_g_reading_s_a_and_s_next_is_computed_step_by_step() 
     assert f.shape == (2, 3)
     np.testing.assert_allclose(f.numpy(), expected, atol=1e-6)
     assert expected[0] == pytest.approx([1 + 2 + 1.5 + 0.25 - 2, 0 + 21 + 1, 4 + 2 + 4.5 + 0.75 - 1])
+
+
+def test_airls_logit_and_ppo_reward_read_g_of_s_a_and_s_next() -> None:
+    # g(s, a, s') = s₀ + 2·[a = 1] + 3·s'₁, h(s) = s₁, γ = ½, α = ½. Step 1: s = (1, 2), a = 1,
+    # s' = (0, 4): f = 1 + 2 + 12 + 2 − 2 = 15. Step 2: s = (3, −1), a = 0, s' = (5, 6), ended:
+    # f = 3 + 18 + 1 = 22. log π = (ln ¼, ln ½).
+    g = linear([1.0, 0.0, 0.0, 2.0, 0.0, 3.0], inputs="sas")
+    discriminator = AIRLDiscriminator(g, linear([0.0, 1.0], inputs="s"), gamma=0.5, policy_entropy=0.5)
+    batch = Steps(
+        torch.tensor([[1.0, 2.0], [3.0, -1.0]]),
+        torch.tensor([1, 0]),
+        torch.tensor([[0.0, 4.0], [5.0, 6.0]]),
+        torch.tensor([0.0, 1.0]),
+    )
+    log_pi = torch.tensor([math.log(0.25), math.log(0.5)])
+    logits, inputs = discriminator.logits(batch, log_pi, penalised=True)
+    assert logits.tolist() == pytest.approx([15 + math.log(4), 22 + math.log(2)], abs=1e-5)
+    assert all(tensor.requires_grad for tensor in inputs) and len(inputs) == 3
+    rewards = discriminator.policy_rewards(batch, log_pi)
+    assert rewards.tolist() == pytest.approx([15 + 0.5 * math.log(4), 22 + 0.5 * math.log(2)], abs=1e-5)
+
+
+def test_airls_potential_must_be_of_the_state_alone() -> None:
+    for inputs in ("sa", "sas"):
+        with pytest.raises(ValueError) as error:
+            AIRLDiscriminator(linear([1.0], inputs="s"), linear([1.0], inputs=inputs), gamma=0.9)
+        assert str(error.value) == "AIRL's potential h is a function of the state alone"
