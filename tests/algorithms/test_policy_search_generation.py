@@ -17,10 +17,10 @@ from imitation.envs.make import make_env
 from imitation.policies import ActorCritic, make_policy
 
 
-def one_by_one(vectors: np.ndarray, seeds: list[int]) -> tuple[list[float], int]:
-    """Each vector's mean CartPole return over episodes started from `seeds`, its policy acting by
+def one_by_one(env_id: str, vectors: np.ndarray, seeds: list[int]) -> tuple[list[float], int]:
+    """Each vector's mean return over episodes started from `seeds`, its linear policy acting by
     its mode, and the steps all the episodes took."""
-    env = make_env("CartPole-v1")
+    env = make_env(env_id)
     policy = make_policy(env.observation_space, env.action_space, hidden_sizes=[])
     assert isinstance(policy, ActorCritic)
     means, steps = [], 0
@@ -40,29 +40,33 @@ def one_by_one(vectors: np.ndarray, seeds: list[int]) -> tuple[list[float], int]
 
 
 def test_a_generations_row_restates_its_scores_on_the_generations_episode_starts() -> None:
-    """Generation 0 of seed 7 draws its candidates, then its 2 episode seeds, from a generator
-    seeded (7, 0): the centre and 3 candidates, run one by one from those starts, give the row's
-    returns; 4 policies × 2 episodes were counted, every step of them once."""
+    """Generation 0 of seed 1 draws its candidates, then its 2 episode seeds, from a generator
+    seeded (1, 0): the centre and 3 candidates, run one by one from those starts, give the row's
+    returns; 4 policies × 2 episodes of Pendulum's 200 steps were counted, every step once.
+    Pendulum's return is continuous in its start, so any other episode seed would show."""
     config = SearchConfig(
-        env_id="CartPole-v1", method="hill-climb", population=3, episodes_per_candidate=2, n_envs=3, total_steps=20_000, seed=7
+        env_id="Pendulum-v1", method="hill-climb", population=3, episodes_per_candidate=2, n_envs=3, total_steps=20_000, seed=1
     )
     search = PolicySearch(config)
-    rng = np.random.default_rng([7, 0])
+    rng = np.random.default_rng([1, 0])
     centre, candidates = HillClimbing(config, actor_vector(search.policy)).propose(rng)
     seeds = [int(seed) for seed in rng.integers(0, 2**31 - 1, 2)]
-    scores, steps = one_by_one(np.vstack([centre[None], candidates]), seeds)
+    scores, steps = one_by_one("Pendulum-v1", np.vstack([centre[None], candidates]), seeds)
     started = time.perf_counter()
     row = search.step()
     elapsed = time.perf_counter() - started
+    # 1,600 steps of 20,000 spent, 1,600 held back: 1 + ⌊16,800 / 1,600⌋ + 1 generations projected.
+    assert (search.completed, search.total) == (1, 12)
+    assert search.step()["generation"] == 2.0 and search.completed == 2
     search.close()
     assert len({scores[0], float(np.mean(scores[1:])), max(scores[1:])}) == 3  # the test can tell them apart
     improved = max(scores[1:]) > scores[0]
     assert row == {
         "step": float(steps),
         "generation": 1.0,
-        "return": scores[0],
-        "population_return": pytest.approx(float(np.mean(scores[1:]))),
-        "best_return": max(scores[1:]),
+        "return": pytest.approx(scores[0], rel=1e-12),
+        "population_return": pytest.approx(float(np.mean(scores[1:])), rel=1e-12),
+        "best_return": pytest.approx(max(scores[1:]), rel=1e-12),
         "episodes": 8.0,
         "steps_per_second": row["steps_per_second"],
         "sigma": 0.25 if improved else 1.0,
@@ -78,7 +82,7 @@ def test_fewer_pairs_than_env_copies_score_as_episodes_run_one_by_one() -> None:
     search = PolicySearch(SearchConfig(env_id="CartPole-v1", method="cem", population=4, n_envs=5, total_steps=20_000))
     vectors = np.random.default_rng(3).normal(0.0, 1.0, (2, search.dimension))
     scores = search.evaluate(vectors, [21])
-    expected, steps = one_by_one(vectors, [21])
+    expected, steps = one_by_one("CartPole-v1", vectors, [21])
     search.close()
     np.testing.assert_allclose(scores, expected)
     assert expected[0] != expected[1] and (search.global_step, search.episodes) == (steps, 2)
