@@ -1,6 +1,7 @@
 """A policy search's setup (imitation.algorithms.policy_search.PolicySearch.__init__): the policy it
-builds from the config (its layers, activation and seeded start, torch's threads), a budget of
-exactly one full-length generation, and observations it cannot search over refused naming it."""
+builds from the config (its layers, activation and seeded start, torch's threads), scores that do not
+depend on the number of env copies, a budget of exactly one full-length generation, and
+observations it cannot search over refused naming it."""
 
 from __future__ import annotations
 
@@ -72,3 +73,13 @@ def test_dict_observations_are_refused_in_one_line_naming_policy_search() -> Non
             PolicySearch(SearchConfig(env_id="imitation-tests/SearchDictObservation-v0", total_steps=10))
     finally:
         gym.registry.pop("imitation-tests/SearchDictObservation-v0")
+
+
+def test_the_number_of_env_copies_changes_no_score() -> None:
+    """One copy runs the (policy, episode) pairs in turn, three side by side: the same rows."""
+    rows = []
+    for n_envs in (1, 3):
+        search = PolicySearch(SearchConfig(env_id="CartPole-v1", population=2, n_envs=n_envs, total_steps=6_000, seed=4))
+        rows.append([{k: v for k, v in search.step().items() if k != "steps_per_second"} for _ in range(2)])
+        search.close()
+    assert rows[0] == rows[1] and rows[0][-1]["episodes"] == 6.0
