@@ -306,3 +306,15 @@ def test_frames_decoded_with_a_transform_are_each_frame_transformed_one_at_a_tim
     )
     assert np.array_equal(cropped, episode[:, 1:5, 2:7])
     assert np.array_equal(decode_frames("png", (6, 8, 3), messages, topic="/camera", episode=0), episode)
+
+
+def test_a_picture_whose_header_fits_but_whose_pixels_do_not_decode_is_named_with_pillows_reason() -> None:
+    rows = b"".join(b"\0" + bytes(18) for _ in range(4))
+    cut = _png_chunks((b"IHDR", struct.pack(">IIBBBBB", 6, 4, 8, 2, 0, 0, 0)), (b"IDAT", zlib.compress(rows)[:-6]))
+    picture = Image.open(io.BytesIO(cut))
+    assert (picture.size, picture.mode) == ((6, 4), "RGB")
+    with pytest.raises(OSError) as refusal:
+        picture.load()
+    with pytest.raises(FrameError) as error:
+        decode_frame("png", (4, 6, 3), _compressed("png", cut))
+    assert str(error.value) == f"does not decode as png ({' '.join(str(refusal.value).split())[:120]})"
