@@ -18,6 +18,7 @@ from google.protobuf.message import DecodeError
 from PIL import Image
 
 from imitation.data.frame_transform import FrameTransform
+from imitation.data.kept_frames import KeptFrames
 from imitation.data.mcap import images
 from imitation.data.mcap.images import (
     FrameError,
@@ -25,10 +26,12 @@ from imitation.data.mcap.images import (
     _one_line,
     _split_data,
     _varint,
+    channels_of,
     decode_frame,
     decode_frames,
     encode_frame,
     encode_frames,
+    is_image_leaf,
 )
 
 TIMES = np.array([0, 999_999_999, 1_000_000_000, 1_700_000_123_456_789_012], dtype=np.int64)
@@ -318,3 +321,37 @@ def test_a_picture_whose_header_fits_but_whose_pixels_do_not_decode_is_named_wit
     with pytest.raises(FrameError) as error:
         decode_frame("png", (4, 6, 3), _compressed("png", cut))
     assert str(error.value) == f"does not decode as png ({' '.join(str(refusal.value).split())[:120]})"
+
+
+def test_an_image_leaf_is_uint8_of_two_dimensions_or_three_with_one_three_or_four_channels() -> None:
+    uint8 = np.dtype(np.uint8)
+    leaves = [(4, 6), (4, 6, 1), (4, 6, 3), (4, 6, 4), (1, 1), (1, 1, 3)]
+    not_leaves = [(6,), (4, 6, 2), (4, 6, 5), (4, 6, 3, 1), (0, 6), (4, 0, 3), (0, 0), ()]
+    assert [is_image_leaf(uint8, shape) for shape in leaves] == [True] * len(leaves)
+    assert [is_image_leaf(uint8, shape) for shape in not_leaves] == [False] * len(not_leaves)
+    for dtype in (None, np.dtype(np.int8), np.dtype(np.uint16), np.dtype(np.float32)):
+        assert not is_image_leaf(dtype, (4, 6, 3)), dtype
+    assert [channels_of(shape) for shape in leaves] == [1, 1, 3, 4, 1, 3]
+
+
+def test_kept_pictures_of_the_codec_are_stored_as_they_are_and_other_rows_encoded() -> None:
+    episode = frames((4, 6, 3))
+    pictures = []
+    for frame in episode:
+        out = io.BytesIO()
+        Image.fromarray(frame).save(out, format="JPEG", quality=40)
+        pictures.append(out.getvalue())
+    pictures[1] = None
+    kept = KeptFrames.of(episode, "jpeg", pictures)
+    messages = [CompressedImage.FromString(message) for message in encode_frames("jpeg", kept, TIMES, jpeg_quality=95)]
+    assert [(m.timestamp.seconds, m.timestamp.nanos, m.format) for m in messages] == [
+        (0, 0, "jpeg"),
+        (0, 999_999_999, "jpeg"),
+        (1, 0, "jpeg"),
+        (1_700_000_123, 456_789_012, "jpeg"),
+    ]
+    fresh = CompressedImage.FromString(encode_frame("jpeg", episode[1], int(TIMES[1]), jpeg_quality=95)).data
+    assert [m.data for m in messages] == [pictures[0], fresh, pictures[2], pictures[3]]
+    # Pictures of another codec than the channel's are not stored: every row is encoded.
+    as_png = [CompressedImage.FromString(m).data for m in encode_frames("png", kept, TIMES, jpeg_quality=95)]
+    assert as_png == [CompressedImage.FromString(encode_frame("png", f, 0, jpeg_quality=95)).data for f in episode]
