@@ -1,7 +1,8 @@
 """One generation of a policy search (imitation.algorithms.policy_search.PolicySearch) against
 episodes run one by one: its row (the centre's return, the candidates' mean and best, the steps
 and episodes counted, the progress fields), scoring with fewer (policy, episode) pairs than env
-copies, and the generations the budget is projected to last, worked by hand."""
+copies (and where they start), non-finite rewards, and the generations the budget is projected
+to last, worked by hand."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import pytest
 from imitation.algorithms.policy_search import HillClimbing, PolicySearch, SearchConfig, actor_vector, load_actor_vector
 from imitation.checkpoints import snapshot
 from imitation.envs.make import make_env
+from imitation.errors import ImitationError
 from imitation.policies import ActorCritic, make_policy
 
 
@@ -127,3 +129,59 @@ def test_episodes_without_a_time_limit_reserve_one_step_of_the_budget() -> None:
         search.close()
     finally:
         del gym.registry[env_id]
+
+
+def test_one_policy_scores_beside_idle_copies() -> None:
+    """`evaluate` of a single vector over one episode start on 3 copies: the idle two act with
+    that only policy, and the score is its episode's return."""
+    search = PolicySearch(SearchConfig(env_id="CartPole-v1", method="cem", population=2, n_envs=3, total_steps=20_000))
+    vector = np.random.default_rng(5).normal(0.0, 1.0, (1, search.dimension))
+    scores = search.evaluate(vector, [8])
+    search.close()
+    expected, steps = one_by_one("CartPole-v1", vector, [8])
+    assert scores.tolist() == expected and (search.global_step, search.episodes) == (steps, 1)
+
+
+def test_a_non_finite_reward_stops_the_search_naming_it() -> None:
+    """tests/nan_envs.py: each copy's 290th step returns a NaN reward (episodes of 50 steps)."""
+    pytest.importorskip("nan_envs")
+    search = PolicySearch(
+        SearchConfig(env_id="nan_envs:NaNReward-v0", method="cem", n_envs=2, population=3, total_steps=1_000)
+    )
+    with pytest.raises(
+        ImitationError, match=r"^nan_envs:NaNReward-v0: the environment returned a non-finite reward by env step"
+    ):
+        while not search.done:
+            search.step()
+    search.close()
+
+
+class NaNStartAtSeedZero(gym.Env):
+    """Starts from NaN when reset with seed 0, from finite states otherwise; episodes of 5 steps."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self.t = 0
+        return np.full(2, np.nan if seed == 0 else 0.5, np.float32), {}
+
+    def step(self, action):
+        self.t += 1
+        return np.zeros(2, np.float32), 1.0, False, self.t >= 5, {}
+
+
+@pytest.mark.filterwarnings("ignore:.*not within the observation space")  # the NaN start, on purpose
+def test_idle_copies_start_from_seed_0_and_their_first_observation_is_checked() -> None:
+    """2 (policy, episode) pairs from seed 5 on 3 copies: the idle third starts from seed 0, where
+    this env returns NaN, and the search stops before any step."""
+    env_id = "imitation-tests/SearchNaNStartAtSeedZero-v0"
+    gym.register(env_id, entry_point=NaNStartAtSeedZero)
+    try:
+        search = PolicySearch(SearchConfig(env_id=env_id, method="cem", population=2, n_envs=3, total_steps=100))
+        with pytest.raises(ImitationError, match="returned a non-finite observation by env step 0 "):
+            search.evaluate(np.zeros((2, search.dimension)), [5])
+        search.close()
+    finally:
+        gym.registry.pop(env_id)
