@@ -355,3 +355,18 @@ def test_kept_pictures_of_the_codec_are_stored_as_they_are_and_other_rows_encode
     # Pictures of another codec than the channel's are not stored: every row is encoded.
     as_png = [CompressedImage.FromString(m).data for m in encode_frames("png", kept, TIMES, jpeg_quality=95)]
     assert as_png == [CompressedImage.FromString(encode_frame("png", f, 0, jpeg_quality=95)).data for f in episode]
+
+
+@pytest.mark.parametrize("shape", [(5, 7), (5, 7, 1), (5, 7, 3), (5, 7, 4)])
+def test_a_compressed_frame_is_pillows_picture_at_the_codecs_settings_byte_for_byte(shape: tuple[int, ...]) -> None:
+    frame = frames(shape)[0]
+    picture = Image.fromarray(frame.reshape(5, 7, -1)[:, :, 0] if len(shape) == 2 or shape[2] == 1 else frame)
+    settings = {"png": {"compress_level": 3}, "jpeg": {"quality": 61}, "webp": {"quality": 37}}
+    for codec, options in settings.items():
+        channels = 1 if len(shape) == 2 else shape[2]
+        if (codec == "jpeg" and channels == 4) or (codec == "webp" and channels == 1):
+            continue  # JPEG has no alpha, WebP no grey
+        out = io.BytesIO()
+        picture.save(out, format=codec.upper(), **options)
+        message = CompressedImage.FromString(encode_frame(codec, frame, 12, jpeg_quality=61, webp_quality=37))
+        assert (message.format, message.data) == (codec, out.getvalue()), codec
