@@ -370,3 +370,14 @@ def test_a_compressed_frame_is_pillows_picture_at_the_codecs_settings_byte_for_b
         picture.save(out, format=codec.upper(), **options)
         message = CompressedImage.FromString(encode_frame(codec, frame, 12, jpeg_quality=61, webp_quality=37))
         assert (message.format, message.data) == (codec, out.getvalue()), codec
+
+
+def test_an_episodes_frames_are_encoded_at_the_qualities_given() -> None:
+    episode = frames((5, 7, 3))
+    for codec in ("jpeg", "webp"):
+        messages = encode_frames(codec, episode, TIMES, jpeg_quality=61, webp_quality=37)
+        alone = [
+            encode_frame(codec, frame, int(time), jpeg_quality=61, webp_quality=37) for frame, time in zip(episode, TIMES)
+        ]
+        assert messages == alone, codec
+        assert messages != encode_frames(codec, episode, TIMES, jpeg_quality=90, webp_quality=90), codec
