@@ -30,7 +30,7 @@ from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.data.loader import tree_map
 from imitation.errors import ImitationError
 from imitation.ray_engine import RETRIES, ray_get, require_ray
-from imitation.rewards import flat_batch
+from imitation.rewards import flat_batch, tree_index
 
 
 def _numpy(tensor: torch.Tensor) -> np.ndarray:
@@ -155,6 +155,7 @@ class RayRollouts:
 
     def _gather(self, learner: PPO, segments: list[dict[str, Any]]) -> None:
         rollout, buffers, device = learner.rollout_storage, learner.buffers, learner.device
+        first_rollout = learner.observations is None and learner.updates == 0
         for (first, count), segment in zip(self.shares, segments):
             columns = slice(first, first + count)
             for name in rollout.__dataclass_fields__:
@@ -165,6 +166,9 @@ class RayRollouts:
                 _put(buffers.features, columns, segment["features"], device)
             learner.recent_returns.extend(segment["returns"])
         learner.observations = _concatenate([segment["last_observations"] for segment in segments])
+        if learner.policy.layout is not None and first_rollout:
+            # As the local learner folds the first frames in at its first reset (and each worker did).
+            learner.policy.update_normalizer(tree_index(rollout.observations, 0))
         if learner.policy.layout is None:
             # One fold of the whole rollout: the same statistics as one per step (Chan et al.'s
             # pooled moments), at one call's cost.

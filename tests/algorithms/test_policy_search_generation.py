@@ -96,6 +96,7 @@ def test_fewer_pairs_than_env_copies_score_as_episodes_run_one_by_one() -> None:
         (0, 0, 6, False),  # 1 + ⌊(10,000 - 1,500) / 1,500⌋ at full episode length
         (4, 1_000, 35, False),  # 250 steps a generation so far: 4 + ⌊7,500 / 250⌋ + 1
         (4, 5, 6_801, False),  # 1.25 a generation: 4 + ⌊8,495 / 1.25⌋ + 1
+        (3, 10, 2_551, False),  # 3 + ⌊8,490 · 3 / 10⌋ + 1: 8,490 // (10 / 3) in floats gave 2,546
         (30, 8_500, 31, False),  # the last full-length generation just fits: one more
         (30, 8_501, 30, True),  # it would not: done, the total is the generations run
         (30, 10_000, 30, True),

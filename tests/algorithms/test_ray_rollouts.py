@@ -213,12 +213,18 @@ PIXELS = dict(
 
 def test_dict_observations_gather_leaf_by_leaf_into_their_copies_columns() -> None:
     """Rendered frames beside the state: with one worker the rollout equals the local one leaf for
-    leaf; with two, each leaf's columns hold the segment of the worker that stepped those copies."""
-    settings = config(**PIXELS)
+    leaf, and so do the policy's observation statistics (the first frames folded in, as the local
+    learner does at its first reset); with two, each leaf's columns hold the segment of the worker
+    that stepped those copies."""
+    settings = config(**PIXELS, normalize_observations=True)
     local = PPO(settings)
     try:
         local.collect_rollout()
         alone = gathered_in_this_process(settings, 1)
+        local_state, gathered_state = local.policy.state_dict(), alone.policy.state_dict()
+        assert any(name.startswith("pixel_rms") for name in local_state)
+        for name, tensor in local_state.items():
+            assert torch.equal(gathered_state[name], tensor), name
         for name in local.rollout_storage.__dataclass_fields__:
             expected, gathered = getattr(local.rollout_storage, name), getattr(alone.rollout_storage, name)
             for key in expected if isinstance(expected, dict) else [None]:
