@@ -86,10 +86,11 @@ class _Ticker:
 
 class ProgressLines:
     """Progress for a log rather than a terminal: a plain line every `every` seconds and one at
-    the end. It has the part of tqdm's interface the toolkit uses (update, set_postfix, close, a
-    context manager). With `heartbeat`, lines also between steps (the module docstring: none
-    within `grace` seconds of its start), with `detail()` (where within the step the work is)
-    beside the position."""
+    the end (not with `last_line` False: work that ends within its first interval and heartbeat
+    then prints nothing, so that input refused after it still answers in one line). It has the
+    part of tqdm's interface the toolkit uses (update, set_postfix, close, a context manager). With
+    `heartbeat`, lines also between steps (the module docstring: none within `grace` seconds of
+    its start), with `detail()` (where within the step the work is) beside the position."""
 
     def __init__(
         self,
@@ -103,8 +104,10 @@ class ProgressLines:
         heartbeat: bool = False,
         detail: Callable[[], str] | None = None,
         grace: float = GRACE_SECONDS,
+        last_line: bool = True,
     ) -> None:
         self.total, self.count, self.desc, self.unit, self.every = total, initial, desc, unit, every
+        self.last_line = last_line
         self.stream = stream if stream is not None else sys.stderr
         self.started = self.last = time.monotonic()
         self.first = self.shown = initial
@@ -121,7 +124,7 @@ class ProgressLines:
     def update(self, n: int = 1) -> None:
         self.count += n
         now = time.monotonic()
-        if now - self.last >= self.every or self.count >= self.total:
+        if now - self.last >= self.every or (self.count >= self.total and self.last_line):
             self.last = now
             self._line(now)
 
@@ -147,7 +150,7 @@ class ProgressLines:
         if self._ticker is not None:
             self._ticker.stop()
             self._ticker = None
-        if self.count != self.shown:
+        if self.count != self.shown and self.last_line:
             self._line(time.monotonic(), final=True)
 
     def __enter__(self) -> ProgressLines:
@@ -170,18 +173,22 @@ def progress_bar(
     enabled: bool = True,
     heartbeat: bool = True,
     detail: Callable[[], str] | None = None,
+    last_line: bool = True,
 ) -> Any:
     """A tqdm bar on a terminal; on anything else (a log file, a pipe) `ProgressLines` (with its
-    `heartbeat` and `detail`); nothing when not `enabled`."""
+    `heartbeat`, `detail` and `last_line`); nothing when not `enabled`."""
     if enabled and not sys.stderr.isatty():
-        return ProgressLines(total=total, initial=initial, desc=desc, unit=unit, heartbeat=heartbeat, detail=detail)
+        return ProgressLines(
+            total=total, initial=initial, desc=desc, unit=unit, heartbeat=heartbeat, detail=detail, last_line=last_line
+        )
     return tqdm(total=total, initial=initial, desc=desc, unit=unit, disable=not enabled, dynamic_ncols=True)
 
 
 def progress_over(items: Iterable[Any], *, total: int, desc: str, unit: str, enabled: bool = True) -> Iterator[Any]:
-    """`items`, one by one, counted by `progress_bar` (a bar on a terminal, lines with a heartbeat
-    on a log); the bar is closed however the loop ends."""
-    with progress_bar(total=total, desc=desc, unit=unit, enabled=enabled) as bar:
+    """`items`, one by one, counted by `progress_bar` (a bar on a terminal; on a log, lines with a
+    heartbeat while the work is long, and none for work done within a second, whose last line
+    would stand before a one-line error of what follows); the bar is closed however the loop ends."""
+    with progress_bar(total=total, desc=desc, unit=unit, enabled=enabled, last_line=False) as bar:
         for item in items:
             yield item
             bar.update()

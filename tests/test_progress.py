@@ -36,3 +36,27 @@ def test_off_a_terminal_the_bar_is_lines_and_disabled_is_silent(capsys) -> None:
     quiet.update()
     quiet.close()
     assert capsys.readouterr().err == ""
+
+
+def test_a_loop_over_items_says_how_far_it_is_while_long_and_nothing_when_quick(capsys, monkeypatch) -> None:
+    """convert's and export's loops off a terminal (tqdm alone printed nothing there, and a camera
+    bag converted for minutes in silence): heartbeat lines while an item takes long, and no line
+    at all for a loop done within a second, so that an error after it is still one line."""
+    import time
+
+    from imitation.progress import _LineClock, progress_over
+
+    # A process long started that has printed no progress line yet: its first is due now.
+    monkeypatch.setattr(_LineClock, "started", time.monotonic() - 60.0)
+    monkeypatch.setattr(_LineClock, "last", None)
+
+    def slow(n: int):
+        for k in range(n):
+            time.sleep(0.7)
+            yield k
+
+    assert list(progress_over(range(5), total=5, desc="read", unit="msg")) == list(range(5))
+    assert capsys.readouterr().err == ""
+    assert list(progress_over(slow(3), total=3, desc="read", unit="msg")) == [0, 1, 2]
+    lines = capsys.readouterr().err.splitlines()
+    assert lines and all(line.startswith("[read] msg ") and "so far" in line for line in lines), lines

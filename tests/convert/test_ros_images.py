@@ -410,11 +410,6 @@ def test_a_640x480_camera_bag_converts_and_trains_within_the_image_bounds(tmp_pa
     for result in results:
         assert result.returncode == 0, result.stderr[-2000:]
     assert (tmp_path / "run" / "model.safetensors").is_file()
-    # stderr is no terminal here (a log, a pipe): convert still says how far it is, as lines
-    # (tqdm alone prints nothing off a terminal, and a camera bag converted for minutes in silence).
-    lines = results[0].stderr.splitlines()
-    assert any(line.startswith("[read] msg 100/100 ") for line in lines), results[0].stderr
-    assert any(line.startswith("[write] episode 1/1 ") for line in lines), results[0].stderr
 
 
 def test_the_ros1_reader_checks_frames_too(tmp_path: Path) -> None:

@@ -203,7 +203,7 @@ def bag_to_episodes(
     markers: list[int] = []
     wanted = set(by_topic) | ({marker_topic} if marker_topic else set())
     total = sum(topics[t].count for t in wanted)
-    bar = progress_bar(total=total, desc="read", unit="msg", enabled=progress)
+    bar = progress_bar(total=total, desc="read", unit="msg", enabled=progress, last_line=False)
     with bar:
         for topic, log_ns, message in bag.messages(sorted(wanted)):
             bar.update()
