@@ -332,7 +332,14 @@ class RewardRun:
                 f"{self.path}: holds no shaping potential h (a {str(self.config.get('kind', 'unknown'))[:40]!r} run); "
                 "only `train irl --method airl` saves one"
             )
-        return _saved_net(self.path, self.config, self.weights, "potential", "shaping potential")
+        potential = _saved_net(self.path, self.config, self.weights, "potential", "shaping potential")
+        if potential.config.inputs != "s":
+            # AIRL learns h(s) alone; shaping calls h with states only, so another h would be misread.
+            raise ImitationError(
+                f"{self.path}: its shaping potential h reads inputs {potential.config.inputs!r}; AIRL's h is a function "
+                "of the state alone ('s')"
+            )
+        return potential
 
     @staticmethod
     def of(path: str | os.PathLike, config: dict[str, Any], weights: dict[str, torch.Tensor]) -> RewardRun:

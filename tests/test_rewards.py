@@ -404,3 +404,20 @@ def test_train_ppo_reads_its_reward_run_once_and_optimises_that_reward(tmp_path,
     assert config.total_steps == 256 and result["steps"] == 256
     saved = json.loads((tmp_path / "ppo" / "config.json").read_text())
     assert saved["reward_run"] == str(reward_run) and saved["source"] == f"--reward {reward_run}"
+
+
+@pytest.mark.parametrize("inputs", ["sa", "sas"])
+def test_a_shaping_potential_of_more_than_the_state_is_refused(tmp_path, inputs: str) -> None:
+    """AIRL saves h(s); shaping calls h with states alone, so an h of other inputs in a run
+    directory (edited, or another tool's) would be misread: refused naming the run."""
+    from imitation.rewards import load_potential, potential_tensors
+
+    g = make_reward_model(BOX3, BOX2_ACTIONS, hidden_sizes=[4])
+    h_of_state = make_reward_model(BOX3, BOX2_ACTIONS, hidden_sizes=[4])
+    h_of_more = make_reward_model(BOX3, BOX2_ACTIONS, inputs=inputs, hidden_sizes=[4])
+    for name, h in (("state", h_of_state), ("more", h_of_more)):
+        config = {"kind": "reward", "reward": g.config.to_json(), "potential": h.config.to_json()}
+        _write_run(tmp_path / name, config, reward_tensors(g) | potential_tensors(h))
+    _assert_same_state(load_potential(tmp_path / "state").state_dict(), h_of_state.state_dict())
+    with pytest.raises(ImitationError, match=rf"^{re.escape(str(tmp_path / 'more'))}: its shaping potential h reads inputs '{inputs}'; AIRL's h is a function of the state alone \('s'\)$"):
+        load_potential(tmp_path / "more")
