@@ -187,6 +187,26 @@ def test_a_sweep_outlives_ray_and_says_what_became_of_its_trials(tmp_path: Path)
     assert "not finished" in [row["status"] for row in rows] and (out / "ray.log").stat().st_size > 0
 
 
+def test_semaphores_a_killed_tune_leaves_are_reported_in_the_ray_log_not_after_the_error(tmp_path: Path) -> None:
+    """multiprocessing's resource tracker outlives the sweep and warns of the semaphores a Tune
+    child ended by Ray left behind: that warning goes to ray.log, where it cannot follow the
+    sweep's one-line error (a CI run once ended with it as stderr's last line)."""
+    log = tmp_path / "ray.log"
+    leaks = (
+        "import multiprocessing, os, pathlib\n"
+        "from imitation.jobs.sweep_process import _track_resources_into\n"
+        f"_track_resources_into(pathlib.Path({str(log)!r}))\n"
+        "lock = multiprocessing.get_context('spawn').Lock()\n"
+        "os._exit(0)\n"
+    )
+    result = subprocess.run([sys.executable, "-c", leaks], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0 and result.stderr == ""
+    deadline = time.monotonic() + 30  # the tracker writes once it sees the process gone
+    while "leaked semaphore" not in log.read_text() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert "leaked semaphore" in log.read_text()
+
+
 def plant_tune_state(folder: Path) -> Path:
     """Ray Tune's experiment state as a continued sweep once restored it, each file carrying a
     pickle that creates the returned marker file when unpickled: `tuner.pkl`, and an

@@ -14,6 +14,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import sys
 from collections.abc import Callable
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -39,6 +40,7 @@ def run_apart(
     child = context.Process(
         target=_tune, args=(config, out, run_train, ray_address, cpus, sender), name="imitation sweep (Ray Tune)"
     )
+    _track_resources_into(out / RAY_LOG)
     interrupts = 0
 
     def forward(signum: int, frame: FrameType | None) -> None:
@@ -68,6 +70,24 @@ def run_apart(
         f"Ray stopped in the middle of the sweep (its process ended with exit code {child.exitcode}: a Ray process died, "
         "or the machine ran out of memory)"
     )
+
+
+def _track_resources_into(log_path: Path) -> None:
+    """Start multiprocessing's resource tracker with its stderr on the Ray log. A Tune child that
+    Ray ends from native code leaves its semaphores behind; the tracker, which outlives this
+    process, unlinks them and warns, and that warning would land after the sweep's one-line
+    error."""
+    from multiprocessing import resource_tracker
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(log_path, "ab") as log:
+            os.dup2(log.fileno(), 2)
+            resource_tracker.ensure_running()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def _tune(
