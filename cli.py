@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import signal
 import sys
@@ -18,8 +17,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from imitation import __version__
+from imitation import __version__, flags
 from imitation.errors import ConfigError, ImitationError
+from imitation.flags import add_flags, given
 
 EXIT_ERROR = 1
 EXIT_INTERRUPTED = 130
@@ -215,9 +215,10 @@ def cmd_train_ppo(args: argparse.Namespace) -> int:
 
 
 def cmd_train_pg(args: argparse.Namespace) -> int:
+    from imitation.algorithms.policy_gradient_config import PGConfig
     from imitation.jobs.pg import pg_config, pg_job
 
-    config = pg_config(args.env, **_fields(args, "PGConfig"))
+    config = pg_config(**given(args, PGConfig))
     result = pg_job(config, args.out, progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
@@ -232,9 +233,10 @@ def cmd_train_pg(args: argparse.Namespace) -> int:
 
 
 def cmd_train_search(args: argparse.Namespace) -> int:
+    from imitation.algorithms.policy_search_config import SearchConfig
     from imitation.jobs.search import search_config, search_job
 
-    config = search_config(args.env, args.algorithm, **_fields(args, "SearchConfig"))
+    config = search_config(method=args.algorithm, **given(args, SearchConfig))
     result = search_job(config, args.out, progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
@@ -249,86 +251,12 @@ def cmd_train_search(args: argparse.Namespace) -> int:
     return 0
 
 
-def _finite(text: str) -> float:
-    """A float option: NaN and ±inf are refused where they enter, not deep inside training."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text[:100]!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text[:100]!r}")
-    return value
-
-
-def _quality(text: str) -> int:
-    """An image codec's quality: a whole number from 1 to 100."""
-    if not text.strip().isdigit() or not 1 <= int(text) <= 100:
-        raise argparse.ArgumentTypeError(f"expected a whole number from 1 to 100, got {text[:100]!r}")
-    return int(text)
-
-
-def _seconds(text: str) -> float:
-    """A positive, finite number of seconds (below a million: beyond that it is a typo)."""
-    value = _finite(text)
-    if not 0 < value < 1e6:
-        raise argparse.ArgumentTypeError(f"expected a positive number of seconds, got {text[:100]!r}")
-    return value
-
-
-def _seed(text: str) -> int:
-    """A seed: a whole number in the range every generator a job seeds accepts (numpy's legacy
-    one takes none below 0 or from 2^32 on; torch none from 2^64 on)."""
-    from imitation.seeding import seed_problem
-
-    try:
-        seed = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text[:100]!r}") from None
-    if (problem := seed_problem(seed)) is not None:
-        raise argparse.ArgumentTypeError(problem)
-    return seed
-
-
-def _speed(text: str) -> float:
-    """A speed factor of a person's window, from 1/8 to 4 times real time."""
-    value = _finite(text)
-    if not 0.125 <= value <= 4:
-        raise argparse.ArgumentTypeError(f"expected a factor from 0.125 to 4, got {text[:100]!r}")
-    return value
-
-
-def _megabytes(text: str) -> int:
-    """A size in megabytes (MiB, fractions allowed) → bytes; at least one byte."""
-    value = _finite(text)
-    if value * 2**20 < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive number of megabytes, got {text[:100]!r}")
-    return int(value * 2**20)
-
-
-def _hidden_sizes(text: str) -> list[int]:
-    if text == "linear":
-        return []
-    try:
-        sizes = [int(part) for part in text.split(",") if part.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated layer widths such as 64,64, got {text!r}") from None
-    if any(size < 1 for size in sizes):
-        raise argparse.ArgumentTypeError(f"layer widths must be positive, got {text!r}")
-    return sizes
-
-
 def cmd_train_bc(args: argparse.Namespace) -> int:
-    from imitation.algorithms.bc import BCConfig
-    from imitation.data.image_resize import parse_image_size
-    from imitation.envs.pixels import parse_crop
+    from imitation.algorithms.bc_config import BCConfig
     from imitation.jobs.bc import bc_job
 
-    if args.image_size is not None:
-        args.image_size = list(parse_image_size(args.image_size, "--image-size"))
-    if args.crop is not None:
-        args.crop = list(parse_crop(args.crop))
     result = bc_job(
-        args.demos, args.env, BCConfig(**_fields(args, "BCConfig")), args.out, progress=not args.quiet, resume=args.resume
+        args.demos, args.env, BCConfig(**given(args, BCConfig)), args.out, progress=not args.quiet, resume=args.resume
     )
     if "run" not in result:  # a torchrun process other than rank 0, which reports the run
         return 0
@@ -368,11 +296,10 @@ def _yardstick_line(scores: dict[str, float], baselines: dict[str, dict[str, flo
 
 
 def cmd_train_dagger(args: argparse.Namespace) -> int:
-    from imitation.algorithms.bc import BCConfig
-    from imitation.algorithms.dagger import DAggerConfig
+    from imitation.algorithms.dagger_config import DAggerConfig
     from imitation.jobs.dagger import dagger_job
 
-    config = DAggerConfig(**_fields(args, "DAggerConfig"), bc=BCConfig(**_fields(args, "BCConfig")))
+    config = DAggerConfig(**given(args, DAggerConfig))
     from imitation.envs.pixels import PixelRecipe
 
     pixels = PixelRecipe.parse(args.pixels, grayscale=args.grayscale, crop=args.crop) if args.pixels else None
@@ -662,7 +589,7 @@ def _run_train(argv: list[str]) -> None:
     try:
         args.handler(args)
     except ConfigError as error:
-        raise ImitationError(_flag_message(error, args.command_key)) from None
+        raise ImitationError(_flag_message(error, args)) from None
 
 
 # Which flag sets which config field, per command (and config class): the one place the command
@@ -689,86 +616,6 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "threads": "--threads",
         },
         None: {"device": "--device"},  # the device's own check, where any learner meets it
-    },
-    **{
-        f"train {method}": {
-            "SearchConfig": {
-                "total_steps": "--steps",
-                "hidden_sizes": "--hidden",
-                "population": "--population",
-                "elite_fraction": "--elite-fraction",
-                "sigma": "--sigma",
-                "episodes_per_candidate": "--episodes-per-candidate",
-                "n_envs": "--n-envs",
-                "seed": "--seed",
-            },
-        }
-        for method in ("hill-climb", "cem", "cmaes")
-    },
-    "train pg": {
-        "PGConfig": {
-            "estimator": "--estimator",
-            "n_step": "--n-step",
-            "gae_lambda": "--gae-lambda",
-            "total_steps": "--steps",
-            "batch_steps": "--batch-steps",
-            "rollout_steps": "--rollout-steps",
-            "gamma": "--gamma",
-            "learning_rate": "--lr",
-            "hidden_sizes": "--hidden",
-            "n_envs": "--n-envs",
-            "seed": "--seed",
-        },
-    },
-    "train bc": {
-        "BCConfig": {
-            "epochs": "--epochs",
-            "batch_size": "--batch-size",
-            "learning_rate": "--lr",
-            "hidden_sizes": "--hidden",
-            "activation": "--activation",
-            "loss": "--loss",
-            "previous_action": "--previous-action",
-            "entropy_coef": "--entropy",
-            "l2_coef": "--l2",
-            "validation_fraction": "--validation",
-            "patience": "--patience",
-            "epoch_samples": "--epoch-samples",
-            "frame_stack": "--frame-stack",
-            "random_shift": "--random-shift",
-            "observation_keys": "--observation-keys",
-            "image_size": "--image-size",
-            "crop": "--crop",
-            "stream_memory": "--stream-memory",
-            "steps": "--steps",
-            "mixed_precision": "--mixed-precision",
-            "seed": "--seed",
-            "device": "--device",
-            "threads": "--threads",
-        },
-        None: {"device": "--device"},
-    },
-    "train dagger": {
-        "DAggerConfig": {
-            "rounds": "--rounds",
-            "episodes_per_round": "--episodes-per-round",
-            "beta_schedule": "--beta-schedule",
-            "beta_decay": "--beta-decay",
-            "mode": "--mode",
-            "label": "--label",
-            "seed": "--seed",
-        },
-        "BCConfig": {
-            "epochs": "--epochs",
-            "patience": "--patience",
-            "hidden_sizes": "--hidden",
-            "frame_stack": "--frame-stack",
-            "random_shift": "--random-shift",
-            "mixed_precision": "--mixed-precision",
-            "seed": "--seed",
-            "device": "--device",
-        },
-        None: {"device": "--device"},
     },
     "train irl": {
         "MaxEntIRLConfig": {
@@ -856,14 +703,6 @@ def _add_image_training_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _names(text: str) -> list[str]:
-    """A comma-separated list of names, e.g. `pixels,state`."""
-    names = [name.strip() for name in text.split(",")]
-    if not all(names):
-        raise argparse.ArgumentTypeError(f"{text!r}: give names separated by commas, e.g. pixels,state")
-    return names
-
-
 def _fields(args: argparse.Namespace, owner: str) -> dict[str, Any]:
     """The fields of config class `owner` that this command's flags set.
 
@@ -873,16 +712,18 @@ def _fields(args: argparse.Namespace, owner: str) -> dict[str, Any]:
     return {field: value for field, flag in flags.items() if (value := getattr(args, _dest(flag))) is not None}
 
 
-def _flag_message(error: ConfigError, command_key: str) -> str:
+def _flag_message(error: ConfigError, args: argparse.Namespace) -> str:
     """A config error in the command line's words: the field named by the flag that sets it."""
-    flag = FLAGS.get(command_key, {}).get(error.owner, {}).get(error.field)
+    flag = FLAGS.get(args.command_key, {}).get(error.owner, {}).get(error.field)
+    if flag is None:
+        flag = flags.flag_of(getattr(args, "configs", ()), error.owner, error.field)
     return error.renamed(flag) if flag is not None else str(error)
 
 
 def _add_speed(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--speed",
-        type=_speed,
+        type=flags.speed,
         default=1.0,
         metavar="X",
         help="with --expert keyboard or gamepad: the window runs at X times real time, from 0.125 to 4 (default: 1)",
@@ -939,6 +780,8 @@ def _add_run_output(parser: argparse.ArgumentParser) -> None:
 
 def _add_search_parsers(algorithms: Any) -> None:
     """`train hill-climb`, `train cem`, `train cmaes`: one command per gradient-free search, same flags."""
+    from imitation.algorithms.policy_search_config import SearchConfig
+
     searches = {
         "hill-climb": (
             "gradient-free: hill climbing with adaptive noise over the policy's parameters",
@@ -965,53 +808,18 @@ def _add_search_parsers(algorithms: Any) -> None:
             "The budget is env steps: no generation starts that could pass it. `eval policy RUN_DIR` evaluates the "
             "result.",
         )
-        search.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
-        search.add_argument(
-            "--steps",
-            type=int,
-            metavar="N",
-            help="environment steps in total (default: 50000 for CartPole-v1, 500000 for Pendulum-v1, else 100000)",
-        )
-        search.add_argument(
-            "--hidden",
-            type=_hidden_sizes,
-            metavar="W,W",
-            help="hidden layer widths of the policy, or 'linear' (default: 8 for Pendulum-v1, else linear)",
-        )
-        search.add_argument(
-            "--population",
-            type=int,
-            metavar="K",
-            help="candidates per generation, besides the centre (default: 24 for Pendulum-v1, else 16)",
-        )
-        search.add_argument(
-            "--elite-fraction",
-            dest="elite_fraction",
-            type=_finite,
-            metavar="F",
-            help="cem: the fraction of candidates the distribution is refitted to (default: 0.2)",
-        )
-        search.add_argument(
-            "--sigma",
-            type=_finite,
-            metavar="S",
-            help="initial noise scale: hill climbing's σ, CEM's std, CMA-ES's step size (default: 0.5)",
-        )
-        search.add_argument(
-            "--episodes-per-candidate",
-            dest="episodes_per_candidate",
-            type=int,
-            metavar="E",
-            help="episodes each candidate is scored on (default: 1)",
-        )
-        search.add_argument("--n-envs", dest="n_envs", type=int, metavar="K", help="environment copies (default: 8)")
-        search.add_argument("--seed", type=_seed, metavar="S", help="seed of the search and its episodes (default: 0)")
+        add_flags(search, SearchConfig)
+        search.set_defaults(configs=(SearchConfig,))
         _add_run_output(search)
         _add_resume(search)
         search.set_defaults(handler=cmd_train_search)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from imitation.algorithms.bc_config import BCConfig
+    from imitation.algorithms.dagger_config import DAggerConfig
+    from imitation.algorithms.policy_gradient_config import PGConfig
+
     parser = argparse.ArgumentParser(
         prog="imitation",
         description="Imitation learning on MCAP demonstration files: record, inspect, train, evaluate.",
@@ -1045,7 +853,9 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     record.add_argument("--episodes", type=int, default=10, metavar="N", help="number of episodes (default: 10)")
-    record.add_argument("--seed", type=_seed, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
+    record.add_argument(
+        "--seed", type=flags.seed, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)"
+    )
     record.add_argument("--out", required=True, metavar="F.mcap", help="output demo file")
     record.add_argument(
         "--compression",
@@ -1070,7 +880,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     record.add_argument(
         "--action-noise",
-        type=_finite,
+        type=flags.finite,
         default=0.0,
         metavar="P",
         help="with probability P the env executes a random action while the file stores the expert's (DART): demos of "
@@ -1078,7 +888,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     record.add_argument(
         "--noise-bias",
-        type=_finite,
+        type=flags.finite,
         default=0.0,
         metavar="B",
         help="with --action-noise: a noisy step executes the episode's own random action (drawn at reset) with "
@@ -1180,7 +990,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     convert.add_argument(
         "--image-quality",
-        type=_quality,
+        type=flags.quality,
         metavar="Q",
         help="quality of --image-codec jpeg or webp, 1 to 100 (default: 95 for jpeg, 85 for webp)",
     )
@@ -1192,7 +1002,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     convert.add_argument(
         "--video-tolerance",
-        type=_seconds,
+        type=flags.seconds,
         metavar="S",
         help="LeRobot videos: find each row's frame by its timestamp, within S seconds (default: by timestamp within "
         "1e-4 s, lerobot's tolerance, or by frame_index where the timestamps stray further, as a wall clock's do)",
@@ -1259,7 +1069,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="image observations (--pixels, or an env whose observations are images): frames stacked per image (default: "
         "the --reward's or the resumed run's, else 1)",
     )
-    ppo.add_argument("--seed", type=_seed, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
+    ppo.add_argument("--seed", type=flags.seed, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
     ppo.add_argument("--device", metavar="auto|cpu|cuda", help="where the networks run (default: auto)")
     ppo.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (default: 1, fastest for small networks)")
     _add_workers(ppo, "the rollouts (the environment copies split between them)")
@@ -1275,54 +1085,8 @@ def build_parser() -> argparse.ArgumentParser:
         "learned V(s_t), or an actor-critic advantage (n-step with --n-step, else GAE(λ)). Softmax policies for "
         "discrete actions, Gaussian for continuous ones. Per-environment defaults make the other flags optional.",
     )
-    pg.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
-    pg.add_argument(
-        "--estimator",
-        choices=["return", "reward-to-go", "baseline", "actor-critic"],
-        help="the weight of ∇log π(a_t|s_t) (default: baseline)",
-    )
-    pg.add_argument(
-        "--n-step",
-        dest="n_step",
-        type=int,
-        metavar="N",
-        help="actor-critic: n-step advantages, TD(0) at 1 (default: none, GAE(λ))",
-    )
-    pg.add_argument(
-        "--gae-lambda", dest="gae_lambda", type=_finite, metavar="L", help="actor-critic: GAE's λ in [0, 1] (default: 0.95)"
-    )
-    pg.add_argument(
-        "--steps",
-        type=int,
-        metavar="N",
-        help="environment steps in total (default: 296000 for CartPole-v1, 197000 with actor-critic; 499000 for "
-        "Pendulum-v1, 500000 with actor-critic; else 100000)",
-    )
-    pg.add_argument(
-        "--batch-steps",
-        dest="batch_steps",
-        type=int,
-        metavar="N",
-        help="environment steps per gradient step, at least: episodes are finished (default: per env, else 2000)",
-    )
-    pg.add_argument(
-        "--rollout-steps",
-        dest="rollout_steps",
-        type=int,
-        metavar="N",
-        help="actor-critic: N steps of every env copy per gradient step, as in A2C; episodes run on and the cut is "
-        "bootstrapped with V; --batch-steps without it means whole episodes (default: 2 for Pendulum-v1, else none)",
-    )
-    pg.add_argument("--gamma", type=_finite, metavar="G", help="discount γ in [0, 1] (default: per env, else 0.99)")
-    pg.add_argument("--lr", type=_finite, metavar="LR", help="the policy's Adam learning rate (default: per env, else 0.01)")
-    pg.add_argument(
-        "--hidden",
-        type=_hidden_sizes,
-        metavar="W,W",
-        help="hidden layer widths of the policy and critic, or 'linear' (default: 64,64)",
-    )
-    pg.add_argument("--n-envs", dest="n_envs", type=int, metavar="K", help="environment copies (default: per env, else 4)")
-    pg.add_argument("--seed", type=_seed, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
+    add_flags(pg, PGConfig)
+    pg.set_defaults(configs=(PGConfig,))
     _add_run_output(pg)
     _add_resume(pg)
     pg.set_defaults(handler=cmd_train_pg)
@@ -1343,85 +1107,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="gymnasium environment id (for spaces and evaluation); without it BC trains "
         "offline on the demos' own spaces and reports the validation loss only",
     )
-    # No argparse defaults here: a flag not given leaves BCConfig's default, which the help names
-    # (tests/test_cli.py holds the two equal).
-    bc.add_argument("--epochs", type=int, metavar="N", help="maximum epochs (default: 300)")
-    bc.add_argument("--batch-size", type=int, metavar="B", help="minibatch size (default: 256)")
-    bc.add_argument("--lr", type=_finite, help="Adam learning rate (default: 0.001)")
-    bc.add_argument("--hidden", type=_hidden_sizes, metavar="256,256", help="MLP layer widths (default: 256,256)")
-    bc.add_argument(
-        "--activation",
-        choices=["auto", "tanh", "relu"],
-        help="hidden-layer activation (default: auto: tanh below 1000 training transitions, relu from there)",
-    )
-    bc.add_argument(
-        "--loss", choices=["nll", "mse"], help="nll (log-likelihood) or mse (continuous actions only) (default: nll)"
-    )
-    bc.add_argument(
-        "--steps",
-        choices=["all", "human"],
-        help="all steps, or only those a person drove, as the /intervention channels of DAgger's round files record "
-        "them: human (default: all)",
-    )
-    bc.add_argument(
-        "--previous-action",
-        choices=["auto", "on", "off"],
-        help="condition the policy on the previous action and predict its change, as for a recorded command stream "
-        "(default: auto: on offline when the actions have the observations' shape, set-points such as joint targets "
-        "beside joint positions, or are a recording's commands, demos that keep a real clock's times such as a ROS "
-        "bag's; off otherwise, with --env and with --stream-memory)",
-    )
-    bc.add_argument("--entropy", type=_finite, metavar="C", help="entropy bonus coefficient (default: 0.0)")
-    bc.add_argument("--l2", type=_finite, metavar="C", help="L2 penalty on the policy weights (default: 0.0001)")
-    bc.add_argument("--validation", type=_finite, metavar="F", help="fraction of episodes held out (default: 0.2)")
-    bc.add_argument(
-        "--patience", type=int, metavar="N", help="epochs without a better validation loss before stopping (default: 50)"
-    )
-    bc.add_argument(
-        "--epoch-samples",
-        type=int,
-        metavar="N",
-        help="the fewest samples an epoch goes through: small recordings are passed over several times per epoch "
-        "(default: 4096)",
-    )
-    bc.add_argument(
-        "--frame-stack",
-        type=int,
-        metavar="K",
-        help="image observations: frames stacked per image (default: as the demos were recorded, else 1)",
-    )
-    _add_image_training_options(bc)
-    bc.add_argument(
-        "--observation-keys",
-        type=_names,
-        metavar="K,K",
-        help="Dict observations: the keys the policy reads (default: the frames alone for demos recorded with --pixels, "
-        "every key otherwise)",
-    )
-    bc.add_argument(
-        "--image-size",
-        metavar="HxW",
-        help="camera frames: resize every frame to H×W (area averaging) as the demos load, e.g. 96x96; the policy keeps "
-        "the size and the env it is evaluated in resizes its frames the same way (default: as stored)",
-    )
-    bc.add_argument(
-        "--crop",
-        metavar="T,L,H,W",
-        help="camera frames: keep only this rectangle (top, left, height, width in pixels of the stored frames) before "
-        "--image-size resizes them; kept by the policy like the size (default: the whole frame)",
-    )
-    bc.add_argument(
-        "--stream-memory",
-        type=_megabytes,
-        metavar="MB",
-        help="stream shuffled batches from the demos, holding at most MB megabytes of decoded transitions (plus one "
-        "episode), for image datasets larger than memory; no baseline scores then (default: load everything)",
-    )
-    bc.add_argument("--seed", type=_seed, metavar="S", help="seed (default: 0)")
-    bc.add_argument("--device", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
-    bc.add_argument(
-        "--threads", type=int, metavar="N", help="torch CPU threads (default: every core for a CNN, 1 for an MLP alone)"
-    )
+    add_flags(bc, BCConfig)
+    bc.set_defaults(configs=(BCConfig,))
     _add_run_output(bc)
     _add_resume(bc)
     bc.set_defaults(handler=cmd_train_bc)
@@ -1445,18 +1132,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="scripted, standin (a scripted person who takes over when the state turns risky; CartPole), keyboard "
         "(discrete actions), gamepad (continuous actions; arrow keys without one), a run directory, or sb3:ZIP",
     )
-    dagger.add_argument(
-        "--mode",
-        choices=["label", "takeover"],
-        help="label: the expert labels every visited state (classic DAgger); takeover: the learner drives until the "
-        "expert takes the controls (standin, keyboard, gamepad) (default: label)",
-    )
-    dagger.add_argument(
-        "--label",
-        choices=["human", "all"],
-        help="with --mode takeover: train on the steps the expert drove (human), or on all steps, taking the learner's "
-        "actions the expert let pass as labels (all) (default: human)",
-    )
     _add_speed(dagger)
     dagger.add_argument(
         "--demos",
@@ -1465,32 +1140,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="expert demos to start from (optional; they stand for the expert-only first round, so round 1 runs at "
         "the schedule's second β)",
     )
-    dagger.add_argument("--rounds", type=int, default=5, metavar="R", help="rounds (default: 5)")
-    dagger.add_argument("--episodes-per-round", type=int, default=5, metavar="N", help="rollouts per round (default: 5)")
-    dagger.add_argument(
-        "--beta-schedule", choices=["linear", "exponential"], default="linear", help="how β decays (default: linear)"
-    )
-    dagger.add_argument(
-        "--beta-decay",
-        type=_finite,
-        default=0.5,
-        metavar="P",
-        help="β_i = P^(i-1) for the exponential schedule (default: 0.5)",
-    )
-    dagger.add_argument("--epochs", type=int, default=60, metavar="N", help="BC epochs per round (default: 60)")
-    dagger.add_argument(
-        "--patience", type=int, default=15, metavar="N", help="BC early-stopping patience per round (default: 15)"
-    )
-    dagger.add_argument(
-        "--hidden", type=_hidden_sizes, default=[256, 256], metavar="256,256", help="MLP layer widths (default: 256,256)"
-    )
     _add_pixel_arguments(dagger, "the learner sees")
-    dagger.add_argument(
-        "--frame-stack", type=int, metavar="K", help="with --pixels: frames the learner stacks per observation (default: 1)"
-    )
-    _add_image_training_options(dagger)
-    dagger.add_argument("--seed", type=_seed, default=0, metavar="S", help="seed (default: 0)")
-    dagger.add_argument("--device", default="auto", metavar="auto|cpu|cuda", help="where the network runs (default: auto)")
+    add_flags(dagger, DAggerConfig)
+    dagger.set_defaults(configs=(DAggerConfig,))
     _add_workers(dagger, "each round's episodes, each worker writing its own shard of the round")
     _add_run_output(dagger)
     _add_resume(dagger)
@@ -1525,27 +1177,27 @@ def build_parser() -> argparse.ArgumentParser:
     )
     irl.add_argument(
         "--tolerance",
-        type=_finite,
+        type=flags.finite,
         metavar="E",
         help="maxent/mce: stop when the visitation error (L∞) is below E (default: 1e-4); apprenticeship: stop when "
         "‖μ_E - μ̄‖₂ ≤ E·‖μ_E‖₂ (default: 0.01)",
     )
     irl.add_argument(
         "--discount",
-        type=_finite,
+        type=flags.finite,
         default=1.0,
         metavar="G",
         help="maxent/mce/apprenticeship: discount γ of the visitation counts and feature expectations (default: 1)",
     )
     irl.add_argument(
         "--lr",
-        type=_finite,
+        type=flags.finite,
         metavar="LR",
         help="Adam learning rate of the reward or discriminator (default: 0.05 tabular, 3e-4 gcl/airl/gail)",
     )
     irl.add_argument(
         "--hidden",
-        type=_hidden_sizes,
+        type=flags.hidden_sizes,
         metavar="32,32",
         help="reward MLP widths, or 'linear' (default: linear tabular, 64,64 gcl/airl/gail)",
     )
@@ -1575,14 +1227,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     irl.add_argument(
         "--latest-share",
-        type=_finite,
+        type=flags.finite,
         metavar="RHO",
         help="airl/gail: the share of the discriminator's negatives drawn from the latest rollout, the rest from the "
         "whole pool of --pool-rollouts (default: 0)",
     )
     irl.add_argument(
         "--gradient-penalty",
-        type=_finite,
+        type=flags.finite,
         metavar="L",
         help="airl/gail: weight of E‖∇_x logit D‖² over the discriminator's inputs (default: 0)",
     )
@@ -1612,7 +1264,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="apprenticeship on Box observations: episodes that estimate each policy's feature expectations (default: 10)",
     )
-    irl.add_argument("--seed", type=_seed, default=0, metavar="S", help="seed (default: 0)")
+    irl.add_argument("--seed", type=flags.seed, default=0, metavar="S", help="seed (default: 0)")
     _add_workers(irl, "PPO's rollouts (gcl, airl, gail)")
     _add_run_output(irl)
     _add_resume(irl)
@@ -1628,7 +1280,9 @@ def build_parser() -> argparse.ArgumentParser:
     policy.add_argument("run", metavar="RUN_DIR", help="a PPO, BC or DAgger run directory")
     policy.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
     policy.add_argument("--episodes", type=int, default=10, metavar="N", help="episodes (default: 10)")
-    policy.add_argument("--seed", type=_seed, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)")
+    policy.add_argument(
+        "--seed", type=flags.seed, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)"
+    )
     policy.add_argument("--stochastic", action="store_true", help="sample actions instead of taking the most likely one")
     policy.add_argument(
         "--demos",
@@ -1812,7 +1466,7 @@ def _run_handler(args: argparse.Namespace, handler: Callable[[argparse.Namespace
     try:
         return _until_failure(args, handler)
     except ConfigError as error:
-        print("error: " + _one_line(_flag_message(error, args.command_key)), file=sys.stderr)
+        print("error: " + _one_line(_flag_message(error, args)), file=sys.stderr)
         return EXIT_ERROR
     except ImitationError as error:
         print("error: " + _one_line(str(error)), file=sys.stderr)

@@ -149,15 +149,15 @@ def test_train_bc_help_names_the_configs_own_defaults() -> None:
     import dataclasses
     import re
 
-    from cli import FLAGS, build_parser
-
+    from cli import build_parser
     from imitation.algorithms.bc import BCConfig
+    from imitation.flags import flag_name, flagged
 
     parser = build_parser()
     bc = parser._subparsers._group_actions[0].choices["train"]._subparsers._group_actions[0].choices["bc"]
     helps = {option: action.help for action in bc._actions for option in action.option_strings}
     defaults = {f.name: f.default if f.default is not dataclasses.MISSING else f.default_factory() for f in dataclasses.fields(BCConfig)}
-    for field, flag in FLAGS["train bc"]["BCConfig"].items():
+    for field, flag in ((field.name, flag_name(field)) for field in flagged(BCConfig)):
         shown = re.search(r"\(default: ([^):]+)", helps[flag])
         assert shown is not None, flag
         value = defaults[field]

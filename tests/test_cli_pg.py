@@ -86,7 +86,8 @@ def test_train_pg_help_names_the_configs_own_defaults_and_the_presets() -> None:
     """No argparse defaults (an absent flag leaves the preset's or PGConfig's), so the help text
     says the default: the last value it names is PGConfig's, and the per-env step counts it
     names are the presets'."""
-    from cli import FLAGS, build_parser
+    from cli import build_parser
+    from imitation.flags import flag_name, flagged
 
     parser = build_parser()
     pg = parser._subparsers._group_actions[0].choices["train"]._subparsers._group_actions[0].choices["pg"]
@@ -95,7 +96,7 @@ def test_train_pg_help_names_the_configs_own_defaults_and_the_presets() -> None:
         f.name: f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
         for f in dataclasses.fields(PGConfig)
     }
-    for field, flag in FLAGS["train pg"]["PGConfig"].items():
+    for field, flag in ((field.name, flag_name(field)) for field in flagged(PGConfig) if field.name != "env_id"):
         shown = re.search(r"\(default: (.+)\)$", helps[flag])
         assert shown is not None, flag
         value = defaults[field]

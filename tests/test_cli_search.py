@@ -80,8 +80,9 @@ def _shown(value: object) -> str:
 def test_search_help_names_the_configs_own_defaults() -> None:
     """The flags have no argparse defaults (an absent flag leaves the preset's or SearchConfig's
     value), so the help text must state those."""
-    from cli import FLAGS, build_parser
+    from cli import build_parser
     from imitation.algorithms.policy_search import SearchConfig
+    from imitation.flags import flag_name, flagged
     from imitation.jobs.search import DEFAULT_STEPS, PRESETS
 
     defaults = {
@@ -93,7 +94,7 @@ def test_search_help_names_the_configs_own_defaults() -> None:
     for method in ("hill-climb", "cem", "cmaes"):
         parser = train.choices[method]
         helps = {option: action.help for action in parser._actions for option in action.option_strings}
-        for field, flag in FLAGS[f"train {method}"]["SearchConfig"].items():
+        for field, flag in ((field.name, flag_name(field)) for field in flagged(SearchConfig) if field.name != "env_id"):
             assert parser.get_default(flag.lstrip("-").replace("-", "_")) is None, flag
             shown = re.search(r"\(default: ([^)]+)\)", helps[flag])
             assert shown is not None, flag

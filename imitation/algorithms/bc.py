@@ -33,13 +33,13 @@ import copy
 import math
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any, Protocol, cast
 
 import gymnasium as gym
 import numpy as np
 import torch
 
+from imitation.algorithms.bc_config import BCConfig
 from imitation.checkpoints import (
     CheckpointData,
     TrainingClock,
@@ -52,8 +52,6 @@ from imitation.checkpoints import (
     rng_checkpoint,
     unprefixed,
 )
-from imitation.data.frame_transform import FrameTransform
-from imitation.data.image_resize import MAX_SIDE
 from imitation.data.loader import MinibatchLoader, TransitionTensors, resolve_device
 from imitation.data.stream import StreamingLoader
 from imitation.encoders import CNNConfig, cnn_activation_count, cnn_weight_count
@@ -62,139 +60,6 @@ from imitation.flat_adam import FlatAdam
 from imitation.mlp import mlp_weight_count
 from imitation.observation_encoding import observation_layout, observation_size
 from imitation.policies import ActorCritic, RunningMeanStd, action_logits_size
-
-LOSSES = ("nll", "mse")
-STEPS = ("all", "human")
-PREVIOUS_ACTION = ("auto", "on", "off")
-
-
-@dataclass(kw_only=True)
-class BCConfig:
-    # The defaults beat the trivial baselines on the real robot logs and clone the bundled
-    # experts (bench/RESULTS.md): a wide network, early stopping, a little weight decay.
-    epochs: int = 300
-    batch_size: int = 256
-    learning_rate: float = 1e-3
-    hidden_sizes: list[int] = field(default_factory=lambda: [256, 256])
-    # "auto": tanh below SMALL_DATA training transitions, ReLU from there. A few hundred
-    # transitions leave most of the state space between and beyond them, where tanh's bounded
-    # units extrapolate to bounded outputs and ReLU's grow without bound; with more data ReLU's
-    # sharper fits (an expert's switching law) pay off.
-    activation: str = "auto"
-    loss: str = "nll"
-    # Condition on the previous action (policies.py: μ = a_{t-1} + f(s_t, a_{t-1})). "auto": on
-    # offline for Box actions that are a recorded stream of set-points, of the observations' shape
-    # (joint targets beside joint positions: the state lags the command, and the last target
-    # carries the motion the state cannot show), or a recording's command streams whatever their
-    # shape (demos that keep a real clock's times, as bags do: an operator's command persists).
-    # Off with an env, whose experts act on the state alone, for a simulator's demos of other
-    # shapes (an expert's action is a function of the state), and when streamed.
-    previous_action: str = "auto"
-    entropy_coef: float = 0.0
-    l2_coef: float = 1e-4
-    validation_fraction: float = 0.2
-    patience: int = 50
-    # An epoch goes through at least this many samples (several passes over a small recording,
-    # each in its own order), so that a few hundred transitions get enough gradient steps.
-    epoch_samples: int = 4096
-    # Image observations: frames stacked per image leaf (None: as the demos were recorded, else 1),
-    # the random shift in pixels applied to training batches (DrQ), the leaves read (None: the
-    # frames alone for rendered-pixel demos, every leaf otherwise), and the CNN (encoders.CNNConfig).
-    frame_stack: int | None = None
-    random_shift: int = 4
-    observation_keys: list[str] | None = None
-    cnn: dict[str, Any] | None = None
-    # Camera frames cropped to [top, left, height, width] and resized to [height, width] as they
-    # load (`FrameTransform`); the policy keeps both, so the env it acts in does the same.
-    image_size: list[int] | None = None
-    crop: list[int] | None = None
-    # Bytes of decoded transitions a streaming run may hold (imitation.data.stream): None loads
-    # the demos into memory; a number streams shuffled batches from them, for image datasets
-    # larger than memory.
-    stream_memory: int | None = None
-    # "human": train on the steps a person drove (the /intervention channels of DAgger's rounds).
-    steps: str = "all"
-    seed: int = 0
-    device: str = "auto"
-    # Autocast the forward pass to float16 (CUDA, with a gradient scaler) or bfloat16 (CPU); the
-    # weights and the optimiser stay float32.
-    mixed_precision: bool = False
-    # torch CPU threads; None: every core this process may use when the policy has a CNN (its
-    # convolutions parallelise well), one for an MLP alone (small matrices: threads cost more
-    # than they gain).
-    threads: int | None = None
-
-    def validate(self, continuous: bool) -> None:
-        if self.loss not in LOSSES:
-            raise ConfigError("loss", f"must be one of {', '.join(LOSSES)}, got {self.loss!r}", owner="BCConfig")
-        if self.previous_action not in PREVIOUS_ACTION:
-            raise ConfigError(
-                "previous_action",
-                f"must be one of {', '.join(PREVIOUS_ACTION)}, got {self.previous_action!r}",
-                owner="BCConfig",
-            )
-        if self.loss == "mse" and not continuous:
-            raise ConfigError("loss", "mse is for continuous (Box) actions; discrete actions use nll", owner="BCConfig")
-        if self.frame_stack is not None and not 1 <= self.frame_stack <= 64:
-            raise ConfigError("frame_stack", f"must be in [1, 64], got {self.frame_stack}", owner="BCConfig")
-        if self.random_shift < 0:
-            raise ConfigError("random_shift", f"must be at least 0 pixels, got {self.random_shift}", owner="BCConfig")
-        if self.threads is not None and not 1 <= self.threads <= 1024:
-            raise ConfigError("threads", f"must be in [1, 1024], got {self.threads}", owner="BCConfig")
-        if self.steps not in STEPS:
-            raise ConfigError("steps", f"must be one of {', '.join(STEPS)}, got {self.steps!r}", owner="BCConfig")
-        self.frame_transform()
-        if self.stream_memory is not None and self.stream_memory < 1:
-            raise ConfigError("stream_memory", f"must be at least 1 byte, got {self.stream_memory}", owner="BCConfig")
-        for name in ("epochs", "batch_size", "patience"):
-            if getattr(self, name) < 1:
-                raise ConfigError(name, f"must be at least 1, got {getattr(self, name)}", owner="BCConfig")
-        if not 0 < self.learning_rate < 1e30:  # NaN fails too; from ~1e37 Adam's step overflows float32
-            raise ConfigError(
-                "learning_rate", f"must be a positive number below 1e30, got {self.learning_rate}", owner="BCConfig"
-            )
-
-    def frame_transform(self) -> FrameTransform | None:
-        """The crop and size frames load at (None: as stored); ConfigError for malformed ones."""
-        if self.image_size is not None and not _sides(self.image_size, 2, 1):
-            raise ConfigError(
-                "image_size", f"must be [height, width], each 1 to {MAX_SIDE}, got {self.image_size!r:.40}", owner="BCConfig"
-            )
-        if self.crop is not None and not (_sides(self.crop, 4, 0) and min(self.crop[2:]) >= 1):
-            raise ConfigError(
-                "crop",
-                f"must be [top, left, height, width], height and width 1 to {MAX_SIDE}, got {self.crop!r:.40}",
-                owner="BCConfig",
-            )
-        if self.image_size is None and self.crop is None:
-            return None
-        size = (self.image_size[0], self.image_size[1]) if self.image_size is not None else None
-        crop = (self.crop[0], self.crop[1], self.crop[2], self.crop[3]) if self.crop is not None else None
-        return FrameTransform(size, crop)
-
-    def validate_data_parallel(self, processes: int) -> None:
-        """Refuse what a data-parallel run of `processes` processes cannot do."""
-        if self.batch_size >= 1 and self.batch_size % processes:
-            raise ConfigError(
-                "batch_size",
-                f"must be a multiple of the {processes} torchrun processes (each takes batch_size / {processes} rows "
-                f"a step), got {self.batch_size}",
-                owner="BCConfig",
-            )
-        if self.stream_memory is not None:
-            raise ConfigError(
-                "stream_memory",
-                "streams no data under torchrun (each process loads its share of the demos into memory); leave it unset",
-                owner="BCConfig",
-            )
-
-
-def _sides(values: Any, count: int, low: int) -> bool:
-    return (
-        isinstance(values, list)
-        and len(values) == count
-        and all(isinstance(n, int) and not isinstance(n, bool) and low <= n <= MAX_SIDE for n in values)
-    )
 
 
 class DataParallel(Protocol):

@@ -47,14 +47,14 @@ import dataclasses
 import os
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, cast
 
 import gymnasium as gym
 import numpy as np
 
-from imitation.algorithms.bc import BCConfig, BehaviouralCloning, fit
+from imitation.algorithms.bc import BehaviouralCloning, fit
+from imitation.algorithms.dagger_config import DAggerConfig
 from imitation.checkpoints import CheckpointData, checked_counter, prefixed, restoring, unprefixed
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import (
@@ -70,7 +70,6 @@ from imitation.data.recover import PARTIAL_SUFFIX, recover_partial
 from imitation.data.types import Episode, Interventions, stack_samples
 from imitation.envs.make import control_period
 from imitation.envs.pixels import StackFrames, stack_frames
-from imitation.errors import ConfigError
 from imitation.policies import ActorCritic, SingleObservationPolicy
 
 
@@ -83,43 +82,7 @@ class TakesOver(Protocol):
     def __call__(self, observation: Any) -> Any: ...
 
 
-SCHEDULES = ("linear", "exponential")
-MODES = ("label", "takeover")
-LABELS = ("human", "all")
 Policy = Callable[[Any], Any]
-
-
-@dataclass(kw_only=True)
-class DAggerConfig:
-    rounds: int = 5
-    episodes_per_round: int = 5
-    beta_schedule: str = "linear"
-    beta_decay: float = 0.5  # p of the exponential schedule
-    seed: int = 0
-    # "label": the learner drives with probability 1 - β and the expert labels every state;
-    # "takeover": the learner drives until the expert takes over (HG-DAgger).
-    mode: str = "label"
-    # Take-over: "human" trains on the steps the expert drove; "all" also on the learner's own
-    # actions where the expert let it drive.
-    label: str = "human"
-    # Each round warm-starts from the previous learner, so it needs fewer epochs than BC from scratch.
-    bc: BCConfig = field(default_factory=lambda: BCConfig(epochs=60, patience=15))
-
-    def validate(self) -> None:
-        for name, choices in (("mode", MODES), ("label", LABELS)):
-            if getattr(self, name) not in choices:
-                raise ConfigError(
-                    name, f"must be one of {', '.join(choices)}, got {getattr(self, name)!r}", owner="DAggerConfig"
-                )
-        if self.beta_schedule not in SCHEDULES:
-            raise ConfigError(
-                "beta_schedule", f"must be one of {', '.join(SCHEDULES)}, got {self.beta_schedule!r}", owner="DAggerConfig"
-            )
-        for name in ("rounds", "episodes_per_round"):
-            if getattr(self, name) < 1:
-                raise ConfigError(name, f"must be at least 1, got {getattr(self, name)}", owner="DAggerConfig")
-        if not 0.0 <= self.beta_decay <= 1.0:
-            raise ConfigError("beta_decay", f"must be in [0, 1], got {self.beta_decay}", owner="DAggerConfig")
 
 
 def beta_for_round(round_index: int, config: DAggerConfig) -> float:

@@ -49,12 +49,12 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass, field, fields
-from typing import Any
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
+from imitation.algorithms.policy_gradient_config import WITH_CRITIC, PGConfig
 from imitation.algorithms.ppo import compute_gae
 from imitation.checkpoints import (
     CheckpointData,
@@ -70,80 +70,8 @@ from imitation.checkpoints import (
 )
 from imitation.data.loader import resolve_device
 from imitation.envs.make import make_env
-from imitation.errors import ConfigError, ImitationError
+from imitation.errors import ImitationError
 from imitation.policies import RunningMeanStd, make_policy, require_flat_observations
-
-ESTIMATORS = ("return", "reward-to-go", "baseline", "actor-critic")
-WITH_CRITIC = ("baseline", "actor-critic")
-
-
-@dataclass(kw_only=True)
-class PGConfig:
-    """Hyperparameters; per-estimator and per-environment defaults are in `imitation.jobs.pg`."""
-
-    env_id: str
-    estimator: str = "baseline"
-    total_steps: int = 100_000
-    n_envs: int = 4
-    batch_steps: int = 2000  # env steps a batch holds at least (its episodes are finished)
-    rollout_steps: int | None = None  # actor-critic: steps per env copy per batch, episodes cut and bootstrapped
-    gamma: float = 0.99
-    n_step: int | None = None  # actor-critic: n-step advantages; None for GAE(λ)
-    gae_lambda: float = 0.95
-    learning_rate: float = 1e-2
-    value_learning_rate: float = 1e-2
-    anneal_lr: bool = True  # both learning rates fall linearly to 0 over total_steps
-    value_steps: int = 5  # critic regression steps per batch
-    normalize_advantages: bool = True  # divide w_t by its batch std (not centred: centring is a baseline)
-    normalize_observations: bool = False
-    normalize_rewards: bool = False
-    entropy_coef: float = 0.0
-    max_grad_norm: float | None = None
-    hidden_sizes: list[int] = field(default_factory=lambda: [64, 64])
-    activation: str = "tanh"
-    log_std_init: float = 0.0
-    seed: int = 0
-    device: str = "cpu"
-    threads: int = 1
-
-    def validate(self) -> None:
-        owner = "PGConfig"
-        if self.estimator not in ESTIMATORS:
-            raise ConfigError("estimator", f"must be one of {', '.join(ESTIMATORS)}, got {self.estimator!r}", owner=owner)
-        for name in ("total_steps", "n_envs", "batch_steps", "value_steps"):
-            if getattr(self, name) < 1:
-                raise ConfigError(name, f"must be at least 1, got {getattr(self, name)}", owner=owner)
-        if self.n_step is not None:
-            if self.estimator != "actor-critic":
-                raise ConfigError("n_step", f"is for the actor-critic estimator, not {self.estimator}", owner=owner)
-            if self.n_step < 1:
-                raise ConfigError("n_step", f"must be at least 1, got {self.n_step}", owner=owner)
-        if self.rollout_steps is not None:
-            if self.estimator != "actor-critic":
-                raise ConfigError("rollout_steps", f"is for the actor-critic estimator, not {self.estimator}", owner=owner)
-            if self.rollout_steps < 1:
-                raise ConfigError("rollout_steps", f"must be at least 1, got {self.rollout_steps}", owner=owner)
-        if self.total_steps < self.steps_per_batch:
-            raise ConfigError(
-                "total_steps", f"{self.total_steps} is less than one batch ({self.steps_per_batch} steps)", owner=owner
-            )
-        for name in ("gamma", "gae_lambda"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ConfigError(name, f"must lie in [0, 1], got {getattr(self, name)}", owner=owner)
-        for name in ("learning_rate", "value_learning_rate"):
-            if not 0 < getattr(self, name) < 1e30:  # NaN fails too
-                raise ConfigError(name, f"must be a positive number below 1e30, got {getattr(self, name)}", owner=owner)
-
-    @property
-    def steps_per_batch(self) -> int:
-        """The fewest env steps a batch holds (exactly this many with `rollout_steps`)."""
-        return self.batch_steps if self.rollout_steps is None else self.n_envs * self.rollout_steps
-
-    @staticmethod
-    def from_json(data: dict[str, Any]) -> PGConfig:
-        known = {f.name for f in fields(PGConfig)}
-        return PGConfig(**{key: value for key, value in data.items() if key in known})
-
 
 # ------------------------------------------------------------------------------------------------
 # The formulas, as pure functions over a stream of steps (T, ...) whose episodes are contiguous;

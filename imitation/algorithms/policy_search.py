@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import cma
@@ -49,60 +48,11 @@ import numpy as np
 import torch
 from torch import nn
 
+from imitation.algorithms.policy_search_config import NAMES, SearchConfig
 from imitation.algorithms.ppo import make_vector_env
 from imitation.checkpoints import CheckpointData, TrainingClock, checked_counter, restoring
 from imitation.errors import ConfigError, ImitationError
 from imitation.policies import ActorCritic, make_policy, require_flat_observations
-
-METHODS = ("hill-climb", "cem", "cmaes")
-NAMES = {"hill-climb": "hill climbing", "cem": "CEM", "cmaes": "CMA-ES"}
-
-
-@dataclass(kw_only=True)
-class SearchConfig:
-    """Settings of one search; per-environment presets are in `imitation.jobs.search.PRESETS`."""
-
-    env_id: str
-    method: str = "cem"
-    total_steps: int = 50_000
-    population: int = 16  # K candidates per generation, besides the centre
-    elite_fraction: float = 0.2  # ρ (CEM)
-    sigma: float = 0.5  # σ₀: hill climbing's noise scale, CEM's initial std, CMA-ES's initial step size
-    extra_noise: float = 0.05  # z₀, CEM's extra variance at generation 0
-    extra_noise_generations: int = 25  # t_Z, the generation where CEM's extra variance reaches 0
-    sigma_min: float = 1e-3  # hill climbing's clamp of σ
-    sigma_max: float = 2.0
-    success_factor: float = 0.5  # c_success: hill climbing's σ multiplier after an improvement
-    failure_factor: float = 2.0  # c_failure: after a generation without one
-    episodes_per_candidate: int = 1  # E
-    n_envs: int = 8
-    hidden_sizes: list[int] = field(default_factory=list)  # [] is a linear policy
-    activation: str = "tanh"
-    seed: int = 0
-    threads: int = 1
-
-    def validate(self) -> None:
-        owner = "SearchConfig"
-        if self.method not in METHODS:
-            raise ConfigError("method", f"must be one of {', '.join(METHODS)}, got {self.method!r}", owner=owner)
-        for name in ("total_steps", "population", "episodes_per_candidate", "n_envs", "extra_noise_generations"):
-            if getattr(self, name) < 1:
-                raise ConfigError(name, f"must be at least 1, got {getattr(self, name)}", owner=owner)
-        if self.method == "cmaes" and self.population < 2:
-            raise ConfigError("population", f"must be at least 2 for CMA-ES, got {self.population}", owner=owner)
-        if not 0 < self.elite_fraction <= 1:
-            raise ConfigError("elite_fraction", f"must be in (0, 1], got {self.elite_fraction}", owner=owner)
-        for name in ("sigma", "sigma_min", "sigma_max", "success_factor", "failure_factor"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(name, f"must be a positive finite number, got {value}", owner=owner)
-        if not (math.isfinite(self.extra_noise) and self.extra_noise >= 0):
-            raise ConfigError("extra_noise", f"must be a finite number ≥ 0, got {self.extra_noise}", owner=owner)
-        if self.sigma_min > self.sigma_max:
-            raise ConfigError(
-                "sigma_min", f"{self.sigma_min} is above sigma_max {self.sigma_max}: the clamp is empty", owner=owner
-            )
-
 
 # ------------------------------------------------------------------------------------------------
 # The formulas, as pure functions (tested against values worked by hand).

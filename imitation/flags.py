@@ -1,0 +1,280 @@
+"""Command-line flags declared once, beside the config fields they set.
+
+A config field becomes a flag by `flag(...)` in place of `dataclasses.field(...)`: its help text
+and, where the field does not already say them, its name (`--field-name` by default), metavar,
+choices and parser. `add_flags` adds a config class's flags to an argparse parser with no argparse
+default, so that a flag not given leaves the config's own default, which the help names;
+`given` reads back the fields whose flags were given. The flags' argument types (`finite`,
+`seed`, `hidden_sizes`, …) refuse bad text where it enters, as argparse usage errors (exit 2).
+
+This module is imported by the light config modules that `imitation --help` loads: it imports
+nothing heavier than argparse.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import typing
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import MISSING, Field
+from typing import Any
+
+FLAG = "imitation.flag"  # the key of a field's Flag in its dataclass metadata
+NESTED = "imitation.nested"  # the key of a nested config's flagged fields (a tuple of names)
+
+
+@dataclasses.dataclass(frozen=True)
+class Flag:
+    """How a config field appears on the command line.
+
+    `parse` turns the text into a value as argparse reads it (argparse.ArgumentTypeError: a usage
+    error); `convert` turns the parsed value into the field's value when the config is built (an
+    ImitationError there is a one-line error, exit 1). `default_text` is what the help says when
+    the field's default does not say it (None, or "auto")."""
+
+    help: str
+    name: str | None = None
+    metavar: str | None = None
+    parse: Callable[[str], Any] | None = None
+    convert: Callable[[Any], Any] | None = None
+    choices: tuple[str, ...] | None = None
+    default_text: str | None = None
+
+
+def flag(
+    default: Any = MISSING,
+    *,
+    help: str,
+    name: str | None = None,
+    metavar: str | None = None,
+    parse: Callable[[str], Any] | None = None,
+    convert: Callable[[Any], Any] | None = None,
+    choices: Sequence[str] | None = None,
+    default_text: str | None = None,
+    default_factory: Callable[[], Any] | Any = MISSING,
+) -> Any:
+    """A dataclass field that is also a command-line flag."""
+    described = Flag(help, name, metavar, parse, convert, tuple(choices) if choices else None, default_text)
+    return dataclasses.field(default=default, default_factory=default_factory, metadata={FLAG: described})
+
+
+def nested(fields: Sequence[str], default_factory: Callable[[], Any]) -> Any:
+    """A dataclass field holding another config, whose `fields` are flags of the outer command
+    too, with the defaults of the instance `default_factory` makes (DAgger's BC per round)."""
+    return dataclasses.field(default_factory=default_factory, metadata={NESTED: tuple(fields)})
+
+
+def flag_name(field: Field) -> str:
+    """The option string of a flagged field: its Flag's name, else `--field-name`."""
+    return field.metadata[FLAG].name or "--" + field.name.replace("_", "-")
+
+
+def flagged(config: type) -> list[Field]:
+    """The fields of a config dataclass that are flags, in declaration order."""
+    return [field for field in dataclasses.fields(config) if FLAG in field.metadata]
+
+
+def add_flags(parser: argparse.ArgumentParser, config: type, only: Iterable[str] | None = None, defaults: Any = None) -> None:
+    """Add the flags of `config` (those of the fields named in `only`, if given) to `parser`, with
+    the help naming the defaults of the instance `defaults` (else the fields' own), and those of
+    its nested configs. A flag the parser already has (a seed shared by two configs of one
+    command) is not added again: it sets both fields."""
+    types = typing.get_type_hints(config)
+    for field in _chosen(config, only):
+        if NESTED in field.metadata:
+            inner = getattr(defaults, field.name) if defaults is not None else _field_default(field)
+            add_flags(parser, type(inner), field.metadata[NESTED], inner)
+            continue
+        option = flag_name(field)
+        if option in parser._option_string_actions:
+            continue
+        described: Flag = field.metadata[FLAG]
+        required = field.default is MISSING and field.default_factory is MISSING
+        help_text = described.help if required else f"{described.help} (default: {_default_text(field, defaults)})"
+        kind = _base_type(types[field.name])
+        if kind is bool:
+            parser.add_argument(option, dest=_dest(option), action="store_true", default=None, help=help_text)
+            continue
+        parse = described.parse or _PARSERS.get(kind)
+        if parse is None:
+            raise TypeError(f"{config.__name__}.{field.name}: a flag of type {types[field.name]} needs parse=")
+        parser.add_argument(
+            option,
+            dest=_dest(option),
+            type=parse,
+            choices=described.choices,
+            required=required,
+            metavar=described.metavar,
+            help=help_text,
+        )
+
+
+def given(args: argparse.Namespace, config: type, only: Iterable[str] | None = None) -> dict[str, Any]:
+    """The fields of `config` whose flags were given on the command line, converted; a nested
+    config is its default instance with its given fields replaced."""
+    values = {}
+    for field in _chosen(config, only):
+        if NESTED in field.metadata:
+            inner = _field_default(field)
+            values[field.name] = dataclasses.replace(inner, **given(args, type(inner), field.metadata[NESTED]))
+            continue
+        value = getattr(args, _dest(flag_name(field)), None)
+        if value is not None:
+            convert = field.metadata[FLAG].convert
+            values[field.name] = convert(value) if convert is not None else value
+    return values
+
+
+def flag_of(configs: Iterable[type], owner: str | None, field_name: str) -> str | None:
+    """The flag that sets field `field_name` of the config class named `owner` among `configs`
+    and the configs nested in them (owner None: of any of them), or None when no flag sets it."""
+    for config, only in _with_nested(configs):
+        if owner is not None and config.__name__ != owner:
+            continue
+        for field in _chosen(config, only):
+            if field.name == field_name and FLAG in field.metadata:
+                return flag_name(field)
+    return None
+
+
+def _chosen(config: type, only: Iterable[str] | None) -> list[Field]:
+    """The flagged and nested fields of `config`, those named in `only` if given."""
+    wanted = None if only is None else set(only)
+    return [
+        field
+        for field in dataclasses.fields(config)
+        if (FLAG in field.metadata or NESTED in field.metadata) and (wanted is None or field.name in wanted)
+    ]
+
+
+def _with_nested(configs: Iterable[type]) -> list[tuple[type, tuple[str, ...] | None]]:
+    """(config, the names of its fields that are flags, None for all) for `configs` and every
+    config nested in them."""
+    found: list[tuple[type, tuple[str, ...] | None]] = []
+    pending: list[tuple[type, tuple[str, ...] | None]] = [(config, None) for config in configs]
+    while pending:
+        config, only = pending.pop(0)
+        found.append((config, only))
+        for field in _chosen(config, only):
+            if NESTED in field.metadata:
+                pending.append((type(_field_default(field)), field.metadata[NESTED]))
+    return found
+
+
+def _dest(option: str) -> str:
+    return option.lstrip("-").replace("-", "_")
+
+
+def _base_type(annotation: Any) -> Any:
+    """`int` for `int | None`, `list` for `list[int]`: the type a flag's text becomes."""
+    arguments = [argument for argument in typing.get_args(annotation) if argument is not type(None)]
+    if typing.get_origin(annotation) in (typing.Union, _UNION) and len(arguments) == 1:
+        return _base_type(arguments[0])
+    return typing.get_origin(annotation) or annotation
+
+
+_UNION = type(int | None)
+
+
+def _field_default(field: Field) -> Any:
+    """The value a field takes when not given (MISSING when it must be given)."""
+    if field.default_factory is not MISSING:
+        return field.default_factory()
+    return field.default
+
+
+def _default_text(field: Field, defaults: Any) -> str:
+    described: Flag = field.metadata[FLAG]
+    if described.default_text is not None:
+        return described.default_text
+    default = getattr(defaults, field.name) if defaults is not None else _field_default(field)
+    if isinstance(default, bool):
+        return "on" if default else "off"
+    if isinstance(default, list):
+        return ",".join(str(item) for item in default) or "linear"
+    if default is None or default is MISSING:
+        raise TypeError(f"{field.name}: a flag whose default is {default!r} needs default_text=")
+    return str(default)
+
+
+def finite(text: str) -> float:
+    """A float option: NaN and ±inf are refused where they enter, not deep inside training."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text[:100]!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text[:100]!r}")
+    return value
+
+
+def quality(text: str) -> int:
+    """An image codec's quality: a whole number from 1 to 100."""
+    if not text.strip().isdigit() or not 1 <= int(text) <= 100:
+        raise argparse.ArgumentTypeError(f"expected a whole number from 1 to 100, got {text[:100]!r}")
+    return int(text)
+
+
+def seconds(text: str) -> float:
+    """A positive, finite number of seconds (below a million: beyond that it is a typo)."""
+    value = finite(text)
+    if not 0 < value < 1e6:
+        raise argparse.ArgumentTypeError(f"expected a positive number of seconds, got {text[:100]!r}")
+    return value
+
+
+def seed(text: str) -> int:
+    """A seed: a whole number in the range every generator a job seeds accepts (numpy's legacy
+    one takes none below 0 or from 2^32 on; torch none from 2^64 on)."""
+    from imitation.seeding import seed_problem
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text[:100]!r}") from None
+    if (problem := seed_problem(value)) is not None:
+        raise argparse.ArgumentTypeError(problem)
+    return value
+
+
+def speed(text: str) -> float:
+    """A speed factor of a person's window, from 1/8 to 4 times real time."""
+    value = finite(text)
+    if not 0.125 <= value <= 4:
+        raise argparse.ArgumentTypeError(f"expected a factor from 0.125 to 4, got {text[:100]!r}")
+    return value
+
+
+def megabytes(text: str) -> int:
+    """A size in megabytes (MiB, fractions allowed) → bytes; at least one byte."""
+    value = finite(text)
+    if value * 2**20 < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive number of megabytes, got {text[:100]!r}")
+    return int(value * 2**20)
+
+
+def hidden_sizes(text: str) -> list[int]:
+    """Layer widths such as `64,64`, or `linear` for none."""
+    if text == "linear":
+        return []
+    try:
+        sizes = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated layer widths such as 64,64, got {text!r}") from None
+    if any(size < 1 for size in sizes):
+        raise argparse.ArgumentTypeError(f"layer widths must be positive, got {text!r}")
+    return sizes
+
+
+def names(text: str) -> list[str]:
+    """A comma-separated list of names, e.g. `pixels,state`."""
+    parts = [name.strip() for name in text.split(",")]
+    if not all(parts):
+        raise argparse.ArgumentTypeError(f"{text!r}: give names separated by commas, e.g. pixels,state")
+    return parts
+
+
+# The argument type of a flag whose field's type says it.
+_PARSERS: dict[Any, Callable[[str], Any]] = {int: int, float: finite, str: str}

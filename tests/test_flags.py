@@ -1,0 +1,143 @@
+"""The command line generated from the configs (issue 52): each flag is declared once, beside its
+config field (imitation/flags.py), and the commands built from configs have exactly one flag per
+field and one field per flag."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+
+import pytest
+
+import cli
+from imitation.errors import ImitationError
+from imitation.flags import NESTED, add_flags, flag, flag_name, flag_of, flagged, given, hidden_sizes, nested
+
+
+def commands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()) -> dict[str, argparse.ArgumentParser]:
+    """Every leaf command of the command line, by its words (`train bc`)."""
+    found = {}
+    for name, sub in cli._subcommands(parser).items():
+        if any(isinstance(action, argparse._SubParsersAction) for action in sub._actions):
+            found |= commands(sub, (*path, name))
+        else:
+            found[" ".join((*path, name))] = sub
+    return found
+
+
+def config_flags(config: type, only: tuple[str, ...] | None = None) -> dict[str, set[str]]:
+    """Option string → the names of the fields it sets, over `config` and its nested configs."""
+    found: dict[str, set[str]] = {}
+    for field in flagged(config):
+        if only is None or field.name in only:
+            found.setdefault(flag_name(field), set()).add(field.name)
+    for field in config.__dataclass_fields__.values():
+        if NESTED in field.metadata and (only is None or field.name in only):
+            for option, names in config_flags(type(field.default_factory()), field.metadata[NESTED]).items():
+                found.setdefault(option, set()).update(names)
+    return found
+
+
+CONFIGURED = {name: parser for name, parser in commands(cli.build_parser()).items() if parser.get_default("configs")}
+
+
+def test_the_train_commands_take_their_flags_from_their_configs() -> None:
+    assert {"train bc", "train dagger", "train pg", "train hill-climb", "train cem", "train cmaes"} <= set(CONFIGURED)
+
+
+@pytest.mark.parametrize("name", sorted(CONFIGURED))
+def test_each_config_field_has_one_flag_and_each_flag_one_field(name: str) -> None:
+    parser = CONFIGURED[name]
+    options = {option: action for action in parser._actions for option in action.option_strings}
+    for config in parser.get_default("configs"):
+        for option, fields in config_flags(config).items():
+            assert option in options, f"{name}: {config.__name__}'s {sorted(fields)} has no flag {option}"
+            assert len(fields) == 1, f"{name}: {option} sets {sorted(fields)}"
+            assert options[option].dest == option[2:].replace("-", "_") and parser.get_default(options[option].dest) is None
+
+
+@dataclass(kw_only=True)
+class Inner:
+    width: int = flag(3, metavar="W", help="width")
+    depth: int = flag(1, help="depth")
+
+
+@dataclass(kw_only=True)
+class Toy:
+    env_id: str = flag(name="--env", help="the env")
+    rate: float = flag(0.5, name="--lr", help="the rate")
+    layers: list[int] = flag(parse=hidden_sizes, help="the layers", default_factory=lambda: [4, 4])
+    fast: bool = flag(False, help="go fast")
+    mode: str = flag("a", choices=("a", "b"), help="the mode")
+    size: int | None = flag(None, convert=lambda text: int(text) * 2, parse=str, help="the size", default_text="as given")
+    hidden: int = 7
+    inner: Inner = nested(("width",), lambda: Inner(width=5))
+
+
+def toy_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="toy")
+    add_flags(parser, Toy)
+    return parser
+
+
+def test_flags_are_built_from_the_fields_types_defaults_and_help() -> None:
+    parser = toy_parser()
+    helps = {option: action.help for action in parser._actions for option in action.option_strings}
+    assert helps == {
+        "-h": "show this help message and exit",
+        "--help": "show this help message and exit",
+        "--env": "the env",
+        "--lr": "the rate (default: 0.5)",
+        "--layers": "the layers (default: 4,4)",
+        "--fast": "go fast (default: off)",
+        "--mode": "the mode (default: a)",
+        "--size": "the size (default: as given)",
+        "--width": "width (default: 5)",  # the nested instance's default, not the class's
+    }
+    args = parser.parse_args(["--env", "E", "--lr", "0.25", "--layers", "linear", "--fast", "--size", "21", "--width", "9"])
+    assert Toy(**given(args, Toy)) == Toy(env_id="E", rate=0.25, layers=[], fast=True, size=42, inner=Inner(width=9, depth=1))
+    assert Toy(**given(parser.parse_args(["--env", "E"]), Toy)) == Toy(env_id="E", inner=Inner(width=5))
+
+
+@pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        (["--env", "E", "--lr", "nan"], "argument --lr: expected a finite number, got 'nan'"),
+        (["--env", "E", "--mode", "c"], "argument --mode: invalid choice: 'c' (choose from 'a', 'b')"),
+        ([], "the following arguments are required: --env"),
+    ],
+)
+def test_bad_flag_text_and_a_missing_required_flag_are_usage_errors(argv: list[str], said: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exited:
+        toy_parser().parse_args(argv)
+    assert exited.value.code == 2 and capsys.readouterr().err.strip().endswith(f"toy: error: {said}")
+
+
+def test_a_config_error_is_reported_with_the_flag_that_sets_the_field() -> None:
+    assert flag_of([Toy], "Toy", "rate") == "--lr"
+    assert flag_of([Toy], "Inner", "width") == "--width"
+    assert flag_of([Toy], "Inner", "depth") is None  # nested, but not one of the command's flags
+    assert flag_of([Toy], None, "layers") == "--layers" and flag_of([Toy], "Other", "rate") is None
+
+
+def test_a_field_whose_type_says_no_parser_needs_one() -> None:
+    @dataclass
+    class Untyped:
+        points: list[float] = flag(help="points", default_factory=list)
+
+    with pytest.raises(TypeError, match="Untyped.points: a flag of type list"):
+        add_flags(argparse.ArgumentParser(), Untyped)
+
+
+def test_converting_a_given_flag_may_fail_in_one_line() -> None:
+    def refuse(text: str) -> int:
+        raise ImitationError(f"--size {text}: no")
+
+    @dataclass
+    class Refusing:
+        size: int | None = flag(None, parse=str, convert=refuse, help="size", default_text="none")
+
+    parser = argparse.ArgumentParser()
+    add_flags(parser, Refusing)
+    with pytest.raises(ImitationError, match="^--size 3: no$"):
+        given(parser.parse_args(["--size", "3"]), Refusing)
