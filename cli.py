@@ -186,16 +186,18 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_train_ppo(args: argparse.Namespace) -> int:
+    from imitation.algorithms.ppo_config import PPOConfig
     from imitation.envs.pixels import PixelRecipe
     from imitation.jobs.ppo import train_ppo
 
     pixels = (
         {"pixels": PixelRecipe.parse(args.pixels, grayscale=args.grayscale, crop=args.crop).to_json()} if args.pixels else {}
     )
+    fields = given(args, PPOConfig)
     config, result = train_ppo(
-        args.env,
+        fields.pop("env_id"),
         args.out,
-        _fields(args, "PPOConfig") | pixels,
+        fields | pixels,
         reward_run=args.reward,
         shaped=args.shaped,
         resume=args.resume,
@@ -604,19 +606,6 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
             "noise_bias": "--noise-bias",
         }
     },
-    "train ppo": {
-        "PPOConfig": {
-            "total_steps": "--steps",
-            "objective": "--objective",
-            "n_envs": "--n-envs",
-            "async_envs": "--async",
-            "frame_stack": "--frame-stack",
-            "seed": "--seed",
-            "device": "--device",
-            "threads": "--threads",
-        },
-        None: {"device": "--device"},  # the device's own check, where any learner meets it
-    },
     "train irl": {
         "MaxEntIRLConfig": {
             "method": "--method",
@@ -683,23 +672,6 @@ def _add_pixel_arguments(parser: argparse.ArgumentParser, what: str) -> None:
         metavar="T,L,H,W",
         help="with --pixels: keep only this rectangle of the rendered image (top, left, height, width in pixels) "
         "before resizing, e.g. 150,200,180,200 around CartPole's cart and pole in its 400×600 frame",
-    )
-
-
-def _add_image_training_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--mixed-precision",
-        action="store_true",
-        default=None,
-        help="autocast the network to float16 on CUDA (with a gradient scaler) or bfloat16 on the CPU; weights stay "
-        "float32 (default: off)",
-    )
-    parser.add_argument(
-        "--random-shift",
-        type=int,
-        metavar="P",
-        help="image observations: shift training frames by up to P pixels, edges replicated (DrQ); 0 turns it off "
-        "(default: 4)",
     )
 
 
@@ -819,6 +791,7 @@ def build_parser() -> argparse.ArgumentParser:
     from imitation.algorithms.bc_config import BCConfig
     from imitation.algorithms.dagger_config import DAggerConfig
     from imitation.algorithms.policy_gradient_config import PGConfig
+    from imitation.algorithms.ppo_config import PPOConfig
 
     parser = argparse.ArgumentParser(
         prog="imitation",
@@ -1044,9 +1017,8 @@ def build_parser() -> argparse.ArgumentParser:
         "Per-environment defaults (rl-baselines3-zoo's settings where known; its Atari settings for image observations) "
         "make flags optional. A reward learnt on pixels brings its --pixels, --grayscale, --crop and --frame-stack.",
     )
-    ppo.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
-    ppo.add_argument("--steps", type=int, default=100_000, metavar="N", help="environment steps in total (default: 100000)")
-    ppo.add_argument("--objective", choices=["clip", "kl"], help="clipped surrogate or adaptive KL penalty (default: clip)")
+    add_flags(ppo, PPOConfig)
+    ppo.set_defaults(configs=(PPOConfig,))
     ppo.add_argument(
         "--reward",
         metavar="RUN_DIR",
@@ -1059,19 +1031,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --reward of an AIRL run: optimise f = g + γh(s') − h(s), its reward g shaped by the potential h it "
         "learnt (the same optimal policies as g)",
     )
-    ppo.add_argument("--n-envs", dest="n_envs", type=int, metavar="K", help="parallel environments (default: per env)")
-    ppo.add_argument("--async", action="store_true", help="step the environments in subprocesses")
     _add_pixel_arguments(ppo, "the policy sees (through a CNN) are")
-    ppo.add_argument(
-        "--frame-stack",
-        type=int,
-        metavar="K",
-        help="image observations (--pixels, or an env whose observations are images): frames stacked per image (default: "
-        "the --reward's or the resumed run's, else 1)",
-    )
-    ppo.add_argument("--seed", type=flags.seed, metavar="S", help="seed for torch, the envs and sampling (default: 0)")
-    ppo.add_argument("--device", metavar="auto|cpu|cuda", help="where the networks run (default: auto)")
-    ppo.add_argument("--threads", type=int, metavar="N", help="torch CPU threads (default: 1, fastest for small networks)")
     _add_workers(ppo, "the rollouts (the environment copies split between them)")
     _add_run_output(ppo)
     _add_resume(ppo)

@@ -51,7 +51,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from contextlib import closing
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 import gymnasium as gym
@@ -59,6 +59,7 @@ import numpy as np
 import torch
 from torch.distributions import Distribution, kl_divergence
 
+from imitation.algorithms.ppo_config import PPOConfig
 from imitation.checkpoints import (
     CheckpointData,
     TrainingClock,
@@ -76,92 +77,10 @@ from imitation.envs.cartpole_vector import VECTORISED_CARTPOLES, SameStepCartPol
 from imitation.envs.make import make_env
 from imitation.envs.pixels import PIXELS_KEY, PixelRecipe, StackFrames, make_pixel_env
 from imitation.envs.rollout import Rollout
-from imitation.errors import ConfigError, ImitationError
+from imitation.errors import ImitationError
 from imitation.flat_adam import FlatAdam, clip_grad_norm
 from imitation.policies import ActorCritic, RunningMeanStd, batch_of_one, make_policy, tensor_tree
 from imitation.rewards import flat_batch, tree_index
-
-OBJECTIVES = ("clip", "kl")
-
-
-@dataclass(kw_only=True)
-class PPOConfig:
-    """Hyperparameters; per-environment presets are in `imitation.jobs.presets`."""
-
-    env_id: str
-    total_steps: int = 100_000
-    objective: str = "clip"
-    n_envs: int = 4
-    n_steps: int = 128
-    batch_size: int = 128
-    n_epochs: int = 4
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
-    learning_rate: float = 2.5e-4
-    anneal_lr: bool = True
-    clip_range: float = 0.2
-    clip_value_loss: bool = False
-    value_coef: float = 0.5
-    entropy_coef: float = 0.0
-    max_grad_norm: float = 0.5
-    target_kl: float | None = None
-    kl_target: float = 0.01
-    kl_beta_init: float = 1.0
-    normalize_advantages: bool = True
-    normalize_observations: bool = False
-    normalize_rewards: bool = False
-    hidden_sizes: list[int] = field(default_factory=lambda: [64, 64])
-    activation: str = "tanh"
-    shared_trunk: bool = False
-    log_std_init: float = 0.0
-    async_envs: bool = False
-    # Image observations: how frames are rendered (a PixelRecipe's JSON; None: the env's own
-    # observations), frames stacked per image leaf, the leaves the policy reads (None: the frames
-    # alone with `pixels`, every leaf otherwise) and its CNN (encoders.CNNConfig; None: Nature CNN).
-    pixels: dict[str, Any] | None = None
-    frame_stack: int = 1
-    observation_keys: list[str] | None = None
-    cnn: dict[str, Any] | None = None
-    seed: int = 0
-    device: str = "auto"
-    threads: int = 1
-
-    def validate(self) -> None:
-        if self.objective not in OBJECTIVES:
-            raise ConfigError(
-                "objective", f"must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}", owner="PPOConfig"
-            )
-        for name in ("total_steps", "n_envs", "n_steps", "batch_size", "n_epochs"):
-            if getattr(self, name) < 1:
-                raise ConfigError(name, f"must be at least 1, got {getattr(self, name)}", owner="PPOConfig")
-        if self.total_steps < self.n_envs * self.n_steps:
-            raise ConfigError(
-                "total_steps",
-                f"{self.total_steps} is less than one rollout ({self.n_envs} envs × {self.n_steps} steps)",
-                owner="PPOConfig",
-            )
-        if not 0 < self.learning_rate < 1e30:  # NaN fails too; from ~1e37 Adam's step overflows float32
-            raise ConfigError(
-                "learning_rate", f"must be a positive number below 1e30, got {self.learning_rate}", owner="PPOConfig"
-            )
-        if not 1 <= self.frame_stack <= 64:
-            raise ConfigError("frame_stack", f"must be in [1, 64], got {self.frame_stack}", owner="PPOConfig")
-        if self.pixels is not None:
-            try:
-                PixelRecipe.from_json(self.pixels)
-            except ValueError as error:
-                raise ConfigError("pixels", str(error), owner="PPOConfig") from None
-
-    @property
-    def recipe(self) -> PixelRecipe | None:
-        """How the env's frames are rendered, None when it is observed as it is."""
-        return PixelRecipe.from_json(self.pixels) if self.pixels is not None else None
-
-    @staticmethod
-    def from_json(data: dict[str, Any]) -> PPOConfig:
-        known = {f.name for f in fields(PPOConfig)}
-        return PPOConfig(**{key: value for key, value in data.items() if key in known})
-
 
 # ------------------------------------------------------------------------------------------------
 # The formulas, as pure functions (tested against values worked by hand).
