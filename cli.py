@@ -33,19 +33,12 @@ def _print_json(data: dict[str, Any] | list[dict[str, Any]]) -> None:
 def cmd_record(args: argparse.Namespace) -> int:
     from imitation.envs.pixels import PixelRecipe
     from imitation.jobs.record import record_job
+    from imitation.jobs.record_config import RecordConfig
 
     result = record_job(
-        args.env,
-        args.expert,
+        RecordConfig(**given(args, RecordConfig)),
         args.out,
-        episodes=args.episodes,
-        seed=args.seed,
-        compression=args.compression,
         pixels=PixelRecipe.parse(args.pixels, grayscale=args.grayscale, crop=args.crop) if args.pixels else None,
-        frame_stack=args.frame_stack,
-        image_codec=args.image_codec,
-        action_noise=args.action_noise,
-        noise_bias=args.noise_bias,
         speed=args.speed,
         progress=not args.quiet,
     )
@@ -598,14 +591,6 @@ def _run_train(argv: list[str]) -> None:
 # line's vocabulary meets the learners'. `_fields` builds configs from it, and a ConfigError that
 # names a field is reported with the flag the user typed.
 FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
-    "record": {
-        "record": {
-            "episodes": "--episodes",
-            "frame_stack": "--frame-stack",
-            "action_noise": "--action-noise",
-            "noise_bias": "--noise-bias",
-        }
-    },
     "train irl": {
         "MaxEntIRLConfig": {
             "method": "--method",
@@ -792,6 +777,7 @@ def build_parser() -> argparse.ArgumentParser:
     from imitation.algorithms.dagger_config import DAggerConfig
     from imitation.algorithms.policy_gradient_config import PGConfig
     from imitation.algorithms.ppo_config import PPOConfig
+    from imitation.jobs.record_config import RecordConfig
 
     parser = argparse.ArgumentParser(
         prog="imitation",
@@ -815,59 +801,10 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run an expert in a gymnasium environment and write each finished episode to an MCAP "
         "demo file as it ends (while recording the file is named F.mcap.partial; Ctrl-C keeps the finished episodes).",
     )
-    record.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id, e.g. CartPole-v1")
-    record.add_argument(
-        "--expert",
-        default="scripted",
-        metavar="SPEC",
-        help=(
-            "scripted (hand-written controller), random, keyboard (you play, discrete actions), a run directory with a "
-            "policy, or sb3:ZIP (a stable-baselines3 policy, read without unpickling) (default: scripted)"
-        ),
-    )
-    record.add_argument("--episodes", type=int, default=10, metavar="N", help="number of episodes (default: 10)")
-    record.add_argument(
-        "--seed", type=flags.seed, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)"
-    )
+    add_flags(record, RecordConfig)
+    record.set_defaults(configs=(RecordConfig,))
     record.add_argument("--out", required=True, metavar="F.mcap", help="output demo file")
-    record.add_argument(
-        "--compression",
-        choices=["lz4", "zstd", "none"],
-        default="lz4",
-        help="chunk compression: lz4 (fast to load), zstd (about 10 %% smaller, for archives) or none (default: lz4)",
-    )
     _add_pixel_arguments(record, "recorded as")
-    record.add_argument(
-        "--frame-stack",
-        type=int,
-        default=1,
-        metavar="K",
-        help="with --pixels: the number of frames learners stack by default; the file holds single frames (default: 1)",
-    )
-    record.add_argument(
-        "--image-codec",
-        choices=["png", "jpeg", "webp", "raw"],
-        default="png",
-        help="how frames are stored: png (lossless), jpeg (lossy, compact), webp (lossy, quality 85: about a third of "
-        "jpeg's bytes at its 95; colour frames only) or raw (lossless, chunk-compressed) (default: png)",
-    )
-    record.add_argument(
-        "--action-noise",
-        type=flags.finite,
-        default=0.0,
-        metavar="P",
-        help="with probability P the env executes a random action while the file stores the expert's (DART): demos of "
-        "the states just off the expert's path, labelled (default: 0)",
-    )
-    record.add_argument(
-        "--noise-bias",
-        type=flags.finite,
-        default=0.0,
-        metavar="B",
-        help="with --action-noise: a noisy step executes the episode's own random action (drawn at reset) with "
-        "probability B, else a uniform one; noise with a mean, so the demos show the expert fighting a steady push "
-        "(the drift a clone's own small bias causes) (default: 0)",
-    )
     _add_speed(record)
     record.add_argument("--json", action="store_true", help="print one JSON object with the results")
     record.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -155,3 +155,13 @@ def test_building_the_command_line_imports_no_heavy_library() -> None:
     probe = f"import sys, cli; cli.build_parser(); print(','.join(m for m in {heavy!r} if m in sys.modules))"
     result = subprocess.run([sys.executable, "-c", probe], cwd=REPO, capture_output=True, text=True, timeout=60, check=True)
     assert result.stdout.strip() == ""
+
+
+def test_records_choices_are_what_the_writer_takes() -> None:
+    """RecordConfig names the writer's compressions and codecs without importing it (mcap, numpy)."""
+    from imitation.data.mcap.format import COMPRESSIONS
+    from imitation.data.mcap.images import CODECS
+    from imitation.jobs.record_config import RecordConfig
+
+    choices = {field.name: field.metadata["imitation.flag"].choices for field in flagged(RecordConfig)}
+    assert set(choices["compression"]) == set(COMPRESSIONS) and set(choices["image_codec"]) == set(CODECS)

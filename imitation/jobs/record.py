@@ -6,36 +6,28 @@ import os
 from pathlib import Path
 from typing import Any
 
-from imitation.data.mcap.format import DEFAULT_COMPRESSION
 from imitation.data.mcap.source import refuse_url
 from imitation.data.mcap.writer import DemoWriter
 from imitation.data.recorder import RecordEpisodes, run_episodes
 from imitation.envs.action_noise import ActionNoise
 from imitation.envs.make import control_period
 from imitation.envs.pixels import PixelObservation, PixelRecipe, expert_on_state
-from imitation.errors import ConfigError, ImitationError
+from imitation.errors import ImitationError
 from imitation.experts.load import close_expert, load_expert, make_env_for_expert
+from imitation.jobs.record_config import RecordConfig
 
 
 def record_job(
-    env_id: str,
-    expert_spec: str,
+    config: RecordConfig,
     out: str | os.PathLike,
     *,
-    episodes: int,
-    seed: int = 0,
-    compression: str = DEFAULT_COMPRESSION,
     pixels: PixelRecipe | None = None,
-    frame_stack: int = 1,
-    image_codec: str = "png",
-    action_noise: float = 0.0,
-    noise_bias: float = 0.0,
     speed: float = 1.0,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Record `episodes` episodes of `expert_spec` in `env_id` (episode i reset with seed
-    `seed + i`) to `out`; their returns. Each episode is durable the moment it ends: Ctrl-C
-    keeps the finished ones (KeyboardInterrupt says how many).
+    """Record `config.episodes` episodes of the expert `config.expert` in `config.env_id` (episode
+    i reset with seed `config.seed + i`) to `out`; their returns. Each episode is durable the
+    moment it ends: Ctrl-C keeps the finished ones (KeyboardInterrupt says how many).
 
     With `pixels` the observations are rendered frames beside the env's own observation
     (`PixelObservation`), which the expert acts on; `frame_stack` is stored as the number of
@@ -51,18 +43,9 @@ def record_job(
     out = Path(out)
     if out.is_dir():
         raise ImitationError(f"--out {out}: is a directory; give a file name such as {out / 'demos.mcap'}")
-    if episodes < 1:
-        raise ConfigError("episodes", f"must be at least 1, got {episodes}", owner="record")
-    if not 1 <= frame_stack <= 64:
-        raise ConfigError("frame_stack", f"must be in [1, 64], got {frame_stack}", owner="record")
-    if not 0.0 <= action_noise <= 1.0:
-        raise ConfigError("action_noise", f"must be a probability in [0, 1], got {action_noise}", owner="record")
-    if not 0.0 <= noise_bias <= 1.0:
-        raise ConfigError("noise_bias", f"must be a probability in [0, 1], got {noise_bias}", owner="record")
-    if noise_bias > 0 and action_noise == 0:
-        raise ConfigError("noise_bias", "biases the action noise: give --action-noise too", owner="record")
-    if frame_stack > 1 and pixels is None:
-        raise ConfigError("frame_stack", "stacks rendered frames: give --pixels too", owner="record")
+    config.validate(pixels is not None)
+    env_id, expert_spec, seed, frame_stack = config.env_id, config.expert, config.seed, config.frame_stack
+    action_noise, noise_bias = config.action_noise, config.noise_bias
     env = make_env_for_expert(env_id, expert_spec, pixels=pixels is not None)
     policy = None
     try:
@@ -93,13 +76,15 @@ def record_job(
             metadata=metadata,
             end_flags={"decided": "env"},  # RecordEpisodes keeps the env's own terminated/truncated
             durable=True,
-            compression=compression,
-            image_codec=image_codec,
+            compression=config.compression,
+            image_codec=config.image_codec,
         )
         try:
             with writer:
                 acted = ActionNoise(env, action_noise, seed=seed, bias=noise_bias) if action_noise > 0 else env
-                returns = run_episodes(RecordEpisodes(acted, writer), policy, episodes=episodes, seed=seed, progress=progress)
+                returns = run_episodes(
+                    RecordEpisodes(acted, writer), policy, episodes=config.episodes, seed=seed, progress=progress
+                )
         except KeyboardInterrupt:
             kept = writer.episodes_written
             raise KeyboardInterrupt(
