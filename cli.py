@@ -482,10 +482,11 @@ def cmd_eval_policy(args: argparse.Namespace) -> int:
 def cmd_eval_reward(args: argparse.Namespace) -> int:
     import torch
 
-    from imitation.jobs.evaluate_reward import RewardEvaluationConfig, evaluate_reward
+    from imitation.jobs.evaluate_reward import evaluate_reward
+    from imitation.jobs.evaluate_reward_config import RewardEvaluationConfig
 
     torch.set_num_threads(1)  # EPIC's many small reward calls: faster on one thread (bench/RESULTS.md)
-    config = RewardEvaluationConfig(**_fields(args, "RewardEvaluationConfig"))
+    config = RewardEvaluationConfig(**given(args, RewardEvaluationConfig))
     out = args.out or str(Path(args.run) / "eval-reward")
     result = evaluate_reward(args.run, args.env, config, out, progress=not args.quiet, workers=_workers(args))
     if args.json:
@@ -628,15 +629,6 @@ FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
         None: {"discount": "--discount"},
     },
     "eval policy": {"eval policy": {"episodes": "--episodes"}},
-    "eval reward": {
-        "RewardEvaluationConfig": {
-            "retrain_steps": "--retrain-steps",
-            "seeds": "--seeds",
-            "demos": "--demos",
-            "jobs": "--jobs",
-            "seed": "--seed",
-        },
-    },
 }
 
 
@@ -777,6 +769,7 @@ def build_parser() -> argparse.ArgumentParser:
     from imitation.algorithms.dagger_config import DAggerConfig
     from imitation.algorithms.policy_gradient_config import PGConfig
     from imitation.algorithms.ppo_config import PPOConfig
+    from imitation.jobs.evaluate_reward_config import RewardEvaluationConfig
     from imitation.jobs.record_config import RecordConfig
 
     parser = argparse.ArgumentParser(
@@ -1202,33 +1195,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     reward.add_argument("run", metavar="RUN_DIR", help="a reward run directory (`train irl`)")
     reward.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
-    reward.add_argument(
-        "--retrain-steps",
-        type=int,
-        metavar="N",
-        help=(
-            "PPO steps per retraining; 0 skips it (default: 600000 for Pendulum-v1, 300000 for fixed-horizon CartPole, else "
-            "200000)"
-        ),
-    )
-    reward.add_argument("--seeds", type=int, default=3, metavar="K", help="retraining seeds per reward (default: 3)")
-    reward.add_argument(
-        "--demos",
-        nargs="+",
-        metavar="F.mcap",
-        help="expert demos for the reference return and EPIC's coverage (default: those the reward was learned from)",
-    )
-    reward.add_argument(
-        "--jobs", type=int, default=2, metavar="J", help="retrainings run side by side in local processes (default: 2)"
-    )
+    add_flags(reward, RewardEvaluationConfig)
+    reward.set_defaults(configs=(RewardEvaluationConfig,))
     _add_workers(reward, "the retrainings as Ray tasks (instead of --jobs local processes)")
-    reward.add_argument(
-        "--seed",
-        type=int,
-        default=0,
-        metavar="S",
-        help="first retraining seed; also seeds the controls and EPIC sampling (default: 0)",
-    )
     reward.add_argument("--out", metavar="DIR", help="where the evaluation goes (default: RUN_DIR/eval-reward)")
     reward.add_argument("--json", action="store_true", help="print one JSON object")
     reward.add_argument("--quiet", action="store_true", help="no progress bar")

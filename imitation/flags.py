@@ -41,6 +41,7 @@ class Flag:
     convert: Callable[[Any], Any] | None = None
     choices: tuple[str, ...] | None = None
     default_text: str | None = None
+    many: bool = False  # one or more values (nargs="+"), e.g. demo files
 
 
 def flag(
@@ -53,10 +54,11 @@ def flag(
     convert: Callable[[Any], Any] | None = None,
     choices: Sequence[str] | None = None,
     default_text: str | None = None,
+    many: bool = False,
     default_factory: Callable[[], Any] | Any = MISSING,
 ) -> Any:
     """A dataclass field that is also a command-line flag."""
-    described = Flag(help, name, metavar, parse, convert, tuple(choices) if choices else None, default_text)
+    described = Flag(help, name, metavar, parse, convert, tuple(choices) if choices else None, default_text, many)
     return dataclasses.field(default=default, default_factory=default_factory, metadata={FLAG: described})
 
 
@@ -94,6 +96,8 @@ def add_flags(parser: argparse.ArgumentParser, config: type, only: Iterable[str]
         required = field.default is MISSING and field.default_factory is MISSING
         help_text = described.help if required else f"{described.help} (default: {_default_text(field, defaults)})"
         kind = _base_type(types[field.name])
+        if described.many:
+            kind = _base_type(typing.get_args(_without_none(types[field.name]))[0])
         if kind is bool:
             parser.add_argument(option, dest=_dest(option), action="store_true", default=None, help=help_text)
             continue
@@ -106,6 +110,7 @@ def add_flags(parser: argparse.ArgumentParser, config: type, only: Iterable[str]
             type=parse,
             choices=described.choices,
             required=required,
+            nargs="+" if described.many else None,
             metavar=described.metavar,
             help=help_text,
         )
@@ -169,10 +174,16 @@ def _dest(option: str) -> str:
 
 def _base_type(annotation: Any) -> Any:
     """`int` for `int | None`, `list` for `list[int]`: the type a flag's text becomes."""
+    annotation = _without_none(annotation)
+    return typing.get_origin(annotation) or annotation
+
+
+def _without_none(annotation: Any) -> Any:
+    """`int` for `int | None`; any other annotation as it is."""
     arguments = [argument for argument in typing.get_args(annotation) if argument is not type(None)]
     if typing.get_origin(annotation) in (typing.Union, _UNION) and len(arguments) == 1:
-        return _base_type(arguments[0])
-    return typing.get_origin(annotation) or annotation
+        return arguments[0]
+    return annotation
 
 
 _UNION = type(int | None)

@@ -11,7 +11,6 @@ import time
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import closing
-from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -28,7 +27,7 @@ from imitation.envs.make import make_env
 from imitation.envs.rollout import collect_transitions
 from imitation.envs.tabular import TabularEnv
 from imitation.envs.true_rewards import true_reward
-from imitation.errors import ConfigError, ImitationError
+from imitation.errors import ImitationError
 from imitation.evaluation.epic import TransitionBatch, coverage_samples
 from imitation.evaluation.policy import EVAL_SEED, reference_returns
 from imitation.evaluation.report import write_report
@@ -41,6 +40,7 @@ from imitation.evaluation.reward import (
     with_controls,
 )
 from imitation.experts.load import load_expert
+from imitation.jobs.evaluate_reward_config import RewardEvaluationConfig
 from imitation.jobs.ppo import ppo_job
 from imitation.jobs.presets import ppo_settings, preset
 from imitation.jobs.run_config import RunConfig, config_json
@@ -51,26 +51,6 @@ from imitation.rewards import RewardNet, read_reward_run
 from imitation.runs import RunWriter, has_checkpoint
 
 ROLLOUT_EPISODES = 4  # per policy, for the coverage batch
-
-
-@dataclass(kw_only=True)
-class RewardEvaluationConfig:
-    retrain_steps: int | None = None  # None: the env's preset; 0: no retraining
-    seeds: int = 3
-    coverage_uniform: int = 2048
-    mean_samples: int = 512
-    seed: int = 0
-    jobs: int = 2  # PPO trainings run side by side, one CPU thread each
-    demos: list[str] | None = None  # None: the demos the reward was learned from
-
-    def validate(self) -> None:
-        for name in ("seeds", "jobs"):
-            if getattr(self, name) < 1:
-                raise ConfigError(name, f"must be at least 1, got {getattr(self, name)}", owner="RewardEvaluationConfig")
-        if self.retrain_steps is not None and self.retrain_steps < 0:
-            raise ConfigError(
-                "retrain_steps", f"must be non-negative, got {self.retrain_steps}", owner="RewardEvaluationConfig"
-            )
 
 
 def evaluate_reward(
