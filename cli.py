@@ -331,11 +331,13 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
         raise ImitationError(f"--workers: --method {args.method} has no PPO rollouts to spread; use it with gcl, airl or gail")
     if args.gail_reward is not None and args.method != "gail":
         raise ImitationError(f"--gail-reward: chooses GAIL's reward, and --method {args.method} is not gail")
-    for name in ("discriminator_steps", "policy_updates", "pool_rollouts", "latest_share", "gradient_penalty"):
-        if getattr(args, name) is not None and args.method not in ("gail", "airl"):
-            flag = FLAGS["train irl"]["AdversarialConfig"][name]
+    from imitation.algorithms.adversarial_config import DISCRIMINATOR_TRAINING, AdversarialConfig
+
+    for name in given(args, AdversarialConfig, only=DISCRIMINATOR_TRAINING):
+        if args.method not in ("gail", "airl"):
             raise ImitationError(
-                f"{flag}: sets the training of GAIL's and AIRL's discriminator, and --method {args.method} has none"
+                f"{flags.flag_of(args.configs, 'AdversarialConfig', name)}: sets the training of GAIL's and AIRL's "
+                f"discriminator, and --method {args.method} has none"
             )
     if args.warm_start is not None and args.method not in ("gail", "airl"):
         raise ImitationError(f"--warm-start: starts GAIL's and AIRL's discriminator, and --method {args.method} has none")
@@ -345,10 +347,10 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
         return _train_adversarial(args)
     if args.method == "apprenticeship":
         return _train_apprenticeship(args)
-    from imitation.algorithms.maxent_irl import MaxEntIRLConfig
+    from imitation.algorithms.maxent_irl_config import MaxEntIRLConfig
     from imitation.jobs.irl import tabular_irl_job
 
-    config = MaxEntIRLConfig(**_fields(args, "MaxEntIRLConfig"))
+    config = MaxEntIRLConfig(method=args.method, **given(args, MaxEntIRLConfig))
     result = tabular_irl_job(args.demos, args.env, config, args.out, progress=not args.quiet, resume=args.resume)
     if args.json:
         _print_json(result)
@@ -365,21 +367,23 @@ def cmd_train_irl(args: argparse.Namespace) -> int:
 def _ppo_beside_irl(args: argparse.Namespace) -> Any:
     """The PPOConfig of `train irl --method gcl|gail|airl`: the env's preset for a policy beside a
     reward being learnt, its IRL length, the flags, and the frames the demos were recorded with."""
+    from imitation.algorithms.ppo_config import PPOConfig
     from imitation.jobs.irl import recorded_observation
     from imitation.jobs.presets import ppo_config, preset
 
-    fields = {"total_steps": preset(args.env).irl_steps} | _fields(args, "PPOConfig") | recorded_observation(args.demos)
+    flagged = given(args, PPOConfig, only=("total_steps", "seed"))
+    fields = {"total_steps": preset(args.env).irl_steps} | flagged | recorded_observation(args.demos)
     return ppo_config(args.env, beside_irl=True, **fields)
 
 
 def _train_gcl(args: argparse.Namespace) -> int:
-    from imitation.algorithms.gcl import GCLConfig
+    from imitation.algorithms.gcl_config import GCLConfig
     from imitation.jobs.irl import gcl_job
 
     result = gcl_job(
         args.demos,
         args.env,
-        GCLConfig(**_fields(args, "GCLConfig")),
+        GCLConfig(**given(args, GCLConfig)),
         _ppo_beside_irl(args),
         args.out,
         progress=not args.quiet,
@@ -399,13 +403,13 @@ def _train_gcl(args: argparse.Namespace) -> int:
 
 
 def _train_adversarial(args: argparse.Namespace) -> int:
-    from imitation.algorithms.adversarial import AdversarialConfig
+    from imitation.algorithms.adversarial_config import AdversarialConfig
     from imitation.jobs.irl import adversarial_job
 
     result = adversarial_job(
         args.demos,
         args.env,
-        AdversarialConfig(**_fields(args, "AdversarialConfig")),
+        AdversarialConfig(method=args.method, **given(args, AdversarialConfig)),
         _ppo_beside_irl(args),
         args.out,
         progress=not args.quiet,
@@ -428,11 +432,11 @@ def _train_adversarial(args: argparse.Namespace) -> int:
 
 
 def _train_apprenticeship(args: argparse.Namespace) -> int:
-    from imitation.algorithms.apprenticeship import ApprenticeshipConfig
+    from imitation.algorithms.apprenticeship_config import ApprenticeshipConfig
     from imitation.jobs.apprenticeship import apprenticeship_job
     from imitation.jobs.presets import ppo_config
 
-    config = ApprenticeshipConfig(**_fields(args, "ApprenticeshipConfig"))
+    config = ApprenticeshipConfig(**given(args, ApprenticeshipConfig))
     # The PPO solver's steps per iteration are ApprenticeshipConfig's, so --steps is not PPOConfig's here.
     solver = ppo_config(args.env, learned_reward=True, seed=config.seed, total_steps=config.solver_steps)
     result = apprenticeship_job(args.demos, args.env, config, solver, args.out, progress=not args.quiet, resume=args.resume)
@@ -451,22 +455,16 @@ def _train_apprenticeship(args: argparse.Namespace) -> int:
 
 def cmd_eval_policy(args: argparse.Namespace) -> int:
     from imitation.jobs.evaluate_policy import eval_policy_job
+    from imitation.jobs.evaluate_policy_config import PolicyEvaluationConfig
 
-    result = eval_policy_job(
-        args.run,
-        args.env,
-        episodes=args.episodes,
-        seed=args.seed,
-        stochastic=args.stochastic,
-        demos=args.demos,
-        video=args.video,
-    )
+    settings = PolicyEvaluationConfig(**given(args, PolicyEvaluationConfig))
+    result = eval_policy_job(args.run, args.env, settings)
     if args.json:
         _print_json(result)
         return 0
     print(
         f"{args.run} on {args.env}: mean return {result['mean_return']:.2f} ± {result['std_return']:.2f} "
-        f"(min {result['min_return']:.2f}, max {result['max_return']:.2f}) over {args.episodes} episodes"
+        f"(min {result['min_return']:.2f}, max {result['max_return']:.2f}) over {settings.episodes} episodes"
     )
     if "normalized_return" in result:
         reference = result["reference"]
@@ -588,54 +586,6 @@ def _run_train(argv: list[str]) -> None:
         raise ImitationError(_flag_message(error, args)) from None
 
 
-# Which flag sets which config field, per command (and config class): the one place the command
-# line's vocabulary meets the learners'. `_fields` builds configs from it, and a ConfigError that
-# names a field is reported with the flag the user typed.
-FLAGS: dict[str, dict[str | None, dict[str, str]]] = {
-    "train irl": {
-        "MaxEntIRLConfig": {
-            "method": "--method",
-            "iterations": "--iterations",
-            "tolerance": "--tolerance",
-            "discount": "--discount",
-            "learning_rate": "--lr",
-            "hidden_sizes": "--hidden",
-            "seed": "--seed",
-        },
-        "GCLConfig": {"learning_rate": "--lr", "hidden_sizes": "--hidden", "inputs": "--reward-inputs", "seed": "--seed"},
-        "AdversarialConfig": {
-            "method": "--method",
-            "learning_rate": "--lr",
-            "hidden_sizes": "--hidden",
-            "inputs": "--reward-inputs",
-            "discriminator_steps": "--discriminator-steps",
-            "policy_updates": "--policy-updates",
-            "pool_rollouts": "--pool-rollouts",
-            "latest_share": "--latest-share",
-            "gradient_penalty": "--gradient-penalty",
-            "gail_reward": "--gail-reward",
-            "seed": "--seed",
-        },
-        "PPOConfig": {"total_steps": "--steps", "seed": "--seed"},
-        "ApprenticeshipConfig": {
-            "iterations": "--iterations",
-            "tolerance": "--tolerance",
-            "discount": "--discount",
-            "solver_steps": "--steps",
-            "episodes": "--episodes",
-            "seed": "--seed",
-        },
-        # The tabular planner's own check of the discount.
-        None: {"discount": "--discount"},
-    },
-    "eval policy": {"eval policy": {"episodes": "--episodes"}},
-}
-
-
-def _dest(flag: str) -> str:
-    return flag.lstrip("-").replace("-", "_")
-
-
 def _add_pixel_arguments(parser: argparse.ArgumentParser, what: str) -> None:
     parser.add_argument(
         "--pixels",
@@ -652,20 +602,12 @@ def _add_pixel_arguments(parser: argparse.ArgumentParser, what: str) -> None:
     )
 
 
-def _fields(args: argparse.Namespace, owner: str) -> dict[str, Any]:
-    """The fields of config class `owner` that this command's flags set.
-
-    Flags not given (None) are left to the config's default.
-    """
-    flags = FLAGS[args.command_key].get(owner, {})
-    return {field: value for field, flag in flags.items() if (value := getattr(args, _dest(flag))) is not None}
-
-
 def _flag_message(error: ConfigError, args: argparse.Namespace) -> str:
-    """A config error in the command line's words: the field named by the flag that sets it."""
-    flag = FLAGS.get(args.command_key, {}).get(error.owner, {}).get(error.field)
-    if flag is None:
-        flag = flags.flag_of(getattr(args, "configs", ()), error.owner, error.field)
+    """A config error in the command line's words: the field named by the flag that sets it, a
+    config flag or the command's own option of the field's name (`train irl --method`)."""
+    flag = flags.flag_of(getattr(args, flags.SOURCES, ()), error.owner, error.field)
+    if flag is None and error.field in vars(args):
+        flag = "--" + error.field.replace("_", "-")
     return error.renamed(flag) if flag is not None else str(error)
 
 
@@ -758,17 +700,21 @@ def _add_search_parsers(algorithms: Any) -> None:
             "result.",
         )
         add_flags(search, SearchConfig)
-        search.set_defaults(configs=(SearchConfig,))
         _add_run_output(search)
         _add_resume(search)
         search.set_defaults(handler=cmd_train_search)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from imitation.algorithms.adversarial_config import AdversarialConfig
+    from imitation.algorithms.apprenticeship_config import ApprenticeshipConfig
     from imitation.algorithms.bc_config import BCConfig
     from imitation.algorithms.dagger_config import DAggerConfig
+    from imitation.algorithms.gcl_config import GCLConfig
+    from imitation.algorithms.maxent_irl_config import MaxEntIRLConfig
     from imitation.algorithms.policy_gradient_config import PGConfig
     from imitation.algorithms.ppo_config import PPOConfig
+    from imitation.jobs.evaluate_policy_config import PolicyEvaluationConfig
     from imitation.jobs.evaluate_reward_config import RewardEvaluationConfig
     from imitation.jobs.record_config import RecordConfig
 
@@ -795,7 +741,6 @@ def build_parser() -> argparse.ArgumentParser:
         "demo file as it ends (while recording the file is named F.mcap.partial; Ctrl-C keeps the finished episodes).",
     )
     add_flags(record, RecordConfig)
-    record.set_defaults(configs=(RecordConfig,))
     record.add_argument("--out", required=True, metavar="F.mcap", help="output demo file")
     _add_pixel_arguments(record, "recorded as")
     _add_speed(record)
@@ -948,7 +893,6 @@ def build_parser() -> argparse.ArgumentParser:
         "make flags optional. A reward learnt on pixels brings its --pixels, --grayscale, --crop and --frame-stack.",
     )
     add_flags(ppo, PPOConfig)
-    ppo.set_defaults(configs=(PPOConfig,))
     ppo.add_argument(
         "--reward",
         metavar="RUN_DIR",
@@ -976,7 +920,6 @@ def build_parser() -> argparse.ArgumentParser:
         "discrete actions, Gaussian for continuous ones. Per-environment defaults make the other flags optional.",
     )
     add_flags(pg, PGConfig)
-    pg.set_defaults(configs=(PGConfig,))
     _add_run_output(pg)
     _add_resume(pg)
     pg.set_defaults(handler=cmd_train_pg)
@@ -998,7 +941,6 @@ def build_parser() -> argparse.ArgumentParser:
         "offline on the demos' own spaces and reports the validation loss only",
     )
     add_flags(bc, BCConfig)
-    bc.set_defaults(configs=(BCConfig,))
     _add_run_output(bc)
     _add_resume(bc)
     bc.set_defaults(handler=cmd_train_bc)
@@ -1032,7 +974,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add_pixel_arguments(dagger, "the learner sees")
     add_flags(dagger, DAggerConfig)
-    dagger.set_defaults(configs=(DAggerConfig,))
     _add_workers(dagger, "each round's episodes, each worker writing its own shard of the round")
     _add_run_output(dagger)
     _add_resume(dagger)
@@ -1059,75 +1000,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     irl.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
     irl.add_argument("--demos", required=True, nargs="+", metavar="F.mcap", help="expert demo files of that env")
-    irl.add_argument(
-        "--iterations",
-        type=int,
-        metavar="N",
-        help="maxent/mce: most gradient steps (default: 2000); apprenticeship: most projection iterations (default: 20)",
+    from imitation.algorithms import adversarial_config, apprenticeship_config, gcl_config, maxent_irl_config
+
+    add_flags(irl, MaxEntIRLConfig, label=maxent_irl_config.LABEL)
+    add_flags(irl, GCLConfig, label=gcl_config.LABEL)
+    add_flags(irl, AdversarialConfig, label=adversarial_config.LABEL)
+    add_flags(
+        irl,
+        PPOConfig,
+        only=("total_steps",),
+        label="gcl/airl/gail",
+        default_texts={"total_steps": "the env's preset, 200000 where none"},
     )
-    irl.add_argument(
-        "--tolerance",
-        type=flags.finite,
-        metavar="E",
-        help="maxent/mce: stop when the visitation error (L∞) is below E (default: 1e-4); apprenticeship: stop when "
-        "‖μ_E - μ̄‖₂ ≤ E·‖μ_E‖₂ (default: 0.01)",
-    )
-    irl.add_argument(
-        "--discount",
-        type=flags.finite,
-        default=1.0,
-        metavar="G",
-        help="maxent/mce/apprenticeship: discount γ of the visitation counts and feature expectations (default: 1)",
-    )
-    irl.add_argument(
-        "--lr",
-        type=flags.finite,
-        metavar="LR",
-        help="Adam learning rate of the reward or discriminator (default: 0.05 tabular, 3e-4 gcl/airl/gail)",
-    )
-    irl.add_argument(
-        "--hidden",
-        type=flags.hidden_sizes,
-        metavar="32,32",
-        help="reward MLP widths, or 'linear' (default: linear tabular, 64,64 gcl/airl/gail)",
-    )
-    irl.add_argument(
-        "--reward-inputs",
-        choices=["s", "sa", "sas"],
-        help="gcl/airl/gail: what the reward reads, the state s, its action a and next state s' (default: s; sa for "
-        "gail's discriminator)",
-    )
-    irl.add_argument(
-        "--discriminator-steps",
-        type=int,
-        metavar="N",
-        help="airl/gail: discriminator minibatch steps per round (default: 8)",
-    )
-    irl.add_argument(
-        "--policy-updates",
-        type=int,
-        metavar="N",
-        help="airl/gail: PPO updates per round, between the discriminator's steps (default: 1)",
-    )
-    irl.add_argument(
-        "--pool-rollouts",
-        type=int,
-        metavar="N",
-        help="airl/gail: the discriminator's negatives are the policy's last N rollouts (default: 1, the latest)",
-    )
-    irl.add_argument(
-        "--latest-share",
-        type=flags.finite,
-        metavar="RHO",
-        help="airl/gail: the share of the discriminator's negatives drawn from the latest rollout, the rest from the "
-        "whole pool of --pool-rollouts (default: 0)",
-    )
-    irl.add_argument(
-        "--gradient-penalty",
-        type=flags.finite,
-        metavar="L",
-        help="airl/gail: weight of E‖∇_x logit D‖² over the discriminator's inputs (default: 0)",
-    )
+    add_flags(irl, ApprenticeshipConfig, label=apprenticeship_config.LABEL)
     irl.add_argument(
         "--warm-start",
         metavar="RUN_DIR",
@@ -1135,26 +1020,6 @@ def build_parser() -> argparse.ArgumentParser:
         "and networks, the policy from scratch: its negatives then include the states a fresh policy passes through "
         "on that reward (default: a fresh discriminator)",
     )
-    irl.add_argument(
-        "--gail-reward",
-        choices=["softplus", "logit"],
-        help="gail: the reward PPO optimises, softplus −log(1 − D) (Ho & Ermon) or logit log D − log(1 − D), which does not "
-        "flatten where the discriminator wins (default: softplus)",
-    )
-    irl.add_argument(
-        "--steps",
-        type=int,
-        metavar="N",
-        help="gcl/airl/gail: PPO environment steps in total (default: the env's preset, 200000 where none); apprenticeship on "
-        "Box observations: PPO steps per iteration (default: 100000)",
-    )
-    irl.add_argument(
-        "--episodes",
-        type=int,
-        metavar="N",
-        help="apprenticeship on Box observations: episodes that estimate each policy's feature expectations (default: 10)",
-    )
-    irl.add_argument("--seed", type=flags.seed, default=0, metavar="S", help="seed (default: 0)")
     _add_workers(irl, "PPO's rollouts (gcl, airl, gail)")
     _add_run_output(irl)
     _add_resume(irl)
@@ -1169,18 +1034,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     policy.add_argument("run", metavar="RUN_DIR", help="a PPO, BC or DAgger run directory")
     policy.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
-    policy.add_argument("--episodes", type=int, default=10, metavar="N", help="episodes (default: 10)")
-    policy.add_argument(
-        "--seed", type=flags.seed, default=0, metavar="S", help="episode i is reset with seed S+i (default: 0)"
-    )
-    policy.add_argument("--stochastic", action="store_true", help="sample actions instead of taking the most likely one")
-    policy.add_argument(
-        "--demos",
-        nargs="+",
-        metavar="F.mcap",
-        help="demos whose mean return is the normalised score's 1 (default: those the run learnt from)",
-    )
-    policy.add_argument("--video", metavar="FILE.mp4|.gif", help="also write episode 0 (seed S) as a video")
+    add_flags(policy, PolicyEvaluationConfig)
     policy.add_argument("--json", action="store_true", help="print one JSON object")
     policy.set_defaults(handler=cmd_eval_policy)
 
@@ -1196,7 +1050,6 @@ def build_parser() -> argparse.ArgumentParser:
     reward.add_argument("run", metavar="RUN_DIR", help="a reward run directory (`train irl`)")
     reward.add_argument("--env", required=True, metavar="ID", help="gymnasium environment id")
     add_flags(reward, RewardEvaluationConfig)
-    reward.set_defaults(configs=(RewardEvaluationConfig,))
     _add_workers(reward, "the retrainings as Ray tasks (instead of --jobs local processes)")
     reward.add_argument("--out", metavar="DIR", help="where the evaluation goes (default: RUN_DIR/eval-reward)")
     reward.add_argument("--json", action="store_true", help="print one JSON object")

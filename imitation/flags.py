@@ -17,7 +17,7 @@ import argparse
 import dataclasses
 import math
 import typing
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import MISSING, Field
 from typing import Any
 
@@ -78,42 +78,93 @@ def flagged(config: type) -> list[Field]:
     return [field for field in dataclasses.fields(config) if FLAG in field.metadata]
 
 
-def add_flags(parser: argparse.ArgumentParser, config: type, only: Iterable[str] | None = None, defaults: Any = None) -> None:
-    """Add the flags of `config` (those of the fields named in `only`, if given) to `parser`, with
-    the help naming the defaults of the instance `defaults` (else the fields' own), and those of
-    its nested configs. A flag the parser already has (a seed shared by two configs of one
-    command) is not added again: it sets both fields."""
+Source = tuple[type, tuple[str, ...] | None]  # a config and the names of its fields that are flags (None: all)
+SOURCES = "configs"  # the parser default that records the sources of a command's flags
+
+
+def add_flags(
+    parser: argparse.ArgumentParser,
+    config: type,
+    only: Iterable[str] | None = None,
+    *,
+    label: str | None = None,
+    default_texts: Mapping[str, str] | None = None,
+) -> None:
+    """Add the flags of `config` (those of the fields named in `only`, if given) and of its nested
+    configs to `parser`, and record `config` among the parser's sources (its `configs` default,
+    which `flag_of` reads). `label` names the variants of a command the flags are for (`train
+    irl`'s methods): the help then says, per label, what the flag does there, and `default_texts`
+    how the help names a field's default where the command's is not the config's. A flag the
+    parser already has (a seed shared by two configs of one command) is not added again: it
+    sets both fields."""
+    chosen = None if only is None else tuple(only)
+    parser.set_defaults(**{SOURCES: (*(parser.get_default(SOURCES) or ()), (config, chosen))})
+    _add(parser, config, chosen, None, label, default_texts or {})
+
+
+def _add(
+    parser: argparse.ArgumentParser,
+    config: type,
+    only: Iterable[str] | None,
+    defaults: Any,
+    label: str | None,
+    default_texts: Mapping[str, str],
+) -> None:
+    """The flags of `config` (help naming the defaults of the instance `defaults`, else the
+    fields' own) and of its nested configs."""
     types = typing.get_type_hints(config)
     for field in _chosen(config, only):
         if NESTED in field.metadata:
             inner = getattr(defaults, field.name) if defaults is not None else _field_default(field)
-            add_flags(parser, type(inner), field.metadata[NESTED], inner)
+            _add(parser, type(inner), field.metadata[NESTED], inner, label, default_texts)
             continue
         option = flag_name(field)
-        if option in parser._option_string_actions:
-            continue
         described: Flag = field.metadata[FLAG]
         required = field.default is MISSING and field.default_factory is MISSING
-        help_text = described.help if required else f"{described.help} (default: {_default_text(field, defaults)})"
+        default = default_texts.get(field.name) or (None if required else _default_text(field, defaults))
+        text = described.help if default is None else f"{described.help} (default: {default})"
+        if option in parser._option_string_actions:
+            if label is not None:
+                _describe(parser._option_string_actions[option], label, text)
+            continue
         kind = _base_type(types[field.name])
         if described.many:
             kind = _base_type(typing.get_args(_without_none(types[field.name]))[0])
         if kind is bool:
-            parser.add_argument(option, dest=_dest(option), action="store_true", default=None, help=help_text)
-            continue
-        parse = described.parse or _PARSERS.get(kind)
-        if parse is None:
-            raise TypeError(f"{config.__name__}.{field.name}: a flag of type {types[field.name]} needs parse=")
-        parser.add_argument(
-            option,
-            dest=_dest(option),
-            type=parse,
-            choices=described.choices,
-            required=required,
-            nargs="+" if described.many else None,
-            metavar=described.metavar,
-            help=help_text,
-        )
+            action = parser.add_argument(option, dest=_dest(option), action="store_true", default=None, help=text)
+        else:
+            parse = described.parse or _PARSERS.get(kind)
+            if parse is None:
+                raise TypeError(f"{config.__name__}.{field.name}: a flag of type {types[field.name]} needs parse=")
+            action = parser.add_argument(
+                option,
+                dest=_dest(option),
+                type=parse,
+                choices=described.choices,
+                required=required,
+                nargs="+" if described.many else None,
+                metavar=described.metavar,
+                help=text,
+            )
+        if label is not None:
+            _describe(action, label, text)
+
+
+def _describe(action: argparse.Action, label: str, text: str) -> None:
+    """Add what the flag does for the variants `label` to its help: `labels: text; …`, the labels
+    of the same text joined."""
+    parts: list[list[str]] = getattr(action, _PARTS, [])
+    for part in parts:
+        if part[1] == text:
+            part[0] += "/" + label
+            break
+    else:
+        parts.append([label, text])
+    setattr(action, _PARTS, parts)
+    action.help = "; ".join(f"{labels}: {said}" for labels, said in parts)
+
+
+_PARTS = "imitation_help_parts"
 
 
 def given(args: argparse.Namespace, config: type, only: Iterable[str] | None = None) -> dict[str, Any]:
@@ -132,10 +183,11 @@ def given(args: argparse.Namespace, config: type, only: Iterable[str] | None = N
     return values
 
 
-def flag_of(configs: Iterable[type], owner: str | None, field_name: str) -> str | None:
-    """The flag that sets field `field_name` of the config class named `owner` among `configs`
-    and the configs nested in them (owner None: of any of them), or None when no flag sets it."""
-    for config, only in _with_nested(configs):
+def flag_of(sources: Iterable[Source], owner: str | None, field_name: str) -> str | None:
+    """The flag that sets field `field_name` of the config class named `owner` among the
+    `sources` a parser recorded and the configs nested in them (owner None: of any of them),
+    or None when no flag sets it."""
+    for config, only in _with_nested(sources):
         if owner is not None and config.__name__ != owner:
             continue
         for field in _chosen(config, only):
@@ -154,11 +206,10 @@ def _chosen(config: type, only: Iterable[str] | None) -> list[Field]:
     ]
 
 
-def _with_nested(configs: Iterable[type]) -> list[tuple[type, tuple[str, ...] | None]]:
-    """(config, the names of its fields that are flags, None for all) for `configs` and every
-    config nested in them."""
-    found: list[tuple[type, tuple[str, ...] | None]] = []
-    pending: list[tuple[type, tuple[str, ...] | None]] = [(config, None) for config in configs]
+def _with_nested(sources: Iterable[Source]) -> list[Source]:
+    """The `sources` and every config nested in them, with the names of their fields that are flags."""
+    found: list[Source] = []
+    pending: list[Source] = list(sources)
     while pending:
         config, only = pending.pop(0)
         found.append((config, only))

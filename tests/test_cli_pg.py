@@ -70,6 +70,7 @@ def test_a_linear_gaussian_run_saves_a_policy_eval_policy_loads(tmp_path) -> Non
     """The job on Pendulum with a linear Gaussian policy (the preset's normalisers on), then
     `eval policy`'s own function on the run directory."""
     from imitation.jobs.evaluate_policy import eval_policy_job
+    from imitation.jobs.evaluate_policy_config import PolicyEvaluationConfig
     from imitation.jobs.pg import pg_config, pg_job
 
     config = pg_config("Pendulum-v1", estimator="reward-to-go", total_steps=400, batch_steps=200, n_envs=1, hidden_sizes=[])
@@ -78,7 +79,7 @@ def test_a_linear_gaussian_run_saves_a_policy_eval_policy_loads(tmp_path) -> Non
     assert result["steps"] == 400 and result["batches"] == 2
     saved = json.loads((tmp_path / "pendulum" / "config.json").read_text())["policy"]
     assert saved["hidden_sizes"] == [] and saved["normalize_observations"] is True
-    evaluation = eval_policy_job(str(tmp_path / "pendulum"), "Pendulum-v1", episodes=1)
+    evaluation = eval_policy_job(str(tmp_path / "pendulum"), "Pendulum-v1", PolicyEvaluationConfig(episodes=1))
     assert evaluation["episodes"] == 1 and -2000 < evaluation["mean_return"] < 0
 
 
@@ -127,10 +128,11 @@ def test_a_rollout_run_is_a_run_eval_policy_reads(tmp_path) -> None:
     """Pendulum's actor-critic preset (8 copies × 2-step rollouts) for 160 steps: ten batches of
     exactly 16 steps, and a run directory `eval policy` loads."""
     from imitation.jobs.evaluate_policy import eval_policy_job
+    from imitation.jobs.evaluate_policy_config import PolicyEvaluationConfig
     from imitation.jobs.pg import pg_config, pg_job
 
     config = pg_config("Pendulum-v1", estimator="actor-critic", total_steps=160, hidden_sizes=[8])
     result = pg_job(config, tmp_path / "a2c", progress=False)
     assert result["steps"] == 160 and result["batches"] == 10
     assert json.loads((tmp_path / "a2c" / "config.json").read_text())["pg"]["rollout_steps"] == 2
-    assert eval_policy_job(str(tmp_path / "a2c"), "Pendulum-v1", episodes=1)["episodes"] == 1
+    assert eval_policy_job(str(tmp_path / "a2c"), "Pendulum-v1", PolicyEvaluationConfig(episodes=1))["episodes"] == 1

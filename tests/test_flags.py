@@ -41,18 +41,24 @@ def config_flags(config: type, only: tuple[str, ...] | None = None) -> dict[str,
 CONFIGURED = {name: parser for name, parser in commands(cli.build_parser()).items() if parser.get_default("configs")}
 
 
-def test_the_train_commands_take_their_flags_from_their_configs() -> None:
-    assert {"train bc", "train dagger", "train pg", "train hill-climb", "train cem", "train cmaes"} <= set(CONFIGURED)
+def test_the_commands_with_settings_take_their_flags_from_their_configs() -> None:
+    assert set(CONFIGURED) == {
+        "record", "train bc", "train dagger", "train ppo", "train pg", "train hill-climb", "train cem", "train cmaes",
+        "train irl", "eval policy", "eval reward",
+    }
 
 
 @pytest.mark.parametrize("name", sorted(CONFIGURED))
 def test_each_config_field_has_one_flag_and_each_flag_one_field(name: str) -> None:
+    """Within each config a command takes flags from; across them a flag may set fields of one
+    name (a seed) or, in `train irl`, the field its method's config calls it (--steps: the PPO
+    steps of gcl/airl/gail, the solver steps per iteration of apprenticeship)."""
     parser = CONFIGURED[name]
     options = {option: action for action in parser._actions for option in action.option_strings}
-    for config in parser.get_default("configs"):
-        for option, fields in config_flags(config).items():
+    for config, only in parser.get_default("configs"):
+        for option, fields in config_flags(config, only).items():
             assert option in options, f"{name}: {config.__name__}'s {sorted(fields)} has no flag {option}"
-            assert len(fields) == 1, f"{name}: {option} sets {sorted(fields)}"
+            assert len(fields) == 1, f"{name}: {option} sets {sorted(fields)} of {config.__name__}"
             assert options[option].dest == option[2:].replace("-", "_") and parser.get_default(options[option].dest) is None
 
 
@@ -114,10 +120,12 @@ def test_bad_flag_text_and_a_missing_required_flag_are_usage_errors(argv: list[s
 
 
 def test_a_config_error_is_reported_with_the_flag_that_sets_the_field() -> None:
-    assert flag_of([Toy], "Toy", "rate") == "--lr"
-    assert flag_of([Toy], "Inner", "width") == "--width"
-    assert flag_of([Toy], "Inner", "depth") is None  # nested, but not one of the command's flags
-    assert flag_of([Toy], None, "layers") == "--layers" and flag_of([Toy], "Other", "rate") is None
+    sources = toy_parser().get_default("configs")
+    assert sources == ((Toy, None),)
+    assert flag_of(sources, "Toy", "rate") == "--lr"
+    assert flag_of(sources, "Inner", "width") == "--width"
+    assert flag_of(sources, "Inner", "depth") is None  # nested, but not one of the command's flags
+    assert flag_of(sources, None, "layers") == "--layers" and flag_of(sources, "Other", "rate") is None
 
 
 def test_a_field_whose_type_says_no_parser_needs_one() -> None:
@@ -165,3 +173,27 @@ def test_records_choices_are_what_the_writer_takes() -> None:
 
     choices = {field.name: field.metadata["imitation.flag"].choices for field in flagged(RecordConfig)}
     assert set(choices["compression"]) == set(COMPRESSIONS) and set(choices["image_codec"]) == set(CODECS)
+
+
+def test_a_flag_several_variants_share_says_what_it_does_in_each() -> None:
+    """`train irl`'s methods: one flag, its help per method, methods of the same text joined."""
+
+    @dataclass
+    class First:
+        steps: int = flag(5, help="gradient steps")
+        seed: int = flag(0, help="seed")
+
+    @dataclass
+    class Second:
+        total: int = flag(9, name="--steps", help="environment steps")
+        seed: int = flag(0, help="seed")
+
+    parser = argparse.ArgumentParser()
+    add_flags(parser, First, label="a/b")
+    add_flags(parser, Second, label="c", default_texts={"total": "per env"})
+    helps = {option: action.help for action in parser._actions for option in action.option_strings}
+    assert helps["--steps"] == "a/b: gradient steps (default: 5); c: environment steps (default: per env)"
+    assert helps["--seed"] == "a/b/c: seed (default: 0)"
+    assert parser.get_default("configs") == ((First, None), (Second, None))
+    args = parser.parse_args(["--steps", "7"])
+    assert given(args, First) == {"steps": 7} and given(args, Second) == {"total": 7}

@@ -26,13 +26,14 @@ so an interrupted run resumes exactly.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
 import torch
 from torch import nn
 
+from imitation.algorithms.adversarial_config import AdversarialConfig
 from imitation.algorithms.gcl import BesidePPO, env_action_log_probs
 from imitation.algorithms.ppo import PPO
 from imitation.checkpoints import (
@@ -46,64 +47,9 @@ from imitation.checkpoints import (
 )
 from imitation.data.loader import TensorTree, TransitionTensors, tree_cat
 from imitation.envs.rollout import Rollout
-from imitation.errors import ConfigError, ImitationError
+from imitation.errors import ImitationError
 from imitation.policies import ActorCritic
-from imitation.rewards import REWARD_INPUTS, RewardNet, flat_batch, tree_index
-
-METHODS = ("gail", "airl")
-GAIL_REWARDS = ("softplus", "logit")
-
-
-@dataclass(kw_only=True)
-class AdversarialConfig:
-    method: str = "gail"
-    # The discriminator's inputs (GAIL) or the recovered reward g's (AIRL): None for the method's
-    # own, "sa" for GAIL and "s" for AIRL (a reward of the state alone is what transfers).
-    inputs: str | None = None
-    hidden_sizes: list[int] = field(default_factory=lambda: [64, 64])
-    # AIRL's shaping potential h(s).
-    potential_hidden_sizes: list[int] = field(default_factory=lambda: [64, 64])
-    learning_rate: float = 3e-4
-    batch_size: int = 256
-    discriminator_steps: int = 8
-    policy_updates: int = 1
-    pool_rollouts: int = 1
-    # ρ: the share of each minibatch's policy steps drawn from the latest rollout, the rest from the pool.
-    latest_share: float = 0.0
-    gradient_penalty: float = 0.0
-    # GAIL: PPO's reward, "softplus" −log(1 − D) or "logit" log D − log(1 − D) (`imitation.algorithms.gail`).
-    gail_reward: str = "softplus"
-    # AIRL: α of PPO's reward f − α log π(a|s); 1 makes it log D − log(1 − D) exactly.
-    policy_entropy: float = 1.0
-    seed: int = 0
-
-    def validate(self) -> None:
-        if self.method not in METHODS:
-            raise ConfigError("method", f"must be one of {', '.join(METHODS)}, got {self.method!r}", owner="AdversarialConfig")
-        if self.inputs is not None and self.inputs not in REWARD_INPUTS:
-            raise ConfigError(
-                "inputs", f"must be one of {', '.join(REWARD_INPUTS)}, got {self.inputs!r}", owner="AdversarialConfig"
-            )
-        if self.gail_reward not in GAIL_REWARDS:
-            raise ConfigError(
-                "gail_reward", f"must be one of {', '.join(GAIL_REWARDS)}, got {self.gail_reward!r}", owner="AdversarialConfig"
-            )
-        for name in ("batch_size", "discriminator_steps", "policy_updates", "pool_rollouts"):
-            if getattr(self, name) < 1:
-                raise ConfigError(name, f"must be at least 1, got {getattr(self, name)}", owner="AdversarialConfig")
-        if not 0 < self.learning_rate < 1e30:  # NaN fails too; from ~1e37 Adam's step overflows float32
-            raise ConfigError(
-                "learning_rate", f"must be a positive number below 1e30, got {self.learning_rate}", owner="AdversarialConfig"
-            )
-        if not 0 <= self.latest_share <= 1:
-            raise ConfigError("latest_share", f"must be in [0, 1], got {self.latest_share}", owner="AdversarialConfig")
-        for name in ("gradient_penalty", "policy_entropy"):
-            if not 0 <= getattr(self, name) < float("inf"):
-                raise ConfigError(name, f"must be a finite number ≥ 0, got {getattr(self, name)}", owner="AdversarialConfig")
-
-    @property
-    def reward_inputs(self) -> str:
-        return self.inputs or ("sa" if self.method == "gail" else "s")
+from imitation.rewards import RewardNet, flat_batch, tree_index
 
 
 @dataclass

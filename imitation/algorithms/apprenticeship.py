@@ -46,13 +46,14 @@ Each step of `Apprenticeship` is one iteration i (the first also evaluates π^(0
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
 import torch
 
+from imitation.algorithms.apprenticeship_config import ApprenticeshipConfig
 from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.checkpoints import (
     CheckpointData,
@@ -65,36 +66,11 @@ from imitation.checkpoints import (
 )
 from imitation.envs.tabular import TabularMDP
 from imitation.envs.tabular_planning import Dynamics, check_horizon, state_visitation
-from imitation.errors import ConfigError
 from imitation.policies import ActorCritic, PolicyConfig, SingleObservationPolicy
 from imitation.rewards import RewardNet, make_reward_model
 from imitation.seeding import seed_everything
 
 _FIXED_POINT_TOLERANCE = 1e-10
-
-
-@dataclass(kw_only=True)
-class ApprenticeshipConfig:
-    iterations: int = 20
-    tolerance: float = 0.01  # relative: stop when ‖μ_E - μ̄‖₂ ≤ tolerance · ‖μ_E‖₂
-    discount: float = 1.0
-    solver_steps: int = 100_000  # Box observations: PPO steps per iteration
-    episodes: int = 10  # Box observations: episodes that estimate each μ(π^(i))
-    seed: int = 0
-
-    def validate(self) -> None:
-        if self.iterations < 1:
-            raise ConfigError("iterations", f"must be at least 1, got {self.iterations}", owner="ApprenticeshipConfig")
-        if not 0.0 <= self.tolerance < 1.0:
-            raise ConfigError(
-                "tolerance", f"must be in [0, 1) (a fraction of ‖μ_E‖), got {self.tolerance}", owner="ApprenticeshipConfig"
-            )
-        if self.episodes < 1:
-            raise ConfigError("episodes", f"must be at least 1, got {self.episodes}", owner="ApprenticeshipConfig")
-
-
-# ------------------------------------------------------------------------------------------------
-# The formulas, as pure functions (tested against values worked by hand).
 
 
 def reward_weights(mu_expert: np.ndarray, mu_bar: np.ndarray) -> tuple[np.ndarray, float]:

@@ -61,13 +61,14 @@ and the minibatch generator's position, so an interrupted run resumes exactly.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol, cast
 
 import numpy as np
 import torch
 from torch import nn
 
+from imitation.algorithms.gcl_config import GCLConfig
 from imitation.algorithms.ppo import PPO
 from imitation.checkpoints import (
     CheckpointData,
@@ -81,41 +82,9 @@ from imitation.checkpoints import (
 )
 from imitation.data.loader import TensorTree, TransitionTensors, tree_cat
 from imitation.envs.rollout import Rollout
-from imitation.errors import ConfigError, ImitationError
+from imitation.errors import ImitationError
 from imitation.policies import ActorCritic, PolicyConfig
 from imitation.rewards import RewardNet, flat_batch, tree_index
-
-OBJECTIVES = ("discriminator", "importance")
-
-
-@dataclass(kw_only=True)
-class GCLConfig:
-    hidden_sizes: list[int] = field(default_factory=lambda: [64, 64])
-    inputs: str = "s"
-    learning_rate: float = 3e-4
-    reward_steps: int = 8
-    batch_size: int = 256
-    gradient_penalty: float = 1.0
-    warmup_steps: int = 200
-    objective: str = "discriminator"
-    # α of the reward PPO optimises alongside, r_θ(s) - α log π_k(a|s) (see the module docstring).
-    policy_entropy: float = 1.0
-    anneal_lr: bool = True
-    seed: int = 0
-
-    def validate(self) -> None:
-        if self.objective not in OBJECTIVES:
-            raise ConfigError(
-                "objective", f"must be one of {', '.join(OBJECTIVES)}, got {self.objective!r}", owner="GCLConfig"
-            )
-        if not 0 < self.learning_rate < 1e30:  # NaN fails too; from ~1e37 Adam's step overflows float32
-            raise ConfigError(
-                "learning_rate", f"must be a positive number below 1e30, got {self.learning_rate}", owner="GCLConfig"
-            )
-        if not 0 <= self.policy_entropy < float("inf"):
-            raise ConfigError(
-                "policy_entropy", f"(α) must be a finite number ≥ 0, got {self.policy_entropy}", owner="GCLConfig"
-            )
 
 
 @dataclass

@@ -20,11 +20,11 @@ an iteration is random, so a run resumed from its state ends exactly where it wo
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 
+from imitation.algorithms.maxent_irl_config import MaxEntIRLConfig
 from imitation.checkpoints import (
     CheckpointData,
     TrainingClock,
@@ -37,7 +37,7 @@ from imitation.checkpoints import (
 )
 from imitation.data.types import Episode, Transitions
 from imitation.envs.tabular import TabularMDP
-from imitation.envs.tabular_planning import BACKUPS, Dynamics, check_horizon, soft_value_iteration, state_visitation
+from imitation.envs.tabular_planning import Dynamics, check_horizon, soft_value_iteration, state_visitation
 from imitation.errors import ConfigError, ImitationError
 from imitation.rewards import RewardNet, all_state_rewards
 
@@ -87,29 +87,6 @@ def _check_states(states: np.ndarray, n_states: int, where: str) -> None:
             f"{where}: observation {int(states.max() if states.max() >= n_states else states.min())} is not a state of an "
             f"MDP with {n_states} states"
         )
-
-
-@dataclass(kw_only=True)
-class MaxEntIRLConfig:
-    method: str = "mce"
-    discount: float = 1.0
-    iterations: int = 2000
-    learning_rate: float = 0.05
-    tolerance: float = 1e-4
-    hidden_sizes: list[int] = field(default_factory=list)
-    seed: int = 0
-
-    def validate(self) -> None:
-        if self.method not in BACKUPS:
-            raise ConfigError(
-                "method", f"must be one of {', '.join(BACKUPS)} for tabular IRL, got {self.method!r}", owner="MaxEntIRLConfig"
-            )
-        if self.iterations < 1:
-            raise ConfigError("iterations", f"must be at least 1, got {self.iterations}", owner="MaxEntIRLConfig")
-        if not 0 < self.learning_rate < 1e30:  # NaN fails too; from ~1e37 Adam's step overflows float32
-            raise ConfigError(
-                "learning_rate", f"must be a positive number below 1e30, got {self.learning_rate}", owner="MaxEntIRLConfig"
-            )
 
 
 class MaxEntIRL:

@@ -20,7 +20,7 @@ class PPOConfig:
     """Hyperparameters; per-environment presets are in `imitation.jobs.presets`."""
 
     env_id: str = flag(name="--env", metavar="ID", help="gymnasium environment id")
-    total_steps: int = flag(100_000, name="--steps", metavar="N", help="environment steps in total")
+    total_steps: int = flag(100_000, name="--steps", metavar="N", help="PPO's environment steps in total")
     objective: str = flag("clip", choices=OBJECTIVES, help="clipped surrogate or adaptive KL penalty")
     n_envs: int = flag(4, metavar="K", help="parallel environments", default_text="per env")
     n_steps: int = 128

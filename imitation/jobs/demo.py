@@ -36,6 +36,7 @@ from imitation.evaluation.video import record_video
 from imitation.jobs.bc import bc_job
 from imitation.jobs.dagger import dagger_job
 from imitation.jobs.evaluate_policy import eval_policy_job
+from imitation.jobs.evaluate_policy_config import PolicyEvaluationConfig
 from imitation.jobs.evaluate_reward import RewardEvaluationConfig, evaluate_reward
 from imitation.jobs.irl import gcl_job, tabular_irl_job
 from imitation.jobs.presets import ppo_settings, preset
@@ -100,7 +101,7 @@ def _dataset_summaries(datasets: Path) -> list[dict[str, Any]]:
 
 
 def _policy_eval(run: str | os.PathLike, env_id: str, demos: list[str]) -> dict[str, Any]:
-    return eval_policy_job(run, env_id, episodes=EVAL_EPISODES, seed=EVAL_SEED, demos=demos)
+    return eval_policy_job(run, env_id, PolicyEvaluationConfig(episodes=EVAL_EPISODES, seed=EVAL_SEED, demos=demos))
 
 
 def _bc_stage(datasets: Path, out: Path, *, epochs: int, progress: bool) -> dict[str, Any]:
@@ -187,12 +188,9 @@ def _gcl_evaluation_stage(out: Path, *, steps: int, progress: bool) -> dict[str,
     evaluation = evaluate_reward(reward_run, CARTPOLE_FH, config, reward_run / "eval-reward", progress=progress)
     retrained = Path(evaluation["out"]) / evaluation["retrain"]["seed_runs"][0]
     video = out / "ppo-on-gcl-reward.gif"
+    demos = RunConfig.from_json(read_run(reward_run)[0]).existing_demos()
     policy = eval_policy_job(
-        retrained,
-        CARTPOLE_FH,
-        episodes=EVAL_EPISODES,
-        seed=EVAL_SEED,
-        demos=RunConfig.from_json(read_run(reward_run)[0]).existing_demos(),
+        retrained, CARTPOLE_FH, PolicyEvaluationConfig(episodes=EVAL_EPISODES, seed=EVAL_SEED, demos=demos)
     )
     video_return = record_video(CARTPOLE_FH, SingleObservationPolicy(load_policy(retrained)), video, seed=0)["return"]
     return {

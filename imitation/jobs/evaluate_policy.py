@@ -7,9 +7,10 @@ import os
 from contextlib import closing
 from typing import Any
 
-from imitation.errors import ConfigError, ImitationError
+from imitation.errors import ImitationError
 from imitation.evaluation.policy import evaluate_policy, normalized_return
 from imitation.evaluation.video import record_video
+from imitation.jobs.evaluate_policy_config import PolicyEvaluationConfig
 from imitation.jobs.run_config import RunConfig
 from imitation.policies import (
     SingleObservationPolicy,
@@ -22,46 +23,37 @@ from imitation.policies import (
 from imitation.runs import read_run
 
 
-def eval_policy_job(
-    run: str | os.PathLike,
-    env_id: str,
-    *,
-    episodes: int = 10,
-    seed: int = 0,
-    stochastic: bool = False,
-    demos: list[str] | None = None,
-    video: str | os.PathLike | None = None,
-) -> dict[str, Any]:
-    """Evaluate run directory `run`'s policy on `episodes` episodes of `env_id` (episode i reset
-    with seed `seed + i`), deterministically unless `stochastic`. The return is also normalised
-    between a random policy (0) and `demos` (default: those the run learnt from) when there are
-    any, the references `eval reward` uses too (`reference_returns`); `video` writes episode 0 as
-    .mp4 or .gif."""
-    if episodes < 1:
-        raise ConfigError("episodes", f"must be at least 1, got {episodes}", owner="eval policy")
-    _refuse_sb3_zip(run, env_id, episodes, seed)
+def eval_policy_job(run: str | os.PathLike, env_id: str, settings: PolicyEvaluationConfig | None = None) -> dict[str, Any]:
+    """Evaluate run directory `run`'s policy on `settings.episodes` episodes of `env_id` (episode
+    i reset with seed `settings.seed + i`), deterministically unless `settings.stochastic`. The
+    return is also normalised between a random policy (0) and `settings.demos` (default: those
+    the run learnt from) when there are any, the references `eval reward` uses too
+    (`reference_returns`); `settings.video` writes episode 0 as .mp4 or .gif."""
+    settings = settings or PolicyEvaluationConfig()
+    settings.validate()
+    _refuse_sb3_zip(run, env_id, settings.episodes, settings.seed)
     policy = load_policy(run)
     config, _ = read_run(run)
-    actor = SingleObservationPolicy(policy, deterministic=not stochastic)
+    actor = SingleObservationPolicy(policy, deterministic=not settings.stochastic)
     with closing(make_acting_env(policy.config, env_id)) as env:
         policy_env = acting_env(policy, env)
         check_policy_fits_env(policy, policy_env, str(run))
-        result = evaluate_policy(actor, policy_env, episodes=episodes, seed=seed)
-        demos = demos if demos is not None else RunConfig.from_json(config).existing_demos()
+        result = evaluate_policy(actor, policy_env, episodes=settings.episodes, seed=settings.seed)
+        demos = settings.demos if settings.demos is not None else RunConfig.from_json(config).existing_demos()
         if demos:
             result |= normalized_return(result, env, demos)
-    if video is not None:
+    if settings.video is not None:
         result["video"] = {
-            "path": str(video),
+            "path": settings.video,
             **record_video(
                 env_id,
                 actor,
-                video,
-                seed=seed,
+                settings.video,
+                seed=settings.seed,
                 observe=lambda env: observed_rendering(policy, env),
             ),
         }
-    return {"run": str(run), "env_id": env_id, "deterministic": not stochastic, **result}
+    return {"run": str(run), "env_id": env_id, "deterministic": not settings.stochastic, **result}
 
 
 def _refuse_sb3_zip(run: str | os.PathLike, env_id: str, episodes: int, seed: int) -> None:
