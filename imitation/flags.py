@@ -32,16 +32,20 @@ class Flag:
     `parse` turns the text into a value as argparse reads it (argparse.ArgumentTypeError: a usage
     error); `convert` turns the parsed value into the field's value when the config is built (an
     ImitationError there is a one-line error, exit 1). `default_text` is what the help says when
-    the field's default does not say it (None, or "auto")."""
+    the field's default does not say it (None, or "auto"). `nargs` takes several values into a
+    list field ("+", or a count), `append` one value per use of the flag, and a `positional`
+    field is an argument without a dash, named by its field."""
 
     help: str
     name: str | None = None
-    metavar: str | None = None
+    metavar: str | tuple[str, ...] | None = None
     parse: Callable[[str], Any] | None = None
     convert: Callable[[Any], Any] | None = None
     choices: tuple[str, ...] | None = None
     default_text: str | None = None
-    many: bool = False  # one or more values (nargs="+"), e.g. demo files
+    nargs: str | int | None = None
+    positional: bool = False
+    append: bool = False
 
 
 def flag(
@@ -49,16 +53,20 @@ def flag(
     *,
     help: str,
     name: str | None = None,
-    metavar: str | None = None,
+    metavar: str | tuple[str, ...] | None = None,
     parse: Callable[[str], Any] | None = None,
     convert: Callable[[Any], Any] | None = None,
     choices: Sequence[str] | None = None,
     default_text: str | None = None,
-    many: bool = False,
+    nargs: str | int | None = None,
+    positional: bool = False,
+    append: bool = False,
     default_factory: Callable[[], Any] | Any = MISSING,
 ) -> Any:
     """A dataclass field that is also a command-line flag."""
-    described = Flag(help, name, metavar, parse, convert, tuple(choices) if choices else None, default_text, many)
+    described = Flag(
+        help, name, metavar, parse, convert, tuple(choices) if choices else None, default_text, nargs, positional, append
+    )
     return dataclasses.field(default=default, default_factory=default_factory, metadata={FLAG: described})
 
 
@@ -69,8 +77,12 @@ def nested(fields: Sequence[str], default_factory: Callable[[], Any]) -> Any:
 
 
 def flag_name(field: Field) -> str:
-    """The option string of a flagged field: its Flag's name, else `--field-name`."""
-    return field.metadata[FLAG].name or "--" + field.name.replace("_", "-")
+    """The option string of a flagged field: its Flag's name, else `--field-name`; a positional
+    argument's name is its field's."""
+    described: Flag = field.metadata[FLAG]
+    if described.positional:
+        return field.name
+    return described.name or "--" + field.name.replace("_", "-")
 
 
 def flagged(config: type) -> list[Field]:
@@ -78,7 +90,10 @@ def flagged(config: type) -> list[Field]:
     return [field for field in dataclasses.fields(config) if FLAG in field.metadata]
 
 
-Source = tuple[type, tuple[str, ...] | None]  # a config and the names of its fields that are flags (None: all)
+# A config, the names of its fields that are flags (None: all), and whether argparse fills in
+# their defaults (a command's own options) or leaves a flag not given None (a config's settings,
+# which presets and other configs may complete).
+Source = tuple[type, tuple[str, ...] | None, bool]
 SOURCES = "configs"  # the parser default that records the sources of a command's flags
 
 
@@ -89,65 +104,71 @@ def add_flags(
     *,
     label: str | None = None,
     default_texts: Mapping[str, str] | None = None,
+    helps: Mapping[str, str] | None = None,
+    fill: bool = False,
 ) -> None:
     """Add the flags of `config` (those of the fields named in `only`, if given) and of its nested
     configs to `parser`, and record `config` among the parser's sources (its `configs` default,
-    which `flag_of` reads). `label` names the variants of a command the flags are for (`train
-    irl`'s methods): the help then says, per label, what the flag does there, and `default_texts`
-    how the help names a field's default where the command's is not the config's. A flag the
-    parser already has (a seed shared by two configs of one command) is not added again: it
-    sets both fields."""
+    which `flag_of` reads). A flag not given is None, so that the config's own default, or a
+    preset, applies; with `fill` (a command's own options) argparse fills in the field's default.
+    `label` names the variants of a command the flags are for (`train irl`'s methods): the help
+    then says, per label, what the flag does there. `helps` and `default_texts` replace a
+    field's help and how it names its default, for this command. A flag the parser already has
+    (a seed shared by two configs of one command) is not added again: it sets both fields."""
     chosen = None if only is None else tuple(only)
-    parser.set_defaults(**{SOURCES: (*(parser.get_default(SOURCES) or ()), (config, chosen))})
-    _add(parser, config, chosen, None, label, default_texts or {})
+    parser.set_defaults(**{SOURCES: (*(parser.get_default(SOURCES) or ()), (config, chosen, fill))})
+    _add(parser, config, chosen, None, _Wording(label, default_texts or {}, helps or {}, fill))
 
 
-def _add(
-    parser: argparse.ArgumentParser,
-    config: type,
-    only: Iterable[str] | None,
-    defaults: Any,
-    label: str | None,
-    default_texts: Mapping[str, str],
-) -> None:
+@dataclasses.dataclass(frozen=True)
+class _Wording:
+    label: str | None
+    default_texts: Mapping[str, str]
+    helps: Mapping[str, str]
+    fill: bool
+
+
+def _add(parser: argparse.ArgumentParser, config: type, only: Iterable[str] | None, defaults: Any, wording: _Wording) -> None:
     """The flags of `config` (help naming the defaults of the instance `defaults`, else the
     fields' own) and of its nested configs."""
     types = typing.get_type_hints(config)
     for field in _chosen(config, only):
         if NESTED in field.metadata:
             inner = getattr(defaults, field.name) if defaults is not None else _field_default(field)
-            _add(parser, type(inner), field.metadata[NESTED], inner, label, default_texts)
+            _add(parser, type(inner), field.metadata[NESTED], inner, wording)
             continue
         option = flag_name(field)
         described: Flag = field.metadata[FLAG]
-        required = field.default is MISSING and field.default_factory is MISSING
-        default = default_texts.get(field.name) or (None if required else _default_text(field, defaults))
-        text = described.help if default is None else f"{described.help} (default: {default})"
+        value = getattr(defaults, field.name) if defaults is not None else _field_default(field)
+        required = value is MISSING
+        said = wording.default_texts.get(field.name) or (None if required else _default_text(described, value, field.name))
+        text = wording.helps.get(field.name, described.help)
+        text = text if said is None else f"{text} (default: {said})"
         if option in parser._option_string_actions:
-            if label is not None:
-                _describe(parser._option_string_actions[option], label, text)
+            if wording.label is not None:
+                _describe(parser._option_string_actions[option], wording.label, text)
             continue
+        default = None if required or not wording.fill else value
         kind = _base_type(types[field.name])
-        if described.many:
+        if described.nargs is not None or described.append:
             kind = _base_type(typing.get_args(_without_none(types[field.name]))[0])
         if kind is bool:
-            action = parser.add_argument(option, dest=_dest(option), action="store_true", default=None, help=text)
+            action = parser.add_argument(option, dest=_dest(option), action="store_true", default=default, help=text)
         else:
             parse = described.parse or _PARSERS.get(kind)
             if parse is None:
                 raise TypeError(f"{config.__name__}.{field.name}: a flag of type {types[field.name]} needs parse=")
-            action = parser.add_argument(
-                option,
-                dest=_dest(option),
-                type=parse,
-                choices=described.choices,
-                required=required,
-                nargs="+" if described.many else None,
-                metavar=described.metavar,
-                help=text,
+            options: dict[str, Any] = dict(
+                type=parse, choices=described.choices, nargs=described.nargs, metavar=described.metavar, help=text
             )
-        if label is not None:
-            _describe(action, label, text)
+            if described.positional:
+                action = parser.add_argument(option, **options)
+            else:
+                if described.append:
+                    options["action"] = "append"
+                action = parser.add_argument(option, dest=_dest(option), required=required, default=default, **options)
+        if wording.label is not None:
+            _describe(action, wording.label, text)
 
 
 def _describe(action: argparse.Action, label: str, text: str) -> None:
@@ -206,10 +227,11 @@ def _chosen(config: type, only: Iterable[str] | None) -> list[Field]:
     ]
 
 
-def _with_nested(sources: Iterable[Source]) -> list[Source]:
-    """The `sources` and every config nested in them, with the names of their fields that are flags."""
-    found: list[Source] = []
-    pending: list[Source] = list(sources)
+def _with_nested(sources: Iterable[Source]) -> list[tuple[type, tuple[str, ...] | None]]:
+    """The configs of `sources` and every config nested in them, with the names of their fields
+    that are flags."""
+    found: list[tuple[type, tuple[str, ...] | None]] = []
+    pending = [(config, only) for config, only, _ in sources]
     while pending:
         config, only = pending.pop(0)
         found.append((config, only))
@@ -247,17 +269,15 @@ def _field_default(field: Field) -> Any:
     return field.default
 
 
-def _default_text(field: Field, defaults: Any) -> str:
-    described: Flag = field.metadata[FLAG]
+def _default_text(described: Flag, default: Any, name: str) -> str:
     if described.default_text is not None:
         return described.default_text
-    default = getattr(defaults, field.name) if defaults is not None else _field_default(field)
     if isinstance(default, bool):
         return "on" if default else "off"
     if isinstance(default, list):
         return ",".join(str(item) for item in default) or "linear"
-    if default is None or default is MISSING:
-        raise TypeError(f"{field.name}: a flag whose default is {default!r} needs default_text=")
+    if default is None:
+        raise TypeError(f"{name}: a flag whose default is None needs default_text=")
     return str(default)
 
 

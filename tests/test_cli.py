@@ -33,7 +33,7 @@ def test_help(command: list[str]) -> None:
 
 
 def test_help_and_info_start_fast_without_torch_or_lerobot() -> None:
-    code = "import sys, cli, imitation.data.summary; cli.build_parser(); print('torch' in sys.modules, 'lerobot' in sys.modules)"
+    code = "import sys, cli, imitation.data.summary; cli.make_parser(); print('torch' in sys.modules, 'lerobot' in sys.modules)"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
     assert result.stdout.split() == ["False", "False"], result.stderr
     started = time.perf_counter()
@@ -149,11 +149,11 @@ def test_train_bc_help_names_the_configs_own_defaults() -> None:
     import dataclasses
     import re
 
-    from cli import build_parser
+    from cli import make_parser
     from imitation.algorithms.bc import BCConfig
     from imitation.flags import flag_name, flagged
 
-    parser = build_parser()
+    parser = make_parser()
     bc = parser._subparsers._group_actions[0].choices["train"]._subparsers._group_actions[0].choices["bc"]
     helps = {option: action.help for action in bc._actions for option in action.option_strings}
     defaults = {f.name: f.default if f.default is not dataclasses.MISSING else f.default_factory() for f in dataclasses.fields(BCConfig)}

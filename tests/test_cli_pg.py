@@ -87,10 +87,10 @@ def test_train_pg_help_names_the_configs_own_defaults_and_the_presets() -> None:
     """No argparse defaults (an absent flag leaves the preset's or PGConfig's), so the help text
     says the default: the last value it names is PGConfig's, and the per-env step counts it
     names are the presets'."""
-    from cli import build_parser
+    from cli import make_parser
     from imitation.flags import flag_name, flagged
 
-    parser = build_parser()
+    parser = make_parser()
     pg = parser._subparsers._group_actions[0].choices["train"]._subparsers._group_actions[0].choices["pg"]
     helps = {option: action.help for action in pg._actions for option in action.option_strings}
     defaults = {

@@ -202,7 +202,7 @@ def test_halfcheetah_gets_the_zoo_preset_but_beside_a_reward_being_learnt() -> N
         assert (zoo.hidden_sizes, zoo.activation, zoo.log_std_init, zoo.learning_rate) == ([256, 256], "relu", -2.0, 2.0633e-05)
     assert learned.normalize_rewards and beside.normalize_rewards
     assert ppo_settings("CartPole-v1", beside_irl=True)["normalize_rewards"] and "normalize_rewards" not in ppo_settings("CartPole-v1")
-    args = cli.build_parser().parse_args(["train", "irl", "--method", "airl", "--env", env_id, "--demos", str(DATASETS / "Pendulum-v1.mcap"), "--out", "r"])
+    args = cli.make_parser().parse_args(["train", "irl", "--method", "airl", "--env", env_id, "--demos", str(DATASETS / "Pendulum-v1.mcap"), "--out", "r"])
     args.command_key = "train irl"  # as `main` sets it
     assert cli._ppo_beside_irl(args) == dataclasses.replace(beside, total_steps=3_000_000), "`train irl`'s policy"
     for continuous in (beside, ppo_config("imitation/HopperFixedHorizon-v0", learned_reward=True)):

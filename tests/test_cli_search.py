@@ -80,7 +80,7 @@ def _shown(value: object) -> str:
 def test_search_help_names_the_configs_own_defaults() -> None:
     """The flags have no argparse defaults (an absent flag leaves the preset's or SearchConfig's
     value), so the help text must state those."""
-    from cli import build_parser
+    from cli import make_parser
     from imitation.algorithms.policy_search import SearchConfig
     from imitation.flags import flag_name, flagged
     from imitation.jobs.search import DEFAULT_STEPS, PRESETS
@@ -90,7 +90,7 @@ def test_search_help_names_the_configs_own_defaults() -> None:
         for f in dataclasses.fields(SearchConfig)
         if f.name != "env_id"
     }
-    train = build_parser()._subparsers._group_actions[0].choices["train"]._subparsers._group_actions[0]
+    train = make_parser()._subparsers._group_actions[0].choices["train"]._subparsers._group_actions[0]
     for method in ("hill-climb", "cem", "cmaes"):
         parser = train.choices[method]
         helps = {option: action.help for action in parser._actions for option in action.option_strings}

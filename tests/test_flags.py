@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import pytest
 
 import cli
+from imitation.commands import COMMANDS
 from imitation.errors import ImitationError
 from imitation.flags import NESTED, add_flags, flag, flag_name, flag_of, flagged, given, hidden_sizes, nested
 
@@ -38,14 +39,11 @@ def config_flags(config: type, only: tuple[str, ...] | None = None) -> dict[str,
     return found
 
 
-CONFIGURED = {name: parser for name, parser in commands(cli.build_parser()).items() if parser.get_default("configs")}
+CONFIGURED = {name: parser for name, parser in commands(cli.make_parser()).items() if parser.get_default("configs")}
 
 
 def test_the_commands_with_settings_take_their_flags_from_their_configs() -> None:
-    assert set(CONFIGURED) == {
-        "record", "train bc", "train dagger", "train ppo", "train pg", "train hill-climb", "train cem", "train cmaes",
-        "train irl", "eval policy", "eval reward",
-    }
+    assert set(CONFIGURED) == set(COMMANDS) and set(COMMANDS) == set(cli.HANDLERS)
 
 
 @pytest.mark.parametrize("name", sorted(CONFIGURED))
@@ -55,11 +53,17 @@ def test_each_config_field_has_one_flag_and_each_flag_one_field(name: str) -> No
     steps of gcl/airl/gail, the solver steps per iteration of apprenticeship)."""
     parser = CONFIGURED[name]
     options = {option: action for action in parser._actions for option in action.option_strings}
-    for config, only in parser.get_default("configs"):
+    options |= {action.dest: action for action in parser._actions if not action.option_strings}  # positional
+    for config, only, fill in parser.get_default("configs"):
         for option, fields in config_flags(config, only).items():
             assert option in options, f"{name}: {config.__name__}'s {sorted(fields)} has no flag {option}"
             assert len(fields) == 1, f"{name}: {option} sets {sorted(fields)} of {config.__name__}"
-            assert options[option].dest == option[2:].replace("-", "_") and parser.get_default(options[option].dest) is None
+            dest = options[option].dest
+            assert dest == option.lstrip("-").replace("-", "_")
+            if not fill:  # a config's flag not given leaves its default, or a preset's value, to the job
+                assert parser.get_default(dest) is None, f"{name}: {option}"
+    declared = {option for config, only, _ in parser.get_default("configs") for option in config_flags(config, only)}
+    assert set(options) - {"-h", "--help"} == declared, f"{name}: flags that are no field's"
 
 
 @dataclass(kw_only=True)
@@ -121,7 +125,7 @@ def test_bad_flag_text_and_a_missing_required_flag_are_usage_errors(argv: list[s
 
 def test_a_config_error_is_reported_with_the_flag_that_sets_the_field() -> None:
     sources = toy_parser().get_default("configs")
-    assert sources == ((Toy, None),)
+    assert sources == ((Toy, None, False),)
     assert flag_of(sources, "Toy", "rate") == "--lr"
     assert flag_of(sources, "Inner", "width") == "--width"
     assert flag_of(sources, "Inner", "depth") is None  # nested, but not one of the command's flags
@@ -160,7 +164,7 @@ def test_building_the_command_line_imports_no_heavy_library() -> None:
     from support import REPO
 
     heavy = ("torch", "numpy", "gymnasium", "mcap", "lerobot", "ray")
-    probe = f"import sys, cli; cli.build_parser(); print(','.join(m for m in {heavy!r} if m in sys.modules))"
+    probe = f"import sys, cli; cli.make_parser(); print(','.join(m for m in {heavy!r} if m in sys.modules))"
     result = subprocess.run([sys.executable, "-c", probe], cwd=REPO, capture_output=True, text=True, timeout=60, check=True)
     assert result.stdout.strip() == ""
 
@@ -194,6 +198,6 @@ def test_a_flag_several_variants_share_says_what_it_does_in_each() -> None:
     helps = {option: action.help for action in parser._actions for option in action.option_strings}
     assert helps["--steps"] == "a/b: gradient steps (default: 5); c: environment steps (default: per env)"
     assert helps["--seed"] == "a/b/c: seed (default: 0)"
-    assert parser.get_default("configs") == ((First, None), (Second, None))
+    assert parser.get_default("configs") == ((First, None, False), (Second, None, False))
     args = parser.parse_args(["--steps", "7"])
     assert given(args, First) == {"steps": 7} and given(args, Second) == {"total": 7}

@@ -1,7 +1,7 @@
 """The import-layer contract: data flows one way. Every import in the package, lazy ones inside
 functions and TYPE_CHECKING ones included, goes down the layers, never up:
 
-    base (errors, limits, output, seeding, checkpoints, runs, bundled)
+    base (errors, limits, output, seeding, checkpoints, runs, bundled, flags)
       → envs → data → models (policies, rewards, observation_encoding, mlp) → experts → learners (algorithms)
       → evaluation → jobs → cli
 
@@ -29,6 +29,7 @@ PREFIXES = {
     "imitation.evaluation": "evaluation",
     "imitation.jobs": "jobs",
     "cli": "cli",
+    "imitation.commands": "cli",  # the command line's declarations, read by cli.py
     "imitation.__main__": "cli",  # the entry point: `python -m imitation` runs the command line
 }
 

@@ -17,7 +17,7 @@ class PolicyEvaluationConfig:
     # The normalised return's 1: these demos' mean return (None: those the run learnt from).
     demos: list[str] | None = flag(
         None,
-        many=True,
+        nargs="+",
         metavar="F.mcap",
         help="demos whose mean return is the normalised score's 1",
         default_text="those the run learnt from",

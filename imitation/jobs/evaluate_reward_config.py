@@ -24,7 +24,7 @@ class RewardEvaluationConfig:
     jobs: int = flag(2, metavar="J", help="retrainings run side by side in local processes, one CPU thread each")
     demos: list[str] | None = flag(
         None,
-        many=True,
+        nargs="+",
         metavar="F.mcap",
         help="expert demos for the reference return and EPIC's coverage",
         default_text="those the reward was learned from",
