@@ -23,6 +23,7 @@ from imitation.algorithms.maxent_irl_config import MaxEntIRLConfig
 from imitation.algorithms.policy_gradient_config import PGConfig
 from imitation.algorithms.policy_search_config import SearchConfig
 from imitation.algorithms.ppo_config import PPOConfig
+from imitation.data.convert.sources import SOURCES
 from imitation.flags import flag, quality, seconds, speed
 from imitation.jobs.evaluate_policy_config import PolicyEvaluationConfig
 from imitation.jobs.evaluate_reward_config import RewardEvaluationConfig
@@ -169,7 +170,7 @@ class ConvertOptions:
         help="a .mcap bag or rosbag2 folder, a ROS 1 .bag, a LeRobot dataset root, an .npz file, or a .npy array",
     )
     source_kind: str | None = flag(
-        None, name="--from", metavar="KIND", help="ros2, ros1, lerobot, npz or array", default_text="recognised from SRC"
+        None, name="--from", metavar="KIND", help=", ".join(SOURCES), default_text="recognised from SRC"
     )
     map: str | None = flag(
         None,

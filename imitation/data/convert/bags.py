@@ -35,11 +35,9 @@ from typing import Any, Protocol
 import yaml
 
 from imitation.data.convert.fields import declared_type
+from imitation.data.convert.sources import MCAP_MAGIC, ROS1_MAGIC
 from imitation.data.convert.yaml_bounded import load_yaml
 from imitation.errors import ImitationError
-
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-ROS1_MAGIC = b"#ROSBAG V2.0"
 
 
 def _damage_errors() -> tuple[type[BaseException], ...]:
