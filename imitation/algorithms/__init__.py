@@ -8,4 +8,7 @@
 - reinforcement learning: `ppo` (the bundled PPO trainer; `ray_rollouts` collects its rollouts on Ray
   actors), `policy_gradient` (REINFORCE, with a baseline, actor-critic), `policy_search` (hill climbing, the
   cross-entropy method, CMA-ES).
+
+Each learner's settings live in `<module>_config.py` beside it, light (no torch), because their fields
+are the command line's flags (imitation/flags.py) and `--help` reads them.
 """

@@ -7,6 +7,8 @@
 - `bc`, `dagger`, `ppo`, `pg` (policy gradient), `search` (hill climbing, CEM, CMA-ES), `irl` (MaxEnt,
   MCE, guided cost learning, GAIL, AIRL) and `apprenticeship`: the `train` jobs; `record`;
   `evaluate_policy`, `evaluate_reward`: the `eval` jobs; `demo`: the whole chain on the bundled data;
+- `record_config`, `evaluate_policy_config`, `evaluate_reward_config`: those commands' settings, light
+  like the learners' `algorithms/*_config.py` (their fields are the commands' flags);
 - `sweep` (with `sweep_config`, `sweep_process`, `sweep_tune`, `sweep_trials`, `sweep_results`):
   `imitation sweep`, a hyperparameter search over a `train` command with Ray Tune;
 - `distributed`: the processes of a data-parallel job under torchrun.
