@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from decimal import Decimal
 
 import gymnasium as gym
 import numpy as np
@@ -404,8 +405,8 @@ def test_a_critic_off_constant_targets_explains_less_than_nothing() -> None:
 
 class ScriptedEnv(gym.Env):
     """Two state numbers, the step count twice; reward 1; episodes of `length` steps that end with
-    the flags given. `fault` puts a non-finite value in the reset state, or in the reward or the
-    next state of step `at`."""
+    the flags given. `fault` puts a non-finite value in the reset state, or in the reward (a float,
+    or a Decimal, a number float() reads) or the next state of step `at`."""
 
     observation_space = gym.spaces.Box(-np.inf, np.inf, (2,), np.float32)
     action_space = gym.spaces.Discrete(2)
@@ -423,6 +424,8 @@ class ScriptedEnv(gym.Env):
         observation, reward = np.full(2, float(self.t), np.float32), 1.0
         if self.t == self.at and self.fault == "reward":
             reward = float("nan")
+        if self.t == self.at and self.fault == "decimal-reward":
+            reward = Decimal("NaN")
         if self.t == self.at and self.fault == "observation":
             observation[1] = np.inf
         over = self.t >= self.length
@@ -435,6 +438,9 @@ def scripted_envs():
         "imitation-tests/EndsBothWays-v0": {"length": 2, "ends": (True, True)},
         "imitation-tests/ThreeSteps-v0": {"length": 3},
         "imitation-tests/NaNReward-v0": {"fault": "reward", "at": 3},
+        "imitation-tests/NaNDecimalReward-v0": {"fault": "decimal-reward", "at": 3},
+        "imitation-tests/TruncatedAtThree-v0": {"length": 3, "ends": (False, True)},
+        "imitation-tests/InfFinalState-v0": {"length": 3, "ends": (False, True), "fault": "observation", "at": 3},
         "imitation-tests/InfObservation-v0": {"fault": "observation", "at": 2},
         "imitation-tests/NaNReset-v0": {"fault": "reset"},
     }
@@ -484,7 +490,10 @@ def test_every_copy_steps_in_each_round_until_the_batch_is_full(scripted_envs) -
     ("env_id", "what", "step"),
     [
         ("imitation-tests/NaNReward-v0", "reward", 3),
+        ("imitation-tests/NaNDecimalReward-v0", "reward", 3),
         ("imitation-tests/InfObservation-v0", "observation", 2),
+        # The true final state of a truncated episode: V's bootstrap would read it.
+        ("imitation-tests/InfFinalState-v0", "observation", 3),
         ("imitation-tests/NaNReset-v0", "observation", 0),
     ],
 )
@@ -529,3 +538,73 @@ def test_the_policy_loss_divides_the_weights_by_their_std_unless_told_not_to_or_
     finally:
         learner.close()
         raw.close()
+
+
+def test_a_truncated_episode_is_bootstrapped_from_its_true_final_state(scripted_envs) -> None:
+    """Three steps cut by a time limit in the state (3, 3), a linear critic V(s) = s₀ and γ = ½:
+    TD(0)'s advantages are 1 + ½·1 − 0, 1 + ½·2 − 1 and, from the kept final state, 1 + ½·3 − 2."""
+    config = PGConfig(
+        env_id="imitation-tests/TruncatedAtThree-v0", estimator="actor-critic", gae_lambda=0.0, gamma=0.5, n_envs=1,
+        batch_steps=3, total_steps=30, hidden_sizes=[],
+    )
+    learner = PolicyGradient(config)
+    try:
+        with torch.no_grad():
+            learner.policy.value_head.weight.copy_(torch.tensor([[1.0, 0.0]]))
+            learner.policy.value_head.bias.zero_()
+        batch = learner.collect()
+        weights, _, _ = learner.weights(batch)
+    finally:
+        learner.close()
+    assert batch.truncated.tolist() == [False, False, True] and not batch.terminated.any()
+    assert batch.final_features.tolist() == [[0.0, 0.0], [0.0, 0.0], [3.0, 3.0]]
+    assert weights.tolist() == pytest.approx([1.5, 1.0, 0.5])
+
+
+def test_the_policy_is_built_with_the_configured_activation_normaliser_and_initial_std(scripted_envs) -> None:
+    """ReLU hidden layers; states normalised by the batch's: one 3-step episode of ThreeSteps-v0
+    acts from (0, 0), (1, 1), (2, 2), whose mean is 1 and variance ⅔ (the prior's count 1e-4
+    aside); on Pendulum-v1, σ = e^−1.5 before any update."""
+    config = PGConfig(
+        env_id="imitation-tests/ThreeSteps-v0", estimator="reward-to-go", n_envs=1, batch_steps=3, total_steps=30,
+        hidden_sizes=[16], activation="relu", normalize_observations=True,
+    )
+    learner = PolicyGradient(config)
+    try:
+        learner.collect()
+        with torch.no_grad():
+            encoded = learner.policy.encode(torch.tensor([[1.0, 1.0], [2.0, 2.0], [-1.0, 4.0]]))
+            x = torch.randn(64, 2)
+            trunk = learner.policy.actor_trunk
+            hidden, relu = trunk(x), torch.relu(trunk[0](x))
+    finally:
+        learner.close()
+    scale = math.sqrt(1.5)
+    assert encoded.tolist() == [pytest.approx([0.0, 0.0], abs=1e-4), pytest.approx([scale, scale], rel=1e-4),
+                                pytest.approx([-2 * scale, 3 * scale], rel=1e-4)]
+    assert (relu == 0).any() and torch.equal(hidden, relu)
+    pendulum = PolicyGradient(
+        PGConfig(env_id="Pendulum-v1", n_envs=1, batch_steps=200, total_steps=200, hidden_sizes=[8], log_std_init=-1.5)
+    )
+    try:
+        with torch.no_grad():
+            distribution = pendulum.policy.distribution(torch.zeros(2, 3))
+    finally:
+        pendulum.close()
+    assert distribution.stddev.flatten().tolist() == pytest.approx([math.exp(-1.5)] * 2)
+
+
+@pytest.mark.parametrize(
+    ("device", "message"),
+    [
+        ("tpu", "device 'tpu': Expected one of"),
+        pytest.param(
+            "cuda", "device cuda: CUDA is not available on this machine",
+            marks=pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA"),
+        ),
+    ],
+)
+def test_a_device_that_is_not_there_is_refused_naming_the_device(device: str, message: str) -> None:
+    with pytest.raises(ConfigError) as error:
+        PolicyGradient(PGConfig(env_id="CartPole-v1", device=device))
+    assert str(error.value).startswith(message) and error.value.field == "device"
