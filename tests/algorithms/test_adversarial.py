@@ -19,6 +19,7 @@ from imitation.algorithms.adversarial import (
     Steps,
     discriminator_loss,
     input_gradient_penalty,
+    rollout_steps,
 )
 from imitation.algorithms.airl import AIRLDiscriminator, ShapedReward, airl_shaped_reward
 from imitation.algorithms.gail import GAILDiscriminator
@@ -376,13 +377,13 @@ def test_the_first_rollout_widens_the_demos_spread_once_and_a_warm_start_keeps_i
     ) -> list[list[float]]:
         net = make_reward_model(space, gym.spaces.Discrete(2), hidden_sizes=[], inputs="s", normalize_observations=True)
         config = AdversarialConfig(pool_rollouts=2)
-        if through_learner:  # AdversarialImitation fits by default
+        warm_start = {} if fit_statistics else {"fit_statistics": False}  # fitting is the default of both
+        if through_learner:
             settings = {"n_envs": 1, "n_steps": 8, "total_steps": 8, "batch_size": 8, "hidden_sizes": [4], "device": "cpu"}
             ppo = PPO(PPOConfig(env_id="CartPole-v1", **settings))
             ppo.close()
-            side = AdversarialImitation(ppo, GAILDiscriminator(net), transitions(demos), config).discriminator
+            side = AdversarialImitation(ppo, GAILDiscriminator(net), transitions(demos), config, **warm_start).discriminator
         else:
-            warm_start = {} if fit_statistics else {"fit_statistics": False}  # fitting is the default
             side = DiscriminatorLearner(GAILDiscriminator(net), transitions(demos), config, **warm_start)
         for states in rollouts:
             side.add_rollout(one_copy_rollout(states))
@@ -393,3 +394,45 @@ def test_the_first_rollout_widens_the_demos_spread_once_and_a_warm_start_keeps_i
     assert statistics_after([first, wide], fit_statistics=True) == [pytest.approx(row) for row in fitted]
     assert statistics_after([first], fit_statistics=True, through_learner=True) == [pytest.approx(row) for row in fitted]
     assert statistics_after([first], fit_statistics=False) == statistics_after([], fit_statistics=False)
+    # The learner hands a warm start on to its discriminator: the net's own mean 0 and std 1 stay.
+    assert statistics_after([first], fit_statistics=False, through_learner=True) == [[0.0, 0.0], [1.0, 1.0]]
+
+
+def test_a_learner_checkpointed_before_its_first_round_has_no_statistics_and_restores_as_fresh() -> None:
+    config = AdversarialConfig(batch_size=4, discriminator_steps=1, learning_rate=1e-12)
+
+    def learner() -> DiscriminatorLearner:
+        return DiscriminatorLearner(GAILDiscriminator(linear([2.0, 0.0])), transitions([[0.25, 1.0]] * 5), config)
+
+    fresh = learner()
+    tensors, state = snapshot(*fresh.state_dict())
+    assert (state["learned"], state["pooled"], state["last"]) == (0, 0, {})
+    # A learner one round on, restored from it, is fresh again: no round, no pool, nothing to log.
+    restored = learner()
+    restored.add_rollout(one_copy_rollout([[0.25, -1.0]] * 6))
+    restored.learn(None)
+    restored.load_state_dict((tensors, state))
+    assert (restored.learned, restored.rollouts, restored.last) == (0, [], {})
+
+
+def test_a_rollouts_steps_are_its_time_by_envs_grid_row_by_row_with_box_actions_kept_whole() -> None:
+    """3 steps of 2 envs: state 10 t + e, action (t + ½, −e) of 2 dimensions, only env 1's last step terminal."""
+    observations = torch.tensor([[[10.0 * t + e] for e in range(2)] for t in range(3)])
+    env_actions = torch.tensor([[[t + 0.5, -float(e)] for e in range(2)] for t in range(3)])
+    terminated = torch.tensor([[False, False], [False, False], [False, True]])
+    rollout = Rollout(
+        observations=observations,
+        actions=env_actions.clone(),
+        env_actions=env_actions,
+        next_observations=observations + 1.0,
+        log_probs=torch.zeros(3, 2),
+        env_rewards=torch.zeros(3, 2),
+        terminated=terminated,
+        truncated=torch.zeros(3, 2, dtype=torch.bool),
+    )
+    steps = rollout_steps(rollout)
+    assert len(steps) == 6
+    assert steps.observations.tolist() == [[0.0], [1.0], [10.0], [11.0], [20.0], [21.0]]
+    assert steps.env_actions.tolist() == [[0.5, 0.0], [0.5, -1.0], [1.5, 0.0], [1.5, -1.0], [2.5, 0.0], [2.5, -1.0]]
+    assert steps.next_observations.tolist() == [[1.0], [2.0], [11.0], [12.0], [21.0], [22.0]]
+    assert steps.terminated.tolist() == [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
