@@ -330,129 +330,39 @@ def cmd_train_dagger(args: argparse.Namespace) -> int:
 
 
 def cmd_train_irl(args: argparse.Namespace) -> int:
-    if args.workers is not None and args.method not in ("gcl", "gail", "airl"):
+    from imitation.algorithms.adversarial_config import DISCRIMINATOR_TRAINING, AdversarialConfig
+    from imitation.jobs.irl_methods import IRL_METHODS, IRLRun
+
+    method = IRL_METHODS[args.method]
+    if args.workers is not None and not method.rollouts:
         raise ImitationError(f"--workers: --method {args.method} has no PPO rollouts to spread; use it with gcl, airl or gail")
     if args.gail_reward is not None and args.method != "gail":
         raise ImitationError(f"--gail-reward: chooses GAIL's reward, and --method {args.method} is not gail")
-    from imitation.algorithms.adversarial_config import DISCRIMINATOR_TRAINING, AdversarialConfig
-
     for name in given(args, AdversarialConfig, only=DISCRIMINATOR_TRAINING):
-        if args.method not in ("gail", "airl"):
+        if not method.discriminator:
             raise ImitationError(
                 f"{flags.flag_of(args.configs, 'AdversarialConfig', name)}: sets the training of GAIL's and AIRL's "
                 f"discriminator, and --method {args.method} has none"
             )
-    if args.warm_start is not None and args.method not in ("gail", "airl"):
+    if args.warm_start is not None and not method.discriminator:
         raise ImitationError(f"--warm-start: starts GAIL's and AIRL's discriminator, and --method {args.method} has none")
-    if args.method == "gcl":
-        return _train_gcl(args)
-    if args.method in ("gail", "airl"):
-        return _train_adversarial(args)
-    if args.method == "apprenticeship":
-        return _train_apprenticeship(args)
-    from imitation.algorithms.maxent_irl_config import MaxEntIRLConfig
-    from imitation.jobs.irl import tabular_irl_job
-
-    config = MaxEntIRLConfig(method=args.method, **given(args, MaxEntIRLConfig))
-    result = tabular_irl_job(args.demos, args.env, config, args.out, progress=not args.quiet, resume=args.resume)
-    if args.json:
-        _print_json(result)
-    else:
-        print(
-            f"{args.method} IRL on {args.env}: {result['iterations']} iterations, occupancy error "
-            f"{result['occupancy_error']:.2e}; the soft-optimal policy for the learned reward earns "
-            f"{result['learned_policy_return']:.2f} (expert {result['expert_return']:.2f}, random "
-            f"{result['random_return']:.2f}, normalised {result['normalized_return']:.3f}); run: {result['run']}"
-        )
-    return 0
-
-
-def _ppo_beside_irl(args: argparse.Namespace) -> Any:
-    """The PPOConfig of `train irl --method gcl|gail|airl`: the env's preset for a policy beside a
-    reward being learnt, its IRL length, the flags, and the frames the demos were recorded with."""
-    from imitation.algorithms.ppo_config import PPOConfig
-    from imitation.jobs.irl import recorded_observation
-    from imitation.jobs.presets import ppo_config, preset
-
-    flagged = given(args, PPOConfig, only=("total_steps", "seed"))
-    fields = {"total_steps": preset(args.env).irl_steps} | flagged | recorded_observation(args.demos)
-    return ppo_config(args.env, beside_irl=True, **fields)
-
-
-def _train_gcl(args: argparse.Namespace) -> int:
-    from imitation.algorithms.gcl_config import GCLConfig
-    from imitation.jobs.irl import gcl_job
-
-    result = gcl_job(
+    run = IRLRun(
+        args.method,
         args.demos,
         args.env,
-        GCLConfig(**given(args, GCLConfig)),
-        _ppo_beside_irl(args),
         args.out,
-        progress=not args.quiet,
-        resume=args.resume,
-        workers=_workers(args),
-    )
-    if args.json:
-        _print_json(result)
-    else:
-        evaluation = result["eval"]
-        print(
-            f"GCL on {args.env}: {result['steps']} PPO steps in {result['seconds']:.0f} s; the maximum-entropy sampler "
-            f"trained alongside (not for use) earns {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f} (demos "
-            f"{result['demo_return']:.1f}); reward model for `train ppo --reward`: {result['run']}"
-        )
-    return 0
-
-
-def _train_adversarial(args: argparse.Namespace) -> int:
-    from imitation.algorithms.adversarial_config import AdversarialConfig
-    from imitation.jobs.irl import adversarial_job
-
-    result = adversarial_job(
-        args.demos,
-        args.env,
-        AdversarialConfig(method=args.method, **given(args, AdversarialConfig)),
-        _ppo_beside_irl(args),
-        args.out,
+        {config: given(args, config, only) for config, only in method.configs},
+        seed=args.seed,
         progress=not args.quiet,
         resume=args.resume,
         workers=_workers(args),
         warm_start=args.warm_start,
     )
+    result = method.train(run)
     if args.json:
         _print_json(result)
     else:
-        evaluation = result["eval"]
-        reward = "g" if args.method == "airl" else "−log(1 − D), not a recovered reward"
-        print(
-            f"{args.method.upper()} on {args.env}: {result['steps']} PPO steps in {result['seconds']:.0f} s; the policy "
-            f"earns {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f} (demos {result['demo_return']:.1f}), "
-            f"discriminator accuracy {result['demo_accuracy']:.2f} on demos, {result['sample_accuracy']:.2f} on samples; "
-            f"policy for `eval policy` and reward ({reward}) for `train ppo --reward`: {result['run']}"
-        )
-    return 0
-
-
-def _train_apprenticeship(args: argparse.Namespace) -> int:
-    from imitation.algorithms.apprenticeship_config import ApprenticeshipConfig
-    from imitation.jobs.apprenticeship import apprenticeship_job
-    from imitation.jobs.presets import ppo_config
-
-    config = ApprenticeshipConfig(**given(args, ApprenticeshipConfig))
-    # The PPO solver's steps per iteration are ApprenticeshipConfig's, so --steps is not PPOConfig's here.
-    solver = ppo_config(args.env, learned_reward=True, seed=config.seed, total_steps=config.solver_steps)
-    result = apprenticeship_job(args.demos, args.env, config, solver, args.out, progress=not args.quiet, resume=args.resume)
-    if args.json:
-        _print_json(result)
-        return 0
-    mixture = result["mixture"]
-    print(
-        f"apprenticeship learning on {args.env}: {result['iterations']} iterations, ‖μ_E - μ̄‖/‖μ_E‖ = "
-        f"{result['relative_feature_distance']:.4f}; the mixture of {len(mixture['lambdas'])} policies earns "
-        f"{mixture['return']:.2f} (normalised {mixture['normalized_return']:.3f}); reward and policy (member "
-        f"{result['chosen_member']}) in: {result['run']}"
-    )
+        print(method.describe(run, result))
     return 0
 
 
@@ -652,7 +562,7 @@ def make_parser() -> argparse.ArgumentParser:
                 groups[group[0]] = grouped.add_subparsers(dest=dest, required=True, metavar=dest.upper())
             container = groups[group[0]]
         sub = container.add_parser(name, help=command.help, description=command.description)
-        for options in command.options:
+        for options in command.options() if callable(command.options) else command.options:
             add_flags(
                 sub,
                 options.config,
@@ -661,6 +571,7 @@ def make_parser() -> argparse.ArgumentParser:
                 default_texts=options.default_texts,
                 helps=options.helps,
                 fill=options.fill,
+                choices=options.choices,
             )
         sub.set_defaults(handler=HANDLERS[words], parser=sub)
     return parser

@@ -8,18 +8,11 @@ Light, like the configs: `imitation --help` reads this module without importing 
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-from imitation.algorithms.adversarial_config import LABEL as ADVERSARIAL
-from imitation.algorithms.adversarial_config import AdversarialConfig
-from imitation.algorithms.apprenticeship_config import LABEL as APPRENTICESHIP
-from imitation.algorithms.apprenticeship_config import ApprenticeshipConfig
 from imitation.algorithms.bc_config import BCConfig
 from imitation.algorithms.dagger_config import DAggerConfig
-from imitation.algorithms.gcl_config import LABEL as GCL
-from imitation.algorithms.gcl_config import GCLConfig
-from imitation.algorithms.maxent_irl_config import LABEL as TABULAR
-from imitation.algorithms.maxent_irl_config import MaxEntIRLConfig
 from imitation.algorithms.policy_gradient_config import PGConfig
 from imitation.algorithms.policy_search_config import SearchConfig
 from imitation.algorithms.ppo_config import PPOConfig
@@ -27,6 +20,7 @@ from imitation.data.convert.sources import SOURCES
 from imitation.flags import flag, quality, seconds, speed
 from imitation.jobs.evaluate_policy_config import PolicyEvaluationConfig
 from imitation.jobs.evaluate_reward_config import RewardEvaluationConfig
+from imitation.jobs.irl_methods import DEFAULT_METHOD, IRL_METHODS
 from imitation.jobs.record_config import COMPRESSIONS, IMAGE_CODECS, RecordConfig
 
 ENV_ID = "gymnasium environment id"
@@ -292,12 +286,9 @@ class DAggerOptions:
     )
 
 
-IRL_METHODS = ("maxent", "mce", "gcl", "airl", "gail", "apprenticeship")
-
-
 @dataclass(kw_only=True)
 class IRLOptions:
-    method: str = flag("mce", choices=IRL_METHODS, help="the IRL algorithm")
+    method: str = flag(DEFAULT_METHOD, choices=tuple(IRL_METHODS), help="the IRL algorithm")
     env: str = flag(metavar="ID", help=ENV_ID)
     demos: list[str] = flag(nargs="+", metavar=DEMO_FILES, help="expert demo files of that env")
     warm_start: str | None = flag(
@@ -371,9 +362,10 @@ class Options:
     config: type
     only: tuple[str, ...] | None = None
     label: str | None = None
-    default_texts: dict[str, str] = field(default_factory=dict)
-    helps: dict[str, str] = field(default_factory=dict)
+    default_texts: Mapping[str, str] = field(default_factory=dict)
+    helps: Mapping[str, str] = field(default_factory=dict)
     fill: bool = True  # a command's own options; a learner's or job's config is given with fill=False
+    choices: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
 
 
 def settings(
@@ -381,7 +373,7 @@ def settings(
     *,
     only: tuple[str, ...] | None = None,
     label: str | None = None,
-    default_texts: dict[str, str] | None = None,
+    default_texts: Mapping[str, str] | None = None,
 ) -> Options:
     """A config's flags: left None when not given, for its default or a preset to apply."""
     return Options(config, only, label, default_texts or {}, fill=False)
@@ -389,9 +381,33 @@ def settings(
 
 @dataclass(frozen=True)
 class Command:
+    """`options` is a function for a command whose flags come from a registry read when the
+    parser is built (`train irl`'s methods)."""
+
     help: str
     description: str
-    options: tuple[Options, ...]
+    options: tuple[Options, ...] | Callable[[], tuple[Options, ...]]
+
+
+def _irl_options() -> tuple[Options, ...]:
+    """`train irl`'s flags: --method and the commands' own, then each method's configs, the
+    help of a flag shared by several methods saying what it does in each."""
+    methods: dict[tuple[type, tuple[str, ...] | None], list[str]] = {}
+    default_texts: dict[tuple[type, tuple[str, ...] | None], dict[str, str]] = {}
+    for method in IRL_METHODS.values():
+        for source in method.configs:
+            methods.setdefault(source, []).append(method.name)
+            default_texts.setdefault(source, {}).update(method.flag_defaults)
+    configs = tuple(
+        settings(config, only=only, label="/".join(names), default_texts=default_texts[config, only])
+        for (config, only), names in methods.items()
+    )
+    return (
+        Options(IRLOptions, choices={"method": tuple(IRL_METHODS)}),
+        *configs,
+        Options(RayWorkers, helps=_workers("PPO's rollouts (gcl, airl, gail)")),
+        TRAIN_OUTPUT,
+    )
 
 
 TRAIN_OUTPUT = Options(RunOutput)
@@ -533,21 +549,7 @@ COMMANDS: dict[str, Command] = {
         "discriminator a reward only with that caveat). apprenticeship (Abbeel & Ng 2004, projection method) matches the "
         "demos' feature expectations with a mixture of policies: exactly on a tabular env, with PPO as the solver on Box "
         "observations. The run directory holds the reward model, for `train ppo --reward RUN_DIR`.",
-        (
-            Options(IRLOptions),
-            settings(MaxEntIRLConfig, label=TABULAR),
-            settings(GCLConfig, label=GCL),
-            settings(AdversarialConfig, label=ADVERSARIAL),
-            settings(
-                PPOConfig,
-                only=("total_steps",),
-                label="gcl/airl/gail",
-                default_texts={"total_steps": "the env's preset, 200000 where none"},
-            ),
-            settings(ApprenticeshipConfig, label=APPRENTICESHIP),
-            Options(RayWorkers, helps=_workers("PPO's rollouts (gcl, airl, gail)")),
-            TRAIN_OUTPUT,
-        ),
+        _irl_options,
     ),
     "eval policy": Command(
         "return of a run's policy",

@@ -106,18 +106,19 @@ def add_flags(
     default_texts: Mapping[str, str] | None = None,
     helps: Mapping[str, str] | None = None,
     fill: bool = False,
+    choices: Mapping[str, Sequence[str]] | None = None,
 ) -> None:
     """Add the flags of `config` (those of the fields named in `only`, if given) and of its nested
     configs to `parser`, and record `config` among the parser's sources (its `configs` default,
     which `flag_of` reads). A flag not given is None, so that the config's own default, or a
     preset, applies; with `fill` (a command's own options) argparse fills in the field's default.
     `label` names the variants of a command the flags are for (`train irl`'s methods): the help
-    then says, per label, what the flag does there. `helps` and `default_texts` replace a
-    field's help and how it names its default, for this command. A flag the parser already has
+    then says, per label, what the flag does there. `helps`, `default_texts` and `choices` replace
+    a field's help, how it names its default and its choices, for this command. A flag the parser already has
     (a seed shared by two configs of one command) is not added again: it sets both fields."""
     chosen = None if only is None else tuple(only)
     parser.set_defaults(**{SOURCES: (*(parser.get_default(SOURCES) or ()), (config, chosen, fill))})
-    _add(parser, config, chosen, None, _Wording(label, default_texts or {}, helps or {}, fill))
+    _add(parser, config, chosen, None, _Wording(label, default_texts or {}, helps or {}, fill, choices or {}))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,6 +127,7 @@ class _Wording:
     default_texts: Mapping[str, str]
     helps: Mapping[str, str]
     fill: bool
+    choices: Mapping[str, Sequence[str]]
 
 
 def _add(parser: argparse.ArgumentParser, config: type, only: Iterable[str] | None, defaults: Any, wording: _Wording) -> None:
@@ -159,7 +161,11 @@ def _add(parser: argparse.ArgumentParser, config: type, only: Iterable[str] | No
             if parse is None:
                 raise TypeError(f"{config.__name__}.{field.name}: a flag of type {types[field.name]} needs parse=")
             options: dict[str, Any] = dict(
-                type=parse, choices=described.choices, nargs=described.nargs, metavar=described.metavar, help=text
+                type=parse,
+                choices=wording.choices.get(field.name, described.choices),
+                nargs=described.nargs,
+                metavar=described.metavar,
+                help=text,
             )
             if described.positional:
                 action = parser.add_argument(option, **options)

@@ -192,7 +192,7 @@ def test_halfcheetah_gets_the_zoo_preset_but_beside_a_reward_being_learnt() -> N
     `eval reward`'s retraining), gets rl-baselines3-zoo's tuned PPO, with rewards normalised; the policy
     `train irl` trains beside its discriminator keeps the continuous-control settings, as Hopper has
     everywhere."""
-    import cli
+    from imitation.jobs.irl_methods import IRLRun, ppo_beside_irl
     from imitation.jobs.presets import ppo_config, ppo_settings
 
     env_id = "imitation/HalfCheetahFixedHorizon-v0"
@@ -202,9 +202,8 @@ def test_halfcheetah_gets_the_zoo_preset_but_beside_a_reward_being_learnt() -> N
         assert (zoo.hidden_sizes, zoo.activation, zoo.log_std_init, zoo.learning_rate) == ([256, 256], "relu", -2.0, 2.0633e-05)
     assert learned.normalize_rewards and beside.normalize_rewards
     assert ppo_settings("CartPole-v1", beside_irl=True)["normalize_rewards"] and "normalize_rewards" not in ppo_settings("CartPole-v1")
-    args = cli.make_parser().parse_args(["train", "irl", "--method", "airl", "--env", env_id, "--demos", str(DATASETS / "Pendulum-v1.mcap"), "--out", "r"])
-    args.command_key = "train irl"  # as `main` sets it
-    assert cli._ppo_beside_irl(args) == dataclasses.replace(beside, total_steps=3_000_000), "`train irl`'s policy"
+    run = IRLRun("airl", [str(DATASETS / "Pendulum-v1.mcap")], env_id, "r", {})  # `train irl` with no flags
+    assert ppo_beside_irl(run) == dataclasses.replace(beside, total_steps=3_000_000), "`train irl`'s policy"
     for continuous in (beside, ppo_config("imitation/HopperFixedHorizon-v0", learned_reward=True)):
         assert (continuous.n_steps, continuous.n_epochs, continuous.gamma, continuous.hidden_sizes) == (2048, 10, 0.99, [64, 64])
         assert (continuous.activation, continuous.log_std_init, continuous.learning_rate) == ("tanh", 0.0, 3e-4)

@@ -9,7 +9,6 @@ from imitation.algorithms.gcl_config import REWARD_INPUTS
 from imitation.errors import ConfigError
 from imitation.flags import finite, flag, hidden_sizes, seed
 
-LABEL = "airl/gail"
 METHODS = ("gail", "airl")
 GAIL_REWARDS = ("softplus", "logit")
 # The settings of the discriminator's training, which a method without one refuses.

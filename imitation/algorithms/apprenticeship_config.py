@@ -8,8 +8,6 @@ from dataclasses import dataclass
 from imitation.errors import ConfigError
 from imitation.flags import flag, seed
 
-LABEL = "apprenticeship"
-
 
 @dataclass(kw_only=True)
 class ApprenticeshipConfig:

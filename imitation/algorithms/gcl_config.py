@@ -8,7 +8,6 @@ from dataclasses import dataclass
 from imitation.errors import ConfigError
 from imitation.flags import flag, hidden_sizes, seed
 
-LABEL = "gcl"
 REWARD_INPUTS = ("s", "sa", "sas")  # imitation.rewards.REWARD_INPUTS, without its torch import
 OBJECTIVES = ("discriminator", "importance")
 

@@ -8,8 +8,6 @@ from dataclasses import dataclass
 from imitation.errors import ConfigError
 from imitation.flags import flag, hidden_sizes, seed
 
-LABEL = "maxent/mce"  # the methods whose flags these are, in `train irl --help`
-
 
 @dataclass(kw_only=True)
 class MaxEntIRLConfig:

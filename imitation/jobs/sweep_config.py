@@ -26,6 +26,7 @@ from typing import Any
 
 from imitation.data.convert.yaml_bounded import read_yaml_file
 from imitation.errors import ImitationError
+from imitation.jobs.irl_methods import DEFAULT_METHOD, IRL_METHODS, RETURN
 from imitation.seeding import seed_problem
 
 KEYS = (
@@ -53,7 +54,6 @@ RUN_PLACEHOLDER = "OUT/runs/TRIAL"
 # The metric a sweep optimises unless the file names one: a column of the rows the command's
 # learner logs (its progress.csv), whether lower or higher is better, and which of a trial's
 # values is its result: BC keeps the weights of its best epoch, the others end with their last.
-RETURN = ("return", "max", "last")
 DEFAULT_METRICS: dict[str, tuple[str, str, str]] = {
     "train bc": ("validation_loss", "min", "best"),
     "train dagger": RETURN,
@@ -63,15 +63,15 @@ DEFAULT_METRICS: dict[str, tuple[str, str, str]] = {
     "train cem": RETURN,
     "train cmaes": RETURN,
 }
-IRL_METRICS: dict[str, tuple[str, str, str]] = {
-    "maxent": ("occupancy_error", "min", "last"),
-    "mce": ("occupancy_error", "min", "last"),
-    "gcl": RETURN,
-    "gail": RETURN,
-    "airl": RETURN,
-    "apprenticeship": ("relative_distance", "min", "last"),
-}
-IRL_DEFAULT_METHOD = "mce"
+
+
+def default_metric(command: str, args: dict[str, Any]) -> tuple[str, str, str] | None:
+    """The metric a sweep of `command` with fixed flags `args` optimises unless its file names
+    one; for `train irl`, its method's (imitation.jobs.irl_methods), None for an unknown one."""
+    if command != "train irl":
+        return DEFAULT_METRICS.get(command)
+    method = IRL_METHODS.get(str(args.get("method", DEFAULT_METHOD)))
+    return method.metric if method is not None else None
 
 
 @dataclass(frozen=True)
@@ -285,10 +285,7 @@ def _metric(
     document: dict[str, Any], command: str, args: dict[str, Any], space: dict[str, Distribution], where: _Where
 ) -> tuple[str, str, str]:
     """(metric, mode, scope): the file's, or the command's default."""
-    if command == "train irl":
-        default = None if "method" in space else IRL_METRICS.get(str(args.get("method", IRL_DEFAULT_METHOD)))
-    else:
-        default = DEFAULT_METRICS.get(command)
+    default = None if command == "train irl" and "method" in space else default_metric(command, args)
     metric = document.get("metric", default[0] if default is not None else None)
     if metric is None:
         raise where.at("metric").error(
