@@ -161,23 +161,15 @@ def cmd_convert(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    from imitation.data.export.formats import format_named
+
     target, destination = args.to
-    if target == "lerobot":
-        from imitation.data.export.lerobot import export_lerobot
-
-        result = export_lerobot(args.file, destination, progress=not args.quiet)
-        summary = f"{result['episodes']} episodes, {result['frames']} frames at {result['fps']} fps (LeRobotDataset v3.0)"
-    elif target == "foxglove":
-        from imitation.data.export.foxglove import export_foxglove
-
-        result = export_foxglove(args.file, destination, progress=not args.quiet)
-        summary = f"{result['episodes']} episodes, {result['messages']} JSON messages on {', '.join(result['topics'])}"
-    else:
-        raise ImitationError(f"--to {target}: unknown format; use lerobot DIR or foxglove F2.mcap")
+    exported = format_named(target)
+    result = exported.export(args.file, destination, progress=not args.quiet)
     if args.json:
         _print_json(result)
     else:
-        print(f"exported {args.file} to {destination}: {summary}")
+        print(f"exported {args.file} to {destination}: {exported.summary(result)}")
     return 0
 
 

@@ -17,6 +17,7 @@ from imitation.algorithms.policy_gradient_config import PGConfig
 from imitation.algorithms.policy_search_config import SearchConfig
 from imitation.algorithms.ppo_config import PPOConfig
 from imitation.data.convert.sources import SOURCES
+from imitation.data.export.formats import FORMATS
 from imitation.flags import flag, quality, seconds, speed
 from imitation.jobs.evaluate_policy_config import PolicyEvaluationConfig
 from imitation.jobs.evaluate_reward_config import RewardEvaluationConfig
@@ -237,7 +238,11 @@ class ConvertOptions:
 @dataclass(kw_only=True)
 class ExportOptions:
     file: str = flag(positional=True, metavar=DEMO_FILES, help="demo file")
-    to: list[str] = flag(nargs=2, metavar=("FORMAT", "DEST"), help="lerobot DIR, or foxglove F2.mcap")
+    to: list[str] = flag(
+        nargs=2,
+        metavar=("FORMAT", "DEST"),
+        help=", or ".join(f"{known.name} {known.destination}" for known in FORMATS.values()),
+    )
 
 
 @dataclass(kw_only=True)
