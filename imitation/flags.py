@@ -1,11 +1,13 @@
-"""Command-line flags declared once, beside the config fields they set.
+"""Command-line flags declared once, beside the dataclass fields they set.
 
-A config field becomes a flag by `flag(...)` in place of `dataclasses.field(...)`: its help text
-and, where the field does not already say them, its name (`--field-name` by default), metavar,
-choices and parser. `add_flags` adds a config class's flags to an argparse parser with no argparse
-default, so that a flag not given leaves the config's own default, which the help names;
-`given` reads back the fields whose flags were given. The flags' argument types (`finite`,
-`seed`, `hidden_sizes`, …) refuse bad text where it enters, as argparse usage errors (exit 2).
+A field becomes a flag by `flag(...)` in place of `dataclasses.field(...)`: its help text and,
+where the field does not already say them, its name (`--field-name` by default), metavar,
+choices, parser, arity or position. `add_flags` adds a dataclass's flags to an argparse parser.
+For a learner's or job's config a flag not given stays None, so that the config's own default (or
+a preset) applies, and `given` reads back the fields the user set; for a command's own options
+(`fill`) argparse fills in the field's default. Either way the help names the default from the
+field. The flags' argument types (`finite`, `seed`, `hidden_sizes`, …) refuse bad text where it
+enters, as argparse usage errors (exit 2).
 
 This module is imported by the light config modules that `imitation --help` loads: it imports
 nothing heavier than argparse.
@@ -114,8 +116,9 @@ def add_flags(
     preset, applies; with `fill` (a command's own options) argparse fills in the field's default.
     `label` names the variants of a command the flags are for (`train irl`'s methods): the help
     then says, per label, what the flag does there. `helps`, `default_texts` and `choices` replace
-    a field's help, how it names its default and its choices, for this command. A flag the parser already has
-    (a seed shared by two configs of one command) is not added again: it sets both fields."""
+    a field's help, how it names its default and its choices, for this command. A flag the parser
+    already has (a seed shared by two configs of one command) is not added again: it sets both
+    fields."""
     chosen = None if only is None else tuple(only)
     parser.set_defaults(**{SOURCES: (*(parser.get_default(SOURCES) or ()), (config, chosen, fill))})
     _add(parser, config, chosen, None, _Wording(label, default_texts or {}, helps or {}, fill, choices or {}))
@@ -123,6 +126,8 @@ def add_flags(
 
 @dataclasses.dataclass(frozen=True)
 class _Wording:
+    """How one command words and fills a dataclass's flags (`add_flags`' keywords)."""
+
     label: str | None
     default_texts: Mapping[str, str]
     helps: Mapping[str, str]
