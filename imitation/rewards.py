@@ -28,7 +28,6 @@ import numpy as np
 import torch
 from torch import nn
 
-from imitation.data.loader import tree_map
 from imitation.data.spaces import space_from_json, space_to_json
 from imitation.encoders import CNNConfig, ImageEncoder, cnn_weight_count, conv_output_sides
 from imitation.envs.rollout import Rollout
@@ -44,6 +43,7 @@ from imitation.observation_encoding import (
     vector_leaves,
 )
 from imitation.runs import read_run
+from imitation.tensors import tree_map
 
 REWARD_INPUTS = ("s", "sa", "sas")
 # The network's last linear output as the reward, or its softplus log(1 + e^x) = −log(1 − σ(x)):

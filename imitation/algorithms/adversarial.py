@@ -45,11 +45,12 @@ from imitation.checkpoints import (
     tree_of_names,
     unprefixed,
 )
-from imitation.data.loader import TensorTree, TransitionTensors, tree_cat
+from imitation.data.loader import TransitionTensors
 from imitation.envs.rollout import Rollout
 from imitation.errors import ImitationError
 from imitation.policies import ActorCritic
 from imitation.rewards import RewardNet, flat_batch, tree_index
+from imitation.tensors import TensorTree, tree_cat
 
 
 @dataclass

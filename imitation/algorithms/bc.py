@@ -52,7 +52,7 @@ from imitation.checkpoints import (
     rng_checkpoint,
     unprefixed,
 )
-from imitation.data.loader import MinibatchLoader, TransitionTensors, resolve_device
+from imitation.data.loader import MinibatchLoader, TransitionTensors
 from imitation.data.stream import StreamingLoader
 from imitation.encoders import CNNConfig, cnn_activation_count, cnn_weight_count
 from imitation.errors import ConfigError, ImitationError
@@ -60,6 +60,7 @@ from imitation.flat_adam import FlatAdam
 from imitation.mlp import mlp_weight_count
 from imitation.observation_encoding import observation_layout, observation_size
 from imitation.policies import ActorCritic, RunningMeanStd, action_logits_size
+from imitation.tensors import resolve_device
 
 
 class DataParallel(Protocol):

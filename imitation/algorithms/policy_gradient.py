@@ -68,10 +68,10 @@ from imitation.checkpoints import (
     rng_checkpoint,
     unprefixed,
 )
-from imitation.data.loader import resolve_device
 from imitation.envs.make import make_env
 from imitation.errors import ImitationError
 from imitation.policies import RunningMeanStd, make_policy, require_flat_observations
+from imitation.tensors import resolve_device
 
 # ------------------------------------------------------------------------------------------------
 # The formulas, as pure functions over a stream of steps (T, ...) whose episodes are contiguous;

@@ -72,7 +72,6 @@ from imitation.checkpoints import (
     rng_checkpoint,
     unprefixed,
 )
-from imitation.data.loader import TensorTree, resolve_device
 from imitation.envs.cartpole_vector import VECTORISED_CARTPOLES, SameStepCartPole
 from imitation.envs.make import make_env
 from imitation.envs.pixels import PIXELS_KEY, PixelRecipe, StackFrames, make_pixel_env
@@ -81,6 +80,7 @@ from imitation.errors import ImitationError
 from imitation.flat_adam import FlatAdam, clip_grad_norm
 from imitation.policies import ActorCritic, RunningMeanStd, batch_of_one, make_policy, tensor_tree
 from imitation.rewards import flat_batch, tree_index
+from imitation.tensors import TensorTree, resolve_device
 
 # ------------------------------------------------------------------------------------------------
 # The formulas, as pure functions (tested against values worked by hand).

@@ -27,10 +27,10 @@ import numpy as np
 import torch
 
 from imitation.algorithms.ppo import PPO, PPOConfig
-from imitation.data.loader import tree_map
 from imitation.errors import ImitationError
 from imitation.ray_engine import RETRIES, ray_get, require_ray
 from imitation.rewards import flat_batch, tree_index
+from imitation.tensors import tree_map
 
 
 def _numpy(tensor: torch.Tensor) -> np.ndarray:

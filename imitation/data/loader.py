@@ -16,7 +16,6 @@ import os
 import resource
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, fields
-from typing import Any
 
 import numpy as np
 import torch
@@ -26,40 +25,8 @@ from imitation.data.dataset import DemoDataset
 from imitation.data.frame_transform import FrameTransform
 from imitation.data.spaces import space_leaves
 from imitation.data.types import Episode, Transitions, episodes_to_transitions, first_nonfinite
-from imitation.errors import ConfigError, ImitationError
-
-TensorTree = torch.Tensor | dict[str, Any]
-
-
-def resolve_device(device: str | torch.device = "auto") -> torch.device:
-    """'auto' → CUDA when available, else CPU; anything else is passed to torch.device."""
-    if isinstance(device, torch.device):
-        return device
-    if device == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        resolved = torch.device(device)
-    except RuntimeError as error:
-        raise ConfigError("device", f"{device!r}: {error}") from None
-    if resolved.type == "cuda" and not torch.cuda.is_available():
-        raise ConfigError("device", f"{device}: CUDA is not available on this machine")
-    return resolved
-
-
-def tree_map(fn: Callable[[Any], Any], tree: Any) -> Any:
-    """`fn` applied to every leaf of a tree (a tensor or array, or a dict of trees; None stays None), the tree kept."""
-    if tree is None:
-        return None
-    if isinstance(tree, dict):
-        return {key: tree_map(fn, sub) for key, sub in tree.items()}
-    return fn(tree)
-
-
-def tree_cat(*trees: Any) -> Any:
-    """Batches (tensors, or dicts of them alike) one after the other."""
-    if isinstance(trees[0], dict):
-        return {key: tree_cat(*(tree[key] for tree in trees)) for key in trees[0]}
-    return torch.cat(trees)
+from imitation.errors import ImitationError
+from imitation.tensors import TensorTree, resolve_device, tree_map
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -431,7 +398,6 @@ __all__ = [
     "TransitionTensors",
     "load_episodes",
     "load_transitions",
-    "resolve_device",
     "split_episode_tails",
     "split_episodes",
     "transitions_to_torch",

@@ -11,9 +11,10 @@ import torch
 from helpers import random_episode, rewrite_messages
 
 from imitation.data.dataset import DemoDataset
-from imitation.data.loader import MinibatchLoader, load_transitions, resolve_device, split_episodes, transitions_to_torch
+from imitation.data.loader import MinibatchLoader, load_transitions, split_episodes, transitions_to_torch
 from imitation.data.mcap.writer import write_episodes
 from imitation.errors import ImitationError
+from imitation.tensors import resolve_device
 
 BOX = gym.spaces.Box(-1, 1, (3,), np.float32)
 ACTIONS = gym.spaces.Discrete(4)
