@@ -288,3 +288,36 @@ def test_each_rollout_adds_its_time_and_a_killed_worker_is_restarted_and_its_col
     finally:
         learner.close()
         remote.close()
+
+
+def test_a_resumed_image_learner_leaves_the_first_frames_out_of_its_statistics_as_the_local_one_does() -> None:
+    """Restored from a checkpoint taken after an update, the local learner resets its envs without
+    folding the first frames into its image statistics (they were counted in the run's first
+    rollout): the gathered rollout leaves the restored statistics as they are too."""
+    settings = config(**PIXELS | {"total_steps": 64}, normalize_observations=True)
+    source = PPO(settings)
+    source.updates = 1
+    checkpoint = source.state_dict()
+    source.close()
+    local, gathered = PPO(settings), PPO(settings)
+    try:
+        for learner in (local, gathered):
+            learner.load_state_dict(checkpoint)
+        restored = {name: tensor.clone() for name, tensor in gathered.policy.state_dict().items()}
+        local.collect_rollout()
+        gatherer = RayRollouts(settings.n_envs, 1)
+        worker = RolloutWorker(settings, 0, settings.n_envs, gathered.updates)
+        try:
+            segment = worker.collect(weights(gathered))
+        finally:
+            worker.close()
+        gatherer._gather(gathered, [segment])
+        assert torch.equal(gathered.rollout_storage.observations["pixels"][0], local.rollout_storage.observations["pixels"][0])
+        statistics = [name for name in restored if name.startswith(("pixel_rms", "obs_rms"))]
+        assert any(name.startswith("pixel_rms") for name in statistics)
+        for name in statistics:
+            assert torch.equal(local.policy.state_dict()[name], restored[name]), name
+            assert torch.equal(gathered.policy.state_dict()[name], restored[name]), name
+    finally:
+        local.close()
+        gathered.close()
