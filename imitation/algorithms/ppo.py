@@ -463,6 +463,10 @@ class PPO:
         self.rollout_size = config.n_steps * config.n_envs
         self.total = -(-config.total_steps // self.rollout_size)  # updates: at least total_steps
         self.updates = 0
+        # The first reset folds the first frames into an image policy's statistics at a run's
+        # start; a run resumed after an update has them already (and so has a Ray worker's copy
+        # of such a run, which counts no updates of its own).
+        self.folds_first_frames = True
         self.global_step = 0
         self.beta = config.kl_beta_init
         self.recent_returns: deque[float] = deque(maxlen=20)
@@ -536,7 +540,7 @@ class PPO:
         if self.observations is None:
             self.observations, _ = self.envs.reset(seed=config.seed + self.updates * config.n_envs)
             check_finite_step(config.env_id, -1, **observation_leaves("observation", self.observations))
-            if policy.layout is not None and self.updates == 0:
+            if policy.layout is not None and self.folds_first_frames:
                 # An image policy's statistics start from the first frames (then grow once per rollout).
                 policy.update_normalizer(tensor_tree(self.observations, device))
         self.clock.start()  # wall-clock time from here on, reward learning between updates included
@@ -729,3 +733,4 @@ class PPO:
                 float(state["seconds"]),
             )
             self.updates = checked_counter(int(state["update"]), "next update", 0, self.total)
+            self.folds_first_frames = self.updates == 0

@@ -54,6 +54,7 @@ class RolloutWorker:
             threads=1,
         )
         self.learner = PPO(share)
+        self.learner.folds_first_frames = updates == 0  # a resumed run's statistics hold them already
 
     def collect(self, weights: dict[str, np.ndarray]) -> dict[str, Any]:
         """n_steps steps of this worker's copies with π_k's `weights`: the rollout's tensors and

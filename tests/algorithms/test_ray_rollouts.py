@@ -293,7 +293,8 @@ def test_each_rollout_adds_its_time_and_a_killed_worker_is_restarted_and_its_col
 def test_a_resumed_image_learner_leaves_the_first_frames_out_of_its_statistics_as_the_local_one_does() -> None:
     """Restored from a checkpoint taken after an update, the local learner resets its envs without
     folding the first frames into its image statistics (they were counted in the run's first
-    rollout): the gathered rollout leaves the restored statistics as they are too."""
+    rollout): the gathered rollout leaves the restored statistics as they are too, and the worker
+    acts with them, not with a copy that folded the first frames at its own first reset."""
     settings = config(**PIXELS | {"total_steps": 64}, normalize_observations=True)
     source = PPO(settings)
     source.updates = 1
@@ -318,6 +319,10 @@ def test_a_resumed_image_learner_leaves_the_first_frames_out_of_its_statistics_a
         for name in statistics:
             assert torch.equal(local.policy.state_dict()[name], restored[name]), name
             assert torch.equal(gathered.policy.state_dict()[name], restored[name]), name
+        # The first step sees the same frames through the same statistics: the same V and π's
+        # parameters (the steps after it follow the worker's own sampling, not the restored one's).
+        for name in ("values", "parameters"):
+            assert torch.equal(getattr(gathered.buffers, name)[0], getattr(local.buffers, name)[0]), name
     finally:
         local.close()
         gathered.close()
