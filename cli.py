@@ -112,7 +112,6 @@ def cmd_convert(args: argparse.Namespace) -> int:
     from imitation.data.convert.job import convert, inspect
 
     source_kind = ConvertOptions(**given(args, ConvertOptions)).source_kind  # --from, a Python keyword
-
     if args.inspect or args.write_map:
         if args.out or args.map or args.env or args.layout:
             args.parser.error("--inspect lists a bag's topics; it takes no --out, --map, --layout or --env")
