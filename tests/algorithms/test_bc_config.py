@@ -104,5 +104,7 @@ def test_a_data_parallel_run_splits_batches_evenly_and_streams_nothing() -> None
     BCConfig(batch_size=256).validate_data_parallel(4)
     with pytest.raises(ConfigError, match=r"^batch_size must be a multiple of the 3 torchrun processes .* got 256$"):
         BCConfig(batch_size=256).validate_data_parallel(3)
+    with pytest.raises(ConfigError, match=r"^batch_size must be a multiple of the 2 torchrun processes .* got 1$"):
+        BCConfig(batch_size=1).validate_data_parallel(2)
     with pytest.raises(ConfigError, match="^stream_memory streams no data under torchrun"):
         BCConfig(stream_memory=1024).validate_data_parallel(1)
