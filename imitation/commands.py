@@ -26,6 +26,12 @@ from imitation.jobs.record_config import COMPRESSIONS, IMAGE_CODECS, RecordConfi
 
 ENV_ID = "gymnasium environment id"
 DEMO_FILES = "F.mcap"
+# Helps whose subject each command names (`Options(..., helps=_pixels(...))`).
+PIXELS_HELP = (
+    "observations {what} rendered frames resized to H×W (e.g. 84x84) under the key 'pixels', with the env's own "
+    "observation beside them as 'state' (the expert acts on the state)"
+)
+WORKERS_HELP = "run {what} on N Ray workers (pip install 'imitation-mcap[ray]')"
 
 
 # ------------------------------------------------------------------------------------------------
@@ -74,11 +80,7 @@ class Pixels:
     """Rendered frames as observations: `helps["pixels"]` says, per command, what sees them."""
 
     pixels: str | None = flag(
-        None,
-        metavar="HxW",
-        help="observations are rendered frames resized to H×W (e.g. 84x84) under the key 'pixels', with the env's own "
-        "observation beside them as 'state' (the expert acts on the state)",
-        default_text="the env's own observations",
+        None, metavar="HxW", help=PIXELS_HELP.format(what="are"), default_text="the env's own observations"
     )
     grayscale: bool = flag(False, help="with --pixels: one luma channel instead of RGB")
     crop: str | None = flag(
@@ -105,10 +107,7 @@ class RayWorkers:
     """`helps["workers"]` says, per command, what runs on the workers."""
 
     workers: int | None = flag(
-        None,
-        metavar="N",
-        help="run on N Ray workers (pip install 'imitation-mcap[ray]')",
-        default_text="in this process, no Ray",
+        None, metavar="N", help=WORKERS_HELP.format(what="the work"), default_text="in this process, no Ray"
     )
     ray_address: str = flag(
         "local",
@@ -121,14 +120,11 @@ class RayWorkers:
 
 
 def _workers(what: str) -> dict[str, str]:
-    return {"workers": f"run {what} on N Ray workers (pip install 'imitation-mcap[ray]')"}
+    return {"workers": WORKERS_HELP.format(what=what)}
 
 
 def _pixels(what: str) -> dict[str, str]:
-    return {
-        "pixels": f"observations {what} rendered frames resized to H×W (e.g. 84x84) under the key 'pixels', with the env's "
-        "own observation beside them as 'state' (the expert acts on the state)"
-    }
+    return {"pixels": PIXELS_HELP.format(what=what)}
 
 
 # ------------------------------------------------------------------------------------------------

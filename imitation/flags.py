@@ -285,10 +285,10 @@ def _default_text(described: Flag, default: Any, name: str) -> str:
         return described.default_text
     if isinstance(default, bool):
         return "on" if default else "off"
+    if default is None or default == []:
+        raise TypeError(f"{name}: a flag whose default is {default!r} needs default_text=")
     if isinstance(default, list):
-        return ",".join(str(item) for item in default) or "linear"
-    if default is None:
-        raise TypeError(f"{name}: a flag whose default is None needs default_text=")
+        return ",".join(str(item) for item in default)
     return str(default)
 
 

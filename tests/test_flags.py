@@ -135,7 +135,7 @@ def test_a_config_error_is_reported_with_the_flag_that_sets_the_field() -> None:
 def test_a_field_whose_type_says_no_parser_needs_one() -> None:
     @dataclass
     class Untyped:
-        points: list[float] = flag(help="points", default_factory=list)
+        points: list[float] = flag(help="points", default_text="none", default_factory=list)
 
     with pytest.raises(TypeError, match="Untyped.points: a flag of type list"):
         add_flags(argparse.ArgumentParser(), Untyped)
@@ -201,3 +201,14 @@ def test_a_flag_several_variants_share_says_what_it_does_in_each() -> None:
     assert parser.get_default("configs") == ((First, None, False), (Second, None, False))
     args = parser.parse_args(["--steps", "7"])
     assert given(args, First) == {"steps": 7} and given(args, Second) == {"total": 7}
+
+
+def test_a_default_the_value_does_not_say_needs_words() -> None:
+    """None or an empty list says nothing in a help text; the field must say what it means."""
+
+    @dataclass
+    class Silent:
+        widths: list[int] = flag(parse=hidden_sizes, help="widths", default_factory=list)
+
+    with pytest.raises(TypeError, match=r"^widths: a flag whose default is \[\] needs default_text=$"):
+        add_flags(argparse.ArgumentParser(), Silent)

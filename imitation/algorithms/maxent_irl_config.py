@@ -17,7 +17,12 @@ class MaxEntIRLConfig:
     learning_rate: float = flag(0.05, name="--lr", metavar="LR", help="Adam learning rate of the reward")
     tolerance: float = flag(1e-4, metavar="E", help="stop when the visitation error (L∞) is below E")
     hidden_sizes: list[int] = flag(
-        name="--hidden", parse=hidden_sizes, metavar="32,32", help="reward MLP widths, or 'linear'", default_factory=list
+        name="--hidden",
+        parse=hidden_sizes,
+        metavar="32,32",
+        help="reward MLP widths, or 'linear'",
+        default_text="linear",
+        default_factory=list,
     )
     seed: int = flag(0, parse=seed, metavar="S", help="seed")
 
