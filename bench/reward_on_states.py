@@ -25,7 +25,8 @@ from imitation.data.dataset import DemoDataset
 from imitation.data.loader import load_transitions
 from imitation.envs.make import make_env
 from imitation.envs.rollout import collect_transitions
-from imitation.policies import POLICY_PREFIX, ActorCritic, SingleObservationPolicy, load_policy, make_policy
+from imitation.policies import POLICY_PREFIX, ActorCritic, SingleObservationPolicy, make_policy
+from imitation.policy_kinds import load_policy
 from imitation.rewards import RewardNet, load_reward
 
 Steps = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # s, a, s', true reward

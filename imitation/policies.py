@@ -1,5 +1,6 @@
-"""Actor-critic MLP policies shared by PPO, BC and DAgger, and their save/load (softmax and
-Gaussian policies: docs/THEORY.md §2.3–2.4).
+"""Actor-critic MLP policies shared by PPO, BC and DAgger, the policy kind "actor-critic" of
+`imitation.policy_kinds` (softmax and Gaussian policies: docs/THEORY.md §2.3–2.4), and the
+pieces that act with a policy in an env.
 
 Three policy heads, chosen by the action space:
 
@@ -33,9 +34,6 @@ the policy head (near-uniform initial policy), 1 for the value head.
 from __future__ import annotations
 
 import math
-import os
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol, cast
 
 import gymnasium as gym
@@ -45,6 +43,7 @@ from torch import nn
 from torch.distributions import Categorical, Distribution, Normal, kl_divergence, register_kl
 
 from imitation.data.frame_transform import FrameTransform, TransformFrames
+from imitation.data.loader import TransitionTensors
 from imitation.data.spaces import check_spaces_fit, describe_space, space_from_json, space_to_json
 from imitation.encoders import CNNConfig, ImageEncoder, cnn_weight_count, conv_output_sides, random_shift
 from imitation.envs.make import make_env
@@ -55,12 +54,11 @@ from imitation.envs.pixels import (
     make_pixel_env,
 )
 from imitation.envs.previous_action import PreviousActionObservation
-from imitation.errors import ImitationError, SpaceError
+from imitation.envs.rollout import start_episode
+from imitation.errors import ImitationError
 from imitation.limits import LIMITS, over_limit
 from imitation.mlp import (
     ACTIVATIONS,
-    check_layer_widths,
-    check_weights_cover,
     hidden_layers,
     mlp_weight_count,
     orthogonal_linear,
@@ -68,16 +66,13 @@ from imitation.mlp import (
 from imitation.observation_encoding import (
     ImageLeaf,
     check_cnn_size,
-    check_image_fields,
     leaf_frames,
     observation_layout,
     observation_size,
     vector_leaves,
 )
-from imitation.runs import read_run
+from imitation.policy_protocol import ImitationObjective, ImitationPolicy, MomentsMerge, PolicyConfig
 
-# (rows, mean, std) of one process's rows → (mean, std) of every process's (data-parallel training).
-MomentsMerge = Callable[[int, torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 _SCALAR_SHAPE = torch.Size()  # the default sample_shape of Distribution.sample (immutable)
 
 
@@ -127,65 +122,6 @@ class RunningMeanStd(nn.Module):
     def normalize(self, x: torch.Tensor, clip: float = 10.0) -> torch.Tensor:
         scaled = (x - self.mean.to(x.dtype)) / torch.sqrt(self.var.to(x.dtype) + 1e-8)
         return scaled.clamp(-clip, clip)
-
-
-@dataclass(kw_only=True)
-class PolicyConfig:
-    """Everything needed to rebuild a policy before loading its weights."""
-
-    observation_space: dict[str, Any]
-    action_space: dict[str, Any]
-    hidden_sizes: list[int] = field(default_factory=lambda: [64, 64])
-    activation: str = "tanh"
-    shared_trunk: bool = False
-    normalize_observations: bool = False
-    log_std_init: float = 0.0
-    # Box actions: the Gaussian's head works in standardised units (fixed statistics, fitted to
-    # the training actions by BC and saved with the weights), so every action dimension is learnt
-    # at one scale whatever its units.
-    normalize_actions: bool = False
-    # Box actions: the observation is x_t = [s_t, a_{t-1}, 1{t=0}] and μ is a_{t-1} plus the head's output.
-    previous_action: bool = False
-    # Pixel observations: the leaves read (top-level keys; None: all), frames per image leaf, the
-    # CNN for image leaves, how the acting env renders its frames (`make_acting_env`), and the
-    # crop and size its frames are brought to, as the demos' were when loaded (`acting_env`,
-    # `FrameTransform.to_json`).
-    observation_keys: list[str] | None = None
-    frame_stack: int = 1
-    cnn: dict[str, Any] | None = None
-    pixels: dict[str, Any] | None = None
-    image_transform: dict[str, Any] | None = None
-
-    def to_json(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @staticmethod
-    def from_json(data: dict[str, Any]) -> PolicyConfig:
-        """From config.json's "policy"; TypeError or ValueError for anything malformed."""
-        if not isinstance(data, dict):
-            raise TypeError(f"the policy config is a {type(data).__name__}, not an object")
-        config = PolicyConfig(**data)
-        check_layer_widths(config.hidden_sizes)
-        if not (
-            isinstance(config.activation, str)
-            and isinstance(config.shared_trunk, bool)
-            and isinstance(config.normalize_observations, bool)
-            and isinstance(config.normalize_actions, bool)
-            and isinstance(config.previous_action, bool)
-        ):
-            raise TypeError(
-                "activation must be a name, shared_trunk, normalize_observations/actions and previous_action true or false"
-            )
-        check_image_fields(config.observation_keys, config.frame_stack, config.cnn, config.pixels)
-        if config.image_transform is not None:
-            FrameTransform.from_json(config.image_transform)
-        if (
-            isinstance(config.log_std_init, bool)
-            or not isinstance(config.log_std_init, (int, float))
-            or not math.isfinite(config.log_std_init)
-        ):
-            raise ValueError(f"log_std_init must be a finite number, got {config.log_std_init!r}")
-        return config
 
 
 class SoftmaxCategorical(Categorical):
@@ -250,8 +186,9 @@ def _check_size(inputs: int, hidden_sizes: list[int], outputs: int, *, shared: b
         )
 
 
-class ActorCritic(nn.Module):
-    """An MLP actor (categorical, multi-categorical or Gaussian head) and critic, with separate or shared trunks."""
+class ActorCritic(ImitationPolicy):
+    """An MLP actor (categorical, multi-categorical or Gaussian head) and critic, with separate or
+    shared trunks: the policy kind "actor-critic"."""
 
     # Buffers (register_buffer) of MultiDiscrete and Box actions respectively, declared for the type checker.
     action_start: torch.Tensor
@@ -261,12 +198,9 @@ class ActorCritic(nn.Module):
     action_scale: torch.Tensor
 
     def __init__(self, config: PolicyConfig) -> None:
-        super().__init__()
         if config.activation not in ACTIVATIONS:
             raise ImitationError(f"activation must be one of {sorted(ACTIVATIONS)}, got {config.activation!r}")
-        self.config = config
-        self.observation_space = space_from_json(config.observation_space)
-        self.action_space = space_from_json(config.action_space)
+        super().__init__(config)
         self.layout = observation_layout(self.observation_space, config.observation_keys, config.frame_stack)
         encoders = self._image_encoders()
         self.image_encoders = nn.ModuleList(encoders)
@@ -558,6 +492,52 @@ class ActorCritic(nn.Module):
             tensors = tensor_tree(observations, self.action_head.weight.device)
             return self.to_env_action(self.act(self.encode(tensors), deterministic=deterministic))
 
+    # -- as an imitation policy (`ImitationPolicy`) --------------------------------------------------
+
+    def imitation_loss(self, batch: TransitionTensors, objective: ImitationObjective) -> tuple[torch.Tensor, torch.Tensor]:
+        """BC's objective for this kind (docs/THEORY.md §5),
+
+            −log π_θ(a|s)  (or, with loss "mse", ||μ_θ(s) − a||²)  −  c_H · H[π_θ(·|s)]  +  c_2 · ||θ_actor||²,
+
+        the NLL that of the categorical(s) over the class index of the demo's action or of the
+        Gaussian; the L2 term over the actor's trunk and head. In training, image observations are
+        randomly shifted first."""
+        assert isinstance(batch.actions, torch.Tensor)  # a policy takes no Dict actions
+        observations = self.shifted(batch.observations, objective.random_shift) if self.training else batch.observations
+        distribution = self.distribution(self.encode(observations))
+        if objective.loss == "mse":
+            fit = ((distribution.mean - batch.actions.reshape(len(batch), -1).float()) ** 2).sum(-1).mean()
+        else:
+            fit = -self.log_prob(distribution, self.from_env_action(batch.actions)).mean()
+        loss = fit
+        if objective.entropy_coef:
+            loss = loss - objective.entropy_coef * self.entropy(distribution).mean()
+        if objective.l2_coef:
+            l2 = sum(
+                (parameter**2).sum()
+                for name, parameter in self.named_parameters()
+                if name.startswith(("actor_trunk", "action_head"))
+            )
+            loss = loss + objective.l2_coef * l2
+        return loss, fit
+
+    def point_action(self, observations: Any) -> torch.Tensor:
+        """The Gaussian's mean (unclipped), or the most likely class as an env action."""
+        distribution = self.distribution(self.encode(observations))
+        if self.is_continuous:
+            return distribution.mean
+        if self.action_sizes is not None:
+            return distribution.mode + self.action_start
+        assert isinstance(self.action_space, gym.spaces.Discrete)
+        return distribution.mode + int(self.action_space.start)
+
+    def action_nll(self, observations: Any, actions: torch.Tensor) -> torch.Tensor:
+        return -self.log_prob(self.distribution(self.encode(observations)), self.from_env_action(actions))
+
+    @property
+    def reads_images(self) -> bool:
+        return len(self.image_encoders) > 0
+
 
 def tensor_tree(observations: Any, device: torch.device | str = "cpu") -> Any:
     """A batch of raw observations (an array, or a dict of them) as tensors on `device`."""
@@ -619,49 +599,34 @@ class SingleObservationPolicy:
         action = self.policy.predict(batch_of_one(observation), deterministic=self.deterministic)[0]
         return int(action) if isinstance(self.policy.action_space, gym.spaces.Discrete) else action
 
+    def reset(self) -> None:
+        start_episode(self.policy)
+
 
 POLICY_PREFIX = "policy."
 
 
-def policy_tensors(policy: ActorCritic) -> dict[str, torch.Tensor]:
+def policy_tensors(policy: ImitationPolicy) -> dict[str, torch.Tensor]:
     """The policy's weights and normaliser statistics, named for model.safetensors."""
     return {POLICY_PREFIX + name: tensor for name, tensor in policy.state_dict().items()}
 
 
-def load_policy(path: str | os.PathLike) -> ActorCritic:
-    """The policy of a run directory (PPO, BC, DAgger), on the CPU, in eval mode."""
-    config, weights = read_run(path)
-    if "policy" not in config:
-        raise ImitationError(f"{path}: a {str(config.get('kind', 'unknown'))[:40]!r} run holds no policy")
-    state = {name[len(POLICY_PREFIX) :]: tensor for name, tensor in weights.items() if name.startswith(POLICY_PREFIX)}
-    try:
-        policy_config = PolicyConfig.from_json(config["policy"])
-        observations, actions = space_from_json(policy_config.observation_space), space_from_json(policy_config.action_space)
-        outputs = action_logits_size(actions)
-        trunks = 1 if policy_config.shared_trunk else 2
-        layout = observation_layout(observations, policy_config.observation_keys, policy_config.frame_stack)
-        cnn = CNNConfig.from_json(policy_config.cnn or {})
-        inputs = observation_size(observations) if layout is None else layout.vector_size + cnn.features * len(layout.images)
-        planned = trunks * mlp_weight_count(inputs, policy_config.hidden_sizes, 0) + (policy_config.hidden_sizes or [inputs])[
-            -1
-        ] * (outputs + 1)
-        if layout is not None:
-            planned += sum(
-                cnn_weight_count(leaf.frames * leaf.channels, leaf.height, leaf.width, cnn) for leaf in layout.images
-            )
-        check_weights_cover(path, planned, state)
-        policy = ActorCritic(policy_config)
-        policy.load_state_dict(state)
-    except SpaceError as error:
-        raise ImitationError(f"{path}: the policy's {error}") from None
-    except (TypeError, KeyError, RuntimeError, ValueError) as error:
-        raise ImitationError(
-            f"{path}: policy weights do not match its config ({(str(error).splitlines() or [''])[0][:200]})"
-        ) from None
-    return policy.eval()
+def planned_weights(config: PolicyConfig) -> int:
+    """The weights an `ActorCritic` of `config` holds, counted from its MLP and CNN shapes
+    without building it (a forged config is refused before anything is allocated)."""
+    observations, actions = space_from_json(config.observation_space), space_from_json(config.action_space)
+    outputs = action_logits_size(actions)
+    trunks = 1 if config.shared_trunk else 2
+    layout = observation_layout(observations, config.observation_keys, config.frame_stack)
+    cnn = CNNConfig.from_json(config.cnn or {})
+    inputs = observation_size(observations) if layout is None else layout.vector_size + cnn.features * len(layout.images)
+    planned = trunks * mlp_weight_count(inputs, config.hidden_sizes, 0) + (config.hidden_sizes or [inputs])[-1] * (outputs + 1)
+    if layout is not None:
+        planned += sum(cnn_weight_count(leaf.frames * leaf.channels, leaf.height, leaf.width, cnn) for leaf in layout.images)
+    return planned
 
 
-def acting_env(policy: ActorCritic, env: gym.Env) -> gym.Env:
+def acting_env(policy: ImitationPolicy, env: gym.Env) -> gym.Env:
     """`env` as `policy` observes it: with x_t = [s_t, a_{t-1}, 1{t=0}] for a policy of the
     previous action, its image leaves cropped and resized as the policy's demos were
     (`TransformFrames`), then stacked for a policy of frame stacks (`env` renders the frames
@@ -681,7 +646,7 @@ def make_acting_env(config: PolicyConfig, env_id: str) -> gym.Env:
     return make_pixel_env(env_id, PixelRecipe.from_json(config.pixels))
 
 
-def observed_rendering(policy: ActorCritic, rendered: gym.Env) -> gym.Env:
+def observed_rendering(policy: ImitationPolicy, rendered: gym.Env) -> gym.Env:
     """An env made with render_mode="rgb_array" (for a video) as `policy` observes it: its
     rendered frames for a policy trained on them, then `acting_env`."""
     pixels = policy.config.pixels

@@ -21,6 +21,8 @@ PREFIXES = {
     "imitation.envs": "envs",
     "imitation.data": "data",
     "imitation.policies": "models",
+    "imitation.policy_protocol": "models",
+    "imitation.policy_kinds": "models",
     "imitation.rewards": "models",
     "imitation.observation_encoding": "models",  # how observations enter policies and reward models
     "imitation.mlp": "models",

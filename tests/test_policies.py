@@ -17,10 +17,10 @@ from imitation.policies import (
     RunningMeanStd,
     SingleObservationPolicy,
     check_policy_fits_env,
-    load_policy,
     make_policy,
     policy_tensors,
 )
+from imitation.policy_kinds import load_policy
 from imitation.runs import RunWriter
 
 BOX4 = gym.spaces.Box(-np.inf, np.inf, (4,), np.float32)
@@ -262,7 +262,8 @@ def test_normalised_actions_are_a_gaussian_in_the_envs_units(tmp_path) -> None:
     plain.fit_action_normalizer(actions, torch.zeros(4, 2))  # nothing to fit: its head works in the env's units
     assert not hasattr(plain, "action_mean")
 
-    from imitation.policies import load_policy, policy_tensors
+    from imitation.policies import policy_tensors
+    from imitation.policy_kinds import load_policy
     from imitation.runs import RunWriter as Writer
 
     with Writer(

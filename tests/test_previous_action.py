@@ -21,7 +21,8 @@ from imitation.data.loader import TransitionTensors
 from imitation.envs.previous_action import PreviousActionObservation, previous_action_space, with_previous_actions
 from imitation.errors import ConfigError, ImitationError
 from imitation.jobs.bc import _conditions_on_previous_action, _states_alone
-from imitation.policies import PolicyConfig, acting_env, load_policy, make_policy
+from imitation.policies import PolicyConfig, acting_env, make_policy
+from imitation.policy_kinds import load_policy
 
 
 def test_the_env_wrapper_builds_the_input_the_demos_give() -> None:

@@ -753,7 +753,7 @@ def run_mutate(files: Files, rng: random.Random, seeds: list[Files]) -> Files:
 
 
 def run_run(folder: Path, scratch: Path) -> str:
-    from imitation.policies import load_policy
+    from imitation.policy_kinds import load_policy
     from imitation.rewards import load_reward
 
     loaded, refusal = [], None

@@ -1,6 +1,11 @@
 """Behavioural cloning (docs/THEORY.md §5): supervised learning of the expert's actions.
 
-    θ* = argmin_θ  E_{(s,a)~D} [ -log π_θ(a|s) ]  -  c_H · E_s[ H[π_θ(·|s)] ]  +  c_2 · ||θ||²
+    θ* = argmin_θ  E_{(s,a)~D} [ ℓ_θ(s, a) ]
+
+with ℓ_θ the policy kind's loss (`ImitationPolicy.imitation_loss`, `train bc --policy`). For the
+default kind, the actor-critic,
+
+    ℓ_θ(s, a) = -log π_θ(a|s)  -  c_H · H[π_θ(·|s)]  +  c_2 · ||θ||²
 
 For Discrete and MultiDiscrete actions -log π_θ is the categorical negative log-likelihood
 (cross-entropy) of the class index a - start of the demo's action a. For
@@ -59,7 +64,8 @@ from imitation.errors import ConfigError, ImitationError
 from imitation.flat_adam import FlatAdam
 from imitation.mlp import mlp_weight_count
 from imitation.observation_encoding import observation_layout, observation_size
-from imitation.policies import ActorCritic, RunningMeanStd, action_logits_size
+from imitation.policies import RunningMeanStd, action_logits_size
+from imitation.policy_protocol import ImitationObjective, ImitationPolicy
 from imitation.tensors import resolve_device
 
 
@@ -77,45 +83,32 @@ class DataParallel(Protocol):
     def all_gather(self, tensor: torch.Tensor) -> torch.Tensor: ...  # every process's, stacked by rank
 
 
-def default_threads(policy: ActorCritic) -> int:
+def default_threads(policy: ImitationPolicy) -> int:
     """Every core this process may use for a policy with a CNN, else one."""
-    return len(os.sched_getaffinity(0)) if len(policy.image_encoders) else 1
+    return len(os.sched_getaffinity(0)) if policy.reads_images else 1
 
 
-def bc_loss(policy: ActorCritic, batch: TransitionTensors, config: BCConfig) -> tuple[torch.Tensor, dict[str, float]]:
-    """The objective above on one batch, and its parts for logging; in training, image
-    observations randomly shifted first (`config.random_shift` pixels)."""
-    assert isinstance(batch.actions, torch.Tensor)  # a policy takes no Dict actions
-    observations = policy.shifted(batch.observations, config.random_shift) if policy.training else batch.observations
-    features = policy.encode(observations)
-    distribution = policy.distribution(features)
-    if config.loss == "mse":
-        fit = ((distribution.mean - batch.actions.reshape(len(batch), -1).float()) ** 2).sum(-1).mean()
-    else:
-        fit = -policy.log_prob(distribution, policy.from_env_action(batch.actions)).mean()
-    loss = fit
-    if config.entropy_coef:
-        loss = loss - config.entropy_coef * policy.entropy(distribution).mean()
-    if config.l2_coef:
-        l2 = sum(
-            (parameter**2).sum()
-            for name, parameter in policy.named_parameters()
-            if name.startswith(("actor_trunk", "action_head"))
-        )
-        loss = loss + config.l2_coef * l2
+def objective(config: BCConfig) -> ImitationObjective:
+    """The settings of BC's objective a policy kind's loss reads."""
+    return ImitationObjective(config.loss, config.entropy_coef, config.l2_coef, config.random_shift)
+
+
+def bc_loss(policy: ImitationPolicy, batch: TransitionTensors, config: BCConfig) -> tuple[torch.Tensor, dict[str, float]]:
+    """The objective above on one batch (the policy kind's `imitation_loss`), and its parts for logging."""
+    loss, fit = policy.imitation_loss(batch, objective(config))
     return loss, {"fit": fit.item()}
 
 
-def _mean_loss(policy: ActorCritic, data: TransitionTensors | StreamingLoader, config: BCConfig) -> float:
+def _mean_loss(policy: ImitationPolicy, data: TransitionTensors | StreamingLoader, config: BCConfig) -> float:
     total, count = _loss_sum(policy, data, config)
     return float(total / count)
 
 
-def _loss_sum(policy: ActorCritic, data: TransitionTensors | StreamingLoader, config: BCConfig) -> tuple[float, int]:
+def _loss_sum(policy: ImitationPolicy, data: TransitionTensors | StreamingLoader, config: BCConfig) -> tuple[float, int]:
     """The fit's sum over `data`, and its rows: in-memory data in pieces of 4096 rows, or of a
     training batch for a policy with a CNN, whose activations then stay within a training step's."""
     streamed = isinstance(data, StreamingLoader)
-    piece = config.batch_size if len(policy.image_encoders) else 4096
+    piece = config.batch_size if policy.reads_images else 4096
     batches = data if isinstance(data, StreamingLoader) else MinibatchLoader(data, batch_size=piece, shuffle=False)
     count = data.transitions if isinstance(data, StreamingLoader) else len(data)
     device = next(policy.parameters()).device
@@ -151,7 +144,7 @@ def _merge_statistics(statistics: RunningMeanStd, parallel: DataParallel) -> Non
 
 
 def _moments_merge(parallel: DataParallel) -> Callable[[int, torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]:
-    """`ActorCritic.fit_action_normalizer`'s merge across the processes of `parallel`."""
+    """`ImitationPolicy.fit_action_normalizer`'s merge across the processes of `parallel`."""
 
     def merge(rows: int, mean: torch.Tensor, std: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         count = torch.tensor(float(rows), dtype=torch.float64, device=mean.device)
@@ -173,7 +166,7 @@ def _rank_loader(train: TransitionTensors, config: BCConfig, parallel: DataParal
     return MinibatchLoader(train, batch_size=config.batch_size // parallel.world_size, seed=seed, steps=steps)
 
 
-def _fit_normalizers(policy: ActorCritic, stream: StreamingLoader, device: torch.device) -> None:
+def _fit_normalizers(policy: ImitationPolicy, stream: StreamingLoader, device: torch.device) -> None:
     """The normalisers' statistics from one ordered pass over a stream (skipped when the policy
     has none to fit): the observations' folded in batch by batch, the actions' from all of them
     (one small column)."""
@@ -208,12 +201,12 @@ class BehaviouralCloning:
 
     def __init__(
         self,
-        policy: ActorCritic,
+        policy: ImitationPolicy,
         train: TransitionTensors | StreamingLoader,
         validation: TransitionTensors | StreamingLoader | None,
         config: BCConfig,
         *,
-        evaluate: Callable[[ActorCritic], float] | None = None,
+        evaluate: Callable[[ImitationPolicy], float] | None = None,
         evaluate_every: int = 5,
         parallel: DataParallel | None = None,
     ) -> None:
@@ -520,8 +513,9 @@ SMALL_DATA = 1000  # training transitions below which "auto" picks tanh (see BCC
 
 
 def policy_options(config: BCConfig, transitions: int | None = None) -> dict[str, Any]:
-    """The ActorCritic options a BC run uses: normalised observations and Box actions, the
-    configured MLP, "auto" resolved for `transitions` training transitions (unknown: ReLU)."""
+    """The `PolicyConfig` options a BC run uses (its kind aside): normalised observations and
+    Box actions, the configured MLP, "auto" resolved for `transitions` training transitions
+    (unknown: ReLU)."""
     activation = config.activation
     if activation == "auto":
         activation = "tanh" if transitions is not None and transitions < SMALL_DATA else "relu"

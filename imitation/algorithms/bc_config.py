@@ -36,6 +36,13 @@ def _crop(text: str) -> list[int]:
 class BCConfig:
     # The defaults beat the trivial baselines on the real robot logs and clone the bundled
     # experts (bench/RESULTS.md): a wide network, early stopping, a little weight decay.
+    # A kind registered in imitation.policy_kinds (checked by the job, which imports the registry).
+    policy: str = flag(
+        "actor-critic",
+        metavar="KIND",
+        help="the policy kind to train: actor-critic (an MLP, after a CNN for frames, with a categorical or Gaussian "
+        "head; what PPO trains too) or another kind registered in imitation.policy_kinds",
+    )
     epochs: int = flag(300, metavar="N", help="maximum epochs")
     batch_size: int = flag(256, metavar="B", help="minibatch size")
     learning_rate: float = flag(1e-3, name="--lr", metavar="LR", help="Adam learning rate")

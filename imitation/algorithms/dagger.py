@@ -70,7 +70,9 @@ from imitation.data.recover import PARTIAL_SUFFIX, recover_partial
 from imitation.data.types import Episode, Interventions, stack_samples
 from imitation.envs.make import control_period
 from imitation.envs.pixels import StackFrames, stack_frames
-from imitation.policies import ActorCritic, SingleObservationPolicy
+from imitation.envs.rollout import start_episode
+from imitation.policies import SingleObservationPolicy
+from imitation.policy_protocol import ImitationPolicy
 
 
 class TakesOver(Protocol):
@@ -109,6 +111,7 @@ def run_episode(
     with wall-clock timestamps. `status(step, human_in_control, takeovers)` is called before the
     expert is asked at each step (a person's window shows it)."""
     observation, _ = env.reset(seed=seed)
+    start_episode(learner)
     observations, times = [observation], [time.time_ns()]
     actions: list[Any] = []
     proposed: list[Any] = []
@@ -267,7 +270,7 @@ class RemoteRounds(Protocol):
     """A round's episodes played elsewhere (Ray workers: `imitation.algorithms.ray_dagger`), each
     worker writing its own shard; `collect` returns the shards' paths."""
 
-    def collect(self, policy: ActorCritic | None, round_index: int, beta: float, seeds: list[int]) -> list[Path]: ...
+    def collect(self, policy: ImitationPolicy | None, round_index: int, beta: float, seeds: list[int]) -> list[Path]: ...
 
     def close(self) -> None: ...
 
@@ -283,13 +286,13 @@ class DAgger:
         self,
         env: gym.Env,
         expert: Policy,
-        policy: ActorCritic,
+        policy: ImitationPolicy,
         config: DAggerConfig,
         *,
         round_dir: str | os.PathLike,
         env_id: str,
         demos: Sequence[str | os.PathLike] = (),
-        evaluate: Callable[[ActorCritic], float] | None = None,
+        evaluate: Callable[[ImitationPolicy], float] | None = None,
         metadata: dict[str, Any] | None = None,
         remote: RemoteRounds | None = None,
     ) -> None:
@@ -403,7 +406,7 @@ class DAgger:
             return self._human(episode)
         return np.ones(len(episode), dtype=bool)
 
-    def _fit(self, paths: Sequence[str | os.PathLike]) -> tuple[ActorCritic, float]:
+    def _fit(self, paths: Sequence[str | os.PathLike]) -> tuple[ImitationPolicy, float]:
         """BC on the aggregate dataset, warm-started from the current policy; the best validation loss."""
         dataset = DemoDataset(paths)
         bc = self.config.bc

@@ -22,7 +22,8 @@ import numpy as np
 import torch
 
 from imitation.algorithms.dagger import Policy, play_round
-from imitation.policies import ActorCritic, SingleObservationPolicy
+from imitation.policies import SingleObservationPolicy
+from imitation.policy_protocol import ImitationPolicy
 from imitation.ray_engine import RETRIES, ray_get, require_ray
 
 EnvAndExpert = Callable[[], tuple[gym.Env, Policy]]
@@ -37,7 +38,7 @@ class RoundWorker:
 
     def collect(
         self,
-        policy: ActorCritic | None,
+        policy: ImitationPolicy | None,
         path: str,
         *,
         env_id: str,
@@ -81,7 +82,7 @@ class RayRounds:
         self.round_dir, self.env_id, self.mode, self.seed = round_dir, env_id, mode, seed
         self.metadata = {**metadata, "mode": mode}
 
-    def collect(self, policy: ActorCritic | None, round_index: int, beta: float, seeds: list[int]) -> list[Path]:
+    def collect(self, policy: ImitationPolicy | None, round_index: int, beta: float, seeds: list[int]) -> list[Path]:
         """The round's shards, written by the workers; a worker with no episode to play writes none."""
         sent = self.ray.put(copy.deepcopy(policy).cpu() if policy is not None else None)
         shards, pending = [], []

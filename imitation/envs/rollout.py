@@ -5,13 +5,27 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
 import torch
 
 Policy = Callable[[Any], Any]
+
+
+@runtime_checkable
+class Episodic(Protocol):
+    """A policy that keeps something of the episode so far (a history of observations, a chunk of
+    planned actions), forgotten by `reset` when the next one starts."""
+
+    def reset(self) -> None: ...
+
+
+def start_episode(policy: Policy | None) -> None:
+    """Tell `policy` a new episode starts, where it keeps anything between steps."""
+    if isinstance(policy, Episodic):
+        policy.reset()
 
 
 @dataclass
@@ -47,6 +61,7 @@ def _cpu_copy(tree: Any) -> Any:
 def play_episode(env: gym.Env, policy: Policy, *, seed: int | None) -> tuple[float, int]:
     """Reset with `seed`, act with `policy` until the episode ends; its return and length."""
     observation, _ = env.reset(seed=seed)
+    start_episode(policy)
     episode_return, length, done = 0.0, 0, False
     while not done:
         observation, reward, terminated, truncated, _ = env.step(policy(observation))
@@ -64,6 +79,7 @@ def collect_transitions(
     observations, actions, next_observations, rewards = [], [], [], []
     for i in range(episodes):
         observation, _ = env.reset(seed=seed + i)
+        start_episode(policy)
         done = False
         while not done:
             action = policy(observation)

@@ -24,7 +24,7 @@ import torch
 
 from imitation.data.loader import TransitionTensors
 from imitation.envs.previous_action import previous_actions
-from imitation.policies import ActorCritic
+from imitation.policy_protocol import ImitationPolicy
 
 Scores = dict[str, float]
 # A floor on fitted standard deviations: a dimension that never moves in the training data would
@@ -76,10 +76,11 @@ def baseline_scores(train: TransitionTensors, validation: TransitionTensors, act
     return scores
 
 
-def policy_scores(policy: ActorCritic, validation: TransitionTensors, *, rows: int = 1024) -> Scores:
-    """The policy on `validation`, scored as the baselines are: its NLL of the held-out actions, and
-    the squared error of its mean (Box) or the error rate of its most likely action (Discrete).
-    Batches of `rows` bound the memory a CNN's activations take."""
+def policy_scores(policy: ImitationPolicy, validation: TransitionTensors, *, rows: int = 1024) -> Scores:
+    """The policy on `validation`, scored as the baselines are: its NLL of the held-out actions
+    (for a kind with a likelihood), and the squared error of its point action (Box) or the error
+    rate of its most likely action (Discrete). Batches of `rows` bound the memory a CNN's
+    activations take."""
     totals: dict[str, float] = {}
     for start in range(0, len(validation), rows):
         piece = validation.select(torch.arange(start, min(start + rows, len(validation)), device=validation.device))
@@ -88,16 +89,14 @@ def policy_scores(policy: ActorCritic, validation: TransitionTensors, *, rows: i
     return {name: total / len(validation) for name, total in totals.items()}
 
 
-def _piece_scores(policy: ActorCritic, validation: TransitionTensors) -> Scores:
+def _piece_scores(policy: ImitationPolicy, validation: TransitionTensors) -> Scores:
     observations, actions = validation.observations, validation.actions
     assert isinstance(actions, torch.Tensor)  # BC refuses Dict action spaces
     with torch.no_grad():
-        features = policy.encode(observations)
-        distribution = policy.distribution(features)
-        nll = float(-policy.log_prob(distribution, policy.from_env_action(actions)).mean())
+        nll = policy.action_nll(observations, actions)
+        scores = {"nll": float(nll.mean())} if nll is not None else {}
+        guess = policy.point_action(observations).reshape(len(validation), -1)
+        held = actions.reshape(len(validation), -1)
         if policy.is_continuous:
-            held = actions.reshape(len(validation), -1).float()
-            return {"nll": nll, "mse": float(((distribution.mean - held) ** 2).sum(-1).mean())}
-        chosen = policy.act(features, deterministic=True)
-        wrong = (chosen.reshape(len(validation), -1) != policy.from_env_action(actions).reshape(len(validation), -1)).any(-1)
-        return {"nll": nll, "error_rate": float(wrong.float().mean())}
+            return scores | {"mse": float(((guess - held.float()) ** 2).sum(-1).mean())}
+        return scores | {"error_rate": float((guess != held).any(-1).float().mean())}

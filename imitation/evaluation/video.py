@@ -11,7 +11,7 @@ import gymnasium as gym
 import numpy as np
 
 from imitation.envs.make import make_env
-from imitation.envs.rollout import Policy
+from imitation.envs.rollout import Policy, start_episode
 from imitation.errors import ImitationError
 
 VIDEO_SUFFIXES = (".gif", ".mp4")
@@ -56,6 +56,7 @@ def _play(
     try:
         frames, episode_return = [], 0.0
         observation, _ = env.reset(seed=seed)
+        start_episode(policy)
         frames.append(_frame(env.render(), env_id))
         done = False
         while not done:

@@ -16,7 +16,8 @@ from imitation.experts.scripted import scripted_expert
 from imitation.experts.standin import StandIn
 from imitation.experts.tabular import SoftOptimalExpert
 from imitation.experts.window import ExpertWindow
-from imitation.policies import SingleObservationPolicy, check_policy_fits_env, load_policy
+from imitation.policies import SingleObservationPolicy, check_policy_fits_env
+from imitation.policy_kinds import load_policy
 
 Policy = Callable[[Any], Any]
 EXPERT_SPECS = ("scripted", "random", "standin", "keyboard", "gamepad", "RUN_DIR", "sb3:PATH")

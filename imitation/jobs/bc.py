@@ -47,7 +47,9 @@ from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
 from imitation.observation_encoding import check_cnn_size, observation_layout
-from imitation.policies import ActorCritic, SingleObservationPolicy, acting_env, make_policy, policy_tensors
+from imitation.policies import SingleObservationPolicy, acting_env, policy_tensors
+from imitation.policy_kinds import build_policy, policy_kind
+from imitation.policy_protocol import ImitationPolicy
 from imitation.progress import activity
 from imitation.seeding import seed_everything
 
@@ -90,6 +92,7 @@ def _bc_job(
     parallel: ProcessGroup | None,
 ) -> dict[str, Any]:
     """`bc_job` as one process, or as one of the data-parallel `parallel`."""
+    policy_kind(config.policy)  # an unknown kind refused before anything loads
     seed_everything(config.seed)
     dataset = DemoDataset(demos)
     first = dataset.files[0]
@@ -172,7 +175,8 @@ def _bc_job(
         "image_transform": transform.to_json() if transform is not None else None,
     }
     try:
-        policy = make_policy(
+        policy = build_policy(
+            config.policy,
             observation_space,
             spaces.action_space,
             previous_action=previous_action,
@@ -184,7 +188,7 @@ def _bc_job(
     config.validate(policy.is_continuous)
     policy_env = acting_env(policy, env) if env is not None else None
 
-    def env_return(candidate: ActorCritic) -> float:
+    def env_return(candidate: ImitationPolicy) -> float:
         assert policy_env is not None  # passed to the learner only with an env
         return evaluate_policy(SingleObservationPolicy(candidate), policy_env, episodes=5, seed=EVAL_SEED)["mean_return"]
 
@@ -301,10 +305,14 @@ def _yardstick(
         return {"stopped": stopped, "validation": None, "baselines": {}, "beats": {}, "references": {}, "warnings": warnings}
     assert not isinstance(train, StreamingLoader)  # streamed validation goes with streamed training
     # A policy with a CNN scored in pieces of a training batch: its activations then take what a training step's did.
-    rows = config.batch_size if len(learner.policy.image_encoders) else 1024
+    rows = config.batch_size if learner.policy.reads_images else 1024
     scores = policy_scores(learner.policy.cpu(), validation.to("cpu"), rows=rows)
     baselines = baseline_scores(states(train), states(validation), action_space)
-    beats = {name: all(scores[key] < value for key, value in baseline.items()) for name, baseline in baselines.items()}
+    # A kind without a likelihood is judged by the scores it has.
+    beats = {
+        name: all(scores[key] < value for key, value in baseline.items() if key in scores)
+        for name, baseline in baselines.items()
+    }
     loss = "mse" if config.loss == "mse" else "nll"
     references = {name: baseline[loss] for name, baseline in baselines.items() if loss in baseline}
     if beaten := [name for name, won in beats.items() if not won]:
@@ -313,7 +321,7 @@ def _yardstick(
             + ", ".join(
                 f"{_SCORE_NAMES.get(key, key)} {scores[key]:.4g} against {value:.4g}"
                 for key, value in baselines[name].items()
-                if not scores[key] < value
+                if key in scores and not scores[key] < value
             )
             for name in beaten
         )

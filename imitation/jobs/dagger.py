@@ -21,7 +21,9 @@ from imitation.experts.load import close_expert, load_expert, make_env_for_exper
 from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
-from imitation.policies import ActorCritic, SingleObservationPolicy, make_policy, policy_tensors
+from imitation.policies import SingleObservationPolicy, policy_tensors
+from imitation.policy_kinds import build_policy, policy_kind
+from imitation.policy_protocol import ImitationPolicy
 from imitation.ray_engine import Workers
 from imitation.seeding import seed_everything
 
@@ -65,6 +67,7 @@ def dagger_job(
     if frames > 1 and pixels is None:
         raise ConfigError("frame_stack", "stacks rendered frames: give --pixels too", owner="BCConfig")
     config.validate()
+    policy_kind(config.bc.policy)
     env, expert = env_and_expert(env_id, expert_spec, pixels, frames, seed=config.seed, speed=speed)
     if config.mode == "takeover" and not hasattr(expert, "engaged"):
         raise ConfigError(
@@ -92,10 +95,12 @@ def dagger_job(
     given = DemoDataset(demos) if demos else None
     if given is not None:
         check_demos_fit_env(given, env.env if isinstance(env, StackFrames) else env)
-    policy = make_policy(env.observation_space, env.action_space, **policy_options(config.bc), **pixel_options)
+    policy = build_policy(
+        config.bc.policy, env.observation_space, env.action_space, **policy_options(config.bc), **pixel_options
+    )
     config.bc.validate(policy.is_continuous)
 
-    def env_return(candidate: ActorCritic) -> float:
+    def env_return(candidate: ImitationPolicy) -> float:
         return evaluate_policy(SingleObservationPolicy(candidate), env, episodes=5, seed=EVAL_SEED)["mean_return"]
 
     run_config = RunConfig(

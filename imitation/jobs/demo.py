@@ -41,7 +41,8 @@ from imitation.jobs.evaluate_reward import RewardEvaluationConfig, evaluate_rewa
 from imitation.jobs.irl import gcl_job, tabular_irl_job
 from imitation.jobs.presets import ppo_settings, preset
 from imitation.jobs.run_config import RunConfig
-from imitation.policies import SingleObservationPolicy, load_policy
+from imitation.policies import SingleObservationPolicy
+from imitation.policy_kinds import load_policy
 from imitation.runs import read_run
 
 BUNDLED = bundled_datasets()

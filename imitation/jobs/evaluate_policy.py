@@ -16,10 +16,10 @@ from imitation.policies import (
     SingleObservationPolicy,
     acting_env,
     check_policy_fits_env,
-    load_policy,
     make_acting_env,
     observed_rendering,
 )
+from imitation.policy_kinds import load_policy
 from imitation.runs import read_run
 
 

@@ -44,7 +44,8 @@ from imitation.jobs.evaluate_reward_config import RewardEvaluationConfig
 from imitation.jobs.ppo import ppo_job
 from imitation.jobs.presets import ppo_settings, preset
 from imitation.jobs.run_config import RunConfig, config_json
-from imitation.policies import SingleObservationPolicy, load_policy
+from imitation.policies import SingleObservationPolicy
+from imitation.policy_kinds import load_policy
 from imitation.progress import progress_bar
 from imitation.ray_engine import RETRIES, Workers, ray_get
 from imitation.rewards import RewardNet, read_reward_run

@@ -19,7 +19,8 @@ from imitation.evaluation.policy import EVAL_EPISODES, EVAL_SEED, evaluate_polic
 from imitation.jobs.loop import Checkpointing, Learner, TrainingInterrupted
 from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig
-from imitation.policies import ActorCritic, RunningMeanStd, SingleObservationPolicy, policy_tensors
+from imitation.policies import RunningMeanStd, SingleObservationPolicy, policy_tensors
+from imitation.policy_protocol import ImitationPolicy
 from imitation.rewards import RewardNet, reward_tensors
 from imitation.runs import RunWriter, has_checkpoint
 
@@ -86,7 +87,7 @@ def train_to_end(run: RunWriter, learner: EnvLearner, *, progress: bool) -> floa
         learner.close()
 
 
-def save_policy(run: RunWriter, policy: ActorCritic, reward_scaler: RunningMeanStd | None = None) -> None:
+def save_policy(run: RunWriter, policy: ImitationPolicy, reward_scaler: RunningMeanStd | None = None) -> None:
     """The trained policy as `eval policy` reads it: its weights (and the reward scaler's
     statistics, when rewards were scaled) and its config."""
     tensors = policy_tensors(policy)
@@ -108,7 +109,7 @@ def check_demos_fit_env(dataset: DemoDataset, env: gym.Env) -> None:
     check_spaces_fit("demos'", dataset.observation_space, dataset.action_space, env, where=str(first))
 
 
-def final_evaluation(policy: ActorCritic, env: gym.Env) -> dict[str, Any]:
+def final_evaluation(policy: ImitationPolicy, env: gym.Env) -> dict[str, Any]:
     """The deterministic evaluation every run records in metrics.json (returns list left out)."""
     evaluation = evaluate_policy(SingleObservationPolicy(policy), env, episodes=EVAL_EPISODES, seed=EVAL_SEED)
     return {key: value for key, value in evaluation.items() if key != "returns"}

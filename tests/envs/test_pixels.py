@@ -25,7 +25,8 @@ from imitation.envs.pixels import (
     stack_frames,
 )
 from imitation.errors import ImitationError
-from imitation.policies import load_policy, make_policy
+from imitation.policies import make_policy
+from imitation.policy_kinds import load_policy
 
 SMALL_CNN = {"channels": [8, 16], "kernels": [4, 3], "strides": [2, 2], "features": 32}
 
