@@ -217,7 +217,7 @@ def floor_env(spec: dict[str, Any], vector_steps: int) -> float:
     import gymnasium as gym
     import numpy as np
 
-    from imitation.algorithms.ppo import make_vector_env
+    from imitation.envs.vector import make_vector_env
 
     envs = make_vector_env(spec["env_id"], spec["zoo"]["n_envs"])
     rng = np.random.default_rng(spec["seed"])

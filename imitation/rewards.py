@@ -280,6 +280,40 @@ class RewardNet(nn.Module):
         return self.rewards_of(*inputs).reshape(steps, n_envs).to(rollout.env_rewards.device)
 
 
+def airl_shaped_reward(
+    g: torch.Tensor, potential: torch.Tensor, next_potential: torch.Tensor, terminated: torch.Tensor, gamma: float
+) -> torch.Tensor:
+    """f = g + γ (1 − d) h(s') − h(s): AIRL's reward shaped by its potential h (`imitation.algorithms.airl`)."""
+    return g + gamma * (1.0 - terminated) * next_potential - potential
+
+
+class ShapedReward:
+    """f = g + γ (1 − d) h(s') − h(s) of every step of a rollout, from the g and h an AIRL run saved.
+
+    A potential-based shaping of g (Ng, Harada & Russell 1999): an episode's discounted return of
+    f is g's plus γ^T h(s_T) − h(s_0), so both rewards rank policies alike (γ^T ≈ 0 over long
+    horizons; h(s_0) does not depend on the policy). h, AIRL's estimate of the expert's soft value,
+    pays at once for what g pays later; the optimum it leads to is g's.
+    """
+
+    def __init__(self, reward: RewardNet, potential: RewardNet, *, gamma: float) -> None:
+        self.reward = reward
+        self.potential = potential
+        self.gamma = gamma
+
+    def relabel(self, rollout: Rollout) -> torch.Tensor:
+        steps, n_envs = rollout.env_rewards.shape
+        observations, actions, next_observations = (
+            flat_batch(getattr(rollout, name), 2) for name in ("observations", "env_actions", "next_observations")
+        )
+        g = self.reward.rewards_of(observations, actions, next_observations)
+        potential = self.potential.rewards_of(observations, actions, observations)
+        next_potential = self.potential.rewards_of(next_observations, actions, next_observations)
+        terminated = rollout.terminated.reshape(-1).to(device=g.device, dtype=g.dtype)
+        shaped = airl_shaped_reward(g, potential, next_potential, terminated, self.gamma)
+        return shaped.reshape(steps, n_envs).to(rollout.env_rewards.device)
+
+
 def tree_index(tree: Any, index: Any, device: torch.device | str | None = None) -> Any:
     """tree[index], leaf by leaf (moved to `device` when given)."""
     return tree_map(lambda tensor: tensor[index] if device is None else tensor[index].to(device), tree)

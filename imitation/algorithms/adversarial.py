@@ -34,7 +34,7 @@ import torch
 from torch import nn
 
 from imitation.algorithms.adversarial_config import AdversarialConfig
-from imitation.algorithms.gcl import BesidePPO, env_action_log_probs
+from imitation.algorithms.beside_ppo import BesidePPO, env_action_log_probs
 from imitation.algorithms.ppo import PPO
 from imitation.checkpoints import (
     CheckpointData,

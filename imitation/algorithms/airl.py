@@ -13,8 +13,8 @@ trained by `imitation.algorithms.adversarial`'s loss. PPO optimises
 maximum-entropy RL on f (α log π with α = `policy_entropy`, 1 by default). At the optimum f is the
 advantage of the expert's soft-optimal policy, and for a state-only g (the default, `inputs="s"`)
 with deterministic dynamics g recovers the true reward up to a constant, h the soft value; g is
-the exported reward, for `train ppo --reward` and `eval reward`. `ShapedReward` is f itself as
-PPO's reward (`train ppo --reward RUN --shaped`): g shaped by the learnt h.
+the exported reward, for `train ppo --reward` and `eval reward`. `imitation.rewards.ShapedReward`
+is f itself as PPO's reward (`train ppo --reward RUN --shaped`): g shaped by the learnt h.
 """
 
 from __future__ import annotations
@@ -23,15 +23,7 @@ import torch
 from torch import nn
 
 from imitation.algorithms.adversarial import Steps
-from imitation.envs.rollout import Rollout
-from imitation.rewards import RewardNet, flat_batch
-
-
-def airl_shaped_reward(
-    g: torch.Tensor, potential: torch.Tensor, next_potential: torch.Tensor, terminated: torch.Tensor, gamma: float
-) -> torch.Tensor:
-    """f = g + γ (1 − d) h(s') − h(s)."""
-    return g + gamma * (1.0 - terminated) * next_potential - potential
+from imitation.rewards import RewardNet, airl_shaped_reward
 
 
 class AIRLDiscriminator(nn.Module):
@@ -76,30 +68,3 @@ class AIRLDiscriminator(nn.Module):
 
     def recovered_reward(self) -> RewardNet:
         return self.reward
-
-
-class ShapedReward:
-    """f = g + γ (1 − d) h(s') − h(s) of every step of a rollout, from the g and h an AIRL run saved.
-
-    A potential-based shaping of g (Ng, Harada & Russell 1999): an episode's discounted return of
-    f is g's plus γ^T h(s_T) − h(s_0), so both rewards rank policies alike (γ^T ≈ 0 over long
-    horizons; h(s_0) does not depend on the policy). h, AIRL's estimate of the expert's soft value,
-    pays at once for what g pays later; the optimum it leads to is g's.
-    """
-
-    def __init__(self, reward: RewardNet, potential: RewardNet, *, gamma: float) -> None:
-        self.reward = reward
-        self.potential = potential
-        self.gamma = gamma
-
-    def relabel(self, rollout: Rollout) -> torch.Tensor:
-        steps, n_envs = rollout.env_rewards.shape
-        observations, actions, next_observations = (
-            flat_batch(getattr(rollout, name), 2) for name in ("observations", "env_actions", "next_observations")
-        )
-        g = self.reward.rewards_of(observations, actions, next_observations)
-        potential = self.potential.rewards_of(observations, actions, observations)
-        next_potential = self.potential.rewards_of(next_observations, actions, next_observations)
-        terminated = rollout.terminated.reshape(-1).to(device=g.device, dtype=g.dtype)
-        shaped = airl_shaped_reward(g, potential, next_potential, terminated, self.gamma)
-        return shaped.reshape(steps, n_envs).to(rollout.env_rewards.device)

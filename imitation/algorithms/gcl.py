@@ -62,12 +62,13 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
-from typing import Protocol, cast
+from typing import cast
 
 import numpy as np
 import torch
 from torch import nn
 
+from imitation.algorithms.beside_ppo import BesidePPO, env_action_log_probs
 from imitation.algorithms.gcl_config import GCLConfig
 from imitation.algorithms.ppo import PPO
 from imitation.checkpoints import (
@@ -76,7 +77,6 @@ from imitation.checkpoints import (
     optimizer_checkpoint,
     prefixed,
     restore_optimizer,
-    restoring,
     tree_of_names,
     unprefixed,
 )
@@ -284,68 +284,6 @@ class RewardLearner:
         assert self.pool is not None
         index = torch.randint(len(self.pool.log_mass), (size,), generator=self.generator)
         return _Samples(**{name: tree_index(getattr(self.pool, name), index) for name in _Samples.__dataclass_fields__})
-
-
-# Steps per forward pass when a sampler scores the pool: bounds the activations' memory.
-_CHUNK = 65_536
-
-
-def env_action_log_probs(policy: ActorCritic, observations: TensorTree, env_actions: torch.Tensor) -> torch.Tensor:
-    """log π(a|s) of env actions (clipped ones as the mass at the bound, on the same footing for
-    demos and samples: `ActorCritic.env_action_log_prob`), computed where the policy is, returned on the CPU."""
-    with torch.no_grad():
-        device = policy.action_head.weight.device
-        parts = []
-        for start in range(0, len(env_actions), _CHUNK):
-            chunk = slice(start, start + _CHUNK)
-            distribution = policy.distribution(policy.encode(tree_index(observations, chunk, device)))
-            parts.append(policy.env_action_log_prob(distribution, env_actions[chunk].to(device)).cpu())
-        return torch.cat(parts)
-
-
-class Checkpointed(Protocol):
-    def state_dict(self) -> CheckpointData: ...
-
-    def load_state_dict(self, checkpoint: CheckpointData) -> None: ...
-
-
-class BesidePPO[Side: Checkpointed]:
-    """A learner that runs beside PPO, one PPO update per step (GCL's reward learner, GAIL's and
-    AIRL's discriminator): PPO's steps, progress and interruption messages, and PPO's checkpoint
-    with the other side's state under "learner"."""
-
-    name = PPO.name  # its steps are PPO's updates, and an interruption is reported as PPO's
-    unit = PPO.unit
-
-    def __init__(self, ppo: PPO, side: Side) -> None:
-        self.ppo = ppo
-        self.side = side
-        self.total = ppo.total
-
-    @property
-    def completed(self) -> int:
-        return self.ppo.completed
-
-    @property
-    def done(self) -> bool:
-        return self.ppo.done
-
-    def position(self) -> str:
-        return self.ppo.position()
-
-    def progress(self, row: dict[str, float]) -> dict[str, str]:
-        return self.ppo.progress(row) | {"demo_acc": f"{row['demo_accuracy']:.2f}"}
-
-    def state_dict(self) -> CheckpointData:
-        tensors, state = self.ppo.state_dict()
-        side_tensors, state["learner"] = self.side.state_dict()
-        return tensors | prefixed("learner", side_tensors), state
-
-    def load_state_dict(self, checkpoint: CheckpointData) -> None:
-        tensors, state = checkpoint
-        self.ppo.load_state_dict(checkpoint)
-        with restoring("PPO"):
-            self.side.load_state_dict((unprefixed("learner", tensors), state["learner"]))
 
 
 class GuidedCostLearning(BesidePPO[RewardLearner]):

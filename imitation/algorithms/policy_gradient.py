@@ -54,8 +54,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from imitation.algorithms.advantages import compute_gae
 from imitation.algorithms.policy_gradient_config import WITH_CRITIC, PGConfig
-from imitation.algorithms.ppo import compute_gae
 from imitation.checkpoints import (
     CheckpointData,
     TrainingClock,

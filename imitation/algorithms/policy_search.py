@@ -49,8 +49,8 @@ import torch
 from torch import nn
 
 from imitation.algorithms.policy_search_config import NAMES, SearchConfig
-from imitation.algorithms.ppo import make_vector_env
 from imitation.checkpoints import CheckpointData, TrainingClock, checked_counter, restoring
+from imitation.envs.vector import make_vector_env
 from imitation.errors import ConfigError, ImitationError
 from imitation.policies import ActorCritic, make_policy, require_flat_observations
 

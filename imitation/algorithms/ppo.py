@@ -9,7 +9,7 @@ objectives (`PPO.update`, `ppo_update`):
 - adaptive KL penalty: L^KL(θ) = E[ r_t(θ) Â_t ] - β · E_s[ D_KL(π_k(·|s) || π_θ(·|s)) ],
   after each update β ← 2β if D̄_KL ≥ 1.5 δ, β ← β/2 if D̄_KL ≤ δ/1.5 (target δ)
 
-with advantages from truncated GAE(γ, λ):
+with advantages from truncated GAE(γ, λ) (`imitation.algorithms.advantages`):
 
     δ_t = r_t + γ (1 - term_t) V(s_{t+1}) - V(s_t)
     Â_t = δ_t + γ λ (1 - done_t) Â_{t+1}
@@ -59,6 +59,7 @@ import numpy as np
 import torch
 from torch.distributions import Distribution, kl_divergence
 
+from imitation.algorithms.advantages import compute_gae
 from imitation.algorithms.ppo_config import PPOConfig
 from imitation.checkpoints import (
     CheckpointData,
@@ -72,10 +73,9 @@ from imitation.checkpoints import (
     rng_checkpoint,
     unprefixed,
 )
-from imitation.envs.cartpole_vector import VECTORISED_CARTPOLES, SameStepCartPole
-from imitation.envs.make import make_env
-from imitation.envs.pixels import PIXELS_KEY, PixelRecipe, StackFrames, make_pixel_env
+from imitation.envs.pixels import PIXELS_KEY
 from imitation.envs.rollout import Rollout
+from imitation.envs.vector import finished_episode_returns, make_observed_env, make_vector_env
 from imitation.errors import ImitationError
 from imitation.flat_adam import FlatAdam, clip_grad_norm
 from imitation.policies import ActorCritic, RunningMeanStd, batch_of_one, make_policy, tensor_tree
@@ -84,31 +84,6 @@ from imitation.tensors import TensorTree, resolve_device
 
 # ------------------------------------------------------------------------------------------------
 # The formulas, as pure functions (tested against values worked by hand).
-
-
-def compute_gae(
-    rewards: torch.Tensor,
-    values: torch.Tensor,
-    next_values: torch.Tensor,
-    terminated: torch.Tensor,
-    truncated: torch.Tensor,
-    *,
-    gamma: float,
-    gae_lambda: float,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """GAE over a rollout of shape (T, n_envs); returns (advantages, returns = Â + V).
-
-    `next_values[t]` is V(s_{t+1}) of the state that followed step t: the next state in the
-    rollout, the true final state when step t was truncated, anything when it terminated."""
-    not_terminal = 1.0 - terminated.float()
-    continues = 1.0 - (terminated | truncated).float()
-    deltas = rewards + gamma * not_terminal * next_values - values
-    advantages = torch.zeros_like(rewards)
-    running = torch.zeros_like(rewards[0])
-    for t in reversed(range(rewards.shape[0])):
-        running = deltas[t] + gamma * gae_lambda * continues[t] * running
-        advantages[t] = running
-    return advantages, advantages + values
 
 
 def clipped_surrogate(ratio: torch.Tensor, advantages: torch.Tensor, clip_range: float) -> torch.Tensor:
@@ -139,7 +114,7 @@ def update_kl_penalty(beta: float, kl: float, target: float) -> float:
 
 
 # ------------------------------------------------------------------------------------------------
-# Environments and reward scaling
+# Reward scaling, and what the environments return
 
 
 class RewardScaler:
@@ -156,42 +131,6 @@ class RewardScaler:
         self.stats.update(torch.as_tensor(self.returns))
         self.returns[dones] = 0.0
         return np.clip(rewards / np.sqrt(self.stats.var.item() + 1e-8), -10.0, 10.0)
-
-
-def make_observed_env(env_id: str, pixels: PixelRecipe | None = None, frame_stack: int = 1) -> gym.Env:
-    """env_id as PPO's policy observes it: its rendered frames with `pixels`, the last
-    `frame_stack` frames of each image leaf (`StackFrames`) when that is above 1."""
-    env = make_pixel_env(env_id, pixels) if pixels is not None else make_env(env_id)
-    return StackFrames(env, frame_stack) if frame_stack > 1 else env
-
-
-def make_vector_env(
-    env_id: str,
-    n_envs: int,
-    *,
-    asynchronous: bool = False,
-    pixels: PixelRecipe | None = None,
-    frame_stack: int = 1,
-    vectorised: bool = True,
-) -> gym.vector.VectorEnv:
-    """n copies of env_id (observed as `make_observed_env` says) with same-step autoreset (the
-    final observation comes in info["final_obs"], so truncated episodes can be bootstrapped from
-    their true last state), recording each episode's return of the environment's own reward.
-    CartPole, which gymnasium vectorises, runs as one numpy env (`SameStepCartPole`) unless
-    `vectorised` is False (a caller that resets the copies one by one needs separate envs)."""
-    make_observed_env(env_id, pixels, frame_stack).close()  # fail here, with one line, on an unknown id or no images
-    if vectorised and env_id in VECTORISED_CARTPOLES and pixels is None and frame_stack == 1 and not asynchronous:
-        return SameStepCartPole(env_id, n_envs)
-
-    def factory() -> gym.Env:
-        return gym.wrappers.RecordEpisodeStatistics(make_observed_env(env_id, pixels, frame_stack))
-
-    if asynchronous:
-        # spawn, not fork: forking a process that already runs torch threads can deadlock.
-        return gym.vector.AsyncVectorEnv(
-            [factory] * n_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP, context="spawn"
-        )
-    return gym.vector.SyncVectorEnv([factory] * n_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
 
 
 def observation_leaves(name: str, observations: Any) -> dict[str, np.ndarray]:
@@ -214,15 +153,6 @@ def check_finite_step(env_id: str, step: int, copies: np.ndarray | None = None, 
                 f"{env_id}: the environment returned a non-finite {what.replace('_', ' ')} at env step {step + copy + 1} "
                 f"(env copy {copy}); PPO needs finite observations and rewards"
             )
-
-
-def finished_episode_returns(info: dict[str, Any]) -> list[float]:
-    """True returns of the episodes that ended at this vector step."""
-    final = info.get("final_info", {})
-    if "episode" not in final:
-        return []
-    episode = final["episode"]
-    return [float(r) for r in episode["r"][episode["_r"]]]
 
 
 @dataclass

@@ -18,7 +18,7 @@ from imitation.algorithms.airl import AIRLDiscriminator
 from imitation.algorithms.gail import GAIL_OUTPUTS, GAILDiscriminator
 from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning
 from imitation.algorithms.maxent_irl import MaxEntIRL, MaxEntIRLConfig, all_state_rewards, demo_visitation
-from imitation.algorithms.ppo import PPO, PPOConfig, make_observed_env
+from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.algorithms.ray_rollouts import RayRollouts
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import TransitionTensors, check_episodes_finite, load_transitions, transitions_to_torch
@@ -28,6 +28,7 @@ from imitation.envs.make import make_env
 from imitation.envs.pixels import PIXELS_KEY, image_keys, recorded_pixels, stack_frames, stacked_space
 from imitation.envs.tabular import tabular_mdp_of
 from imitation.envs.tabular_planning import soft_optimal_returns
+from imitation.envs.vector import make_observed_env
 from imitation.errors import ImitationError
 from imitation.evaluation.plots import plot_curve, plot_grid_maps
 from imitation.jobs.loop import Learner

@@ -8,11 +8,11 @@ from contextlib import closing
 from pathlib import Path
 from typing import Any
 
-from imitation.algorithms.airl import ShapedReward
-from imitation.algorithms.ppo import PPO, PPOConfig, RolloutReward, make_observed_env
+from imitation.algorithms.ppo import PPO, PPOConfig, RolloutReward
 from imitation.algorithms.ray_rollouts import RayRollouts
 from imitation.data.spaces import check_spaces_fit
 from imitation.envs.pixels import PixelRecipe
+from imitation.envs.vector import make_observed_env
 from imitation.errors import ImitationError
 from imitation.evaluation.plots import plot_curve
 from imitation.jobs.presets import ppo_config
@@ -20,7 +20,7 @@ from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import final_evaluation, save_policy, train_to_end, training_run
 from imitation.policies import acting_env, make_acting_env
 from imitation.ray_engine import Workers, worker_session
-from imitation.rewards import RewardNet, RewardRun, read_reward_run
+from imitation.rewards import RewardNet, RewardRun, ShapedReward, read_reward_run
 from imitation.seeding import seed_everything
 
 

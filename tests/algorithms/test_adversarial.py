@@ -21,7 +21,8 @@ from imitation.algorithms.adversarial import (
     input_gradient_penalty,
     rollout_steps,
 )
-from imitation.algorithms.airl import AIRLDiscriminator, ShapedReward, airl_shaped_reward
+from imitation.algorithms.airl import AIRLDiscriminator
+from imitation.rewards import ShapedReward, airl_shaped_reward
 from imitation.algorithms.gail import GAILDiscriminator
 from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.checkpoints import snapshot

@@ -23,9 +23,10 @@ from imitation.algorithms.adversarial import (
     discriminator_loss,
     input_gradient_penalty,
 )
-from imitation.algorithms.airl import AIRLDiscriminator, ShapedReward
+from imitation.algorithms.airl import AIRLDiscriminator
+from imitation.rewards import ShapedReward
 from imitation.algorithms.gail import GAILDiscriminator
-from imitation.algorithms.gcl import env_action_log_probs
+from imitation.algorithms.beside_ppo import env_action_log_probs
 from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import TransitionTensors, load_transitions, transitions_to_torch

@@ -13,7 +13,8 @@ import pytest
 import torch
 
 from imitation.algorithms.adversarial import Steps
-from imitation.algorithms.airl import AIRLDiscriminator, ShapedReward
+from imitation.algorithms.airl import AIRLDiscriminator
+from imitation.rewards import ShapedReward
 from imitation.envs.rollout import Rollout
 from imitation.rewards import RewardNet, make_reward_model
 

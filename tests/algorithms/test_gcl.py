@@ -11,7 +11,8 @@ import torch
 from support import DATASETS
 
 import imitation.envs  # noqa: F401  (registers the ids)
-from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning, RewardLearner, env_action_log_probs
+from imitation.algorithms.beside_ppo import env_action_log_probs
+from imitation.algorithms.gcl import GCLConfig, GuidedCostLearning, RewardLearner
 from imitation.algorithms.ppo import PPO, PPOConfig
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import load_transitions, transitions_to_torch

@@ -31,7 +31,7 @@ from imitation.algorithms.policy_gradient import (
     surrogate_loss,
     trajectory_returns,
 )
-from imitation.algorithms.ppo import compute_gae
+from imitation.algorithms.advantages import compute_gae
 from imitation.checkpoints import snapshot
 from imitation.envs.make import make_env
 from imitation.errors import ConfigError, ImitationError

@@ -9,7 +9,8 @@ import pytest
 import torch
 from torch.distributions import Categorical, Normal
 
-from imitation.algorithms.ppo import RewardScaler, clipped_surrogate, compute_gae, kl_penalty_objective, policy_kl, update_kl_penalty
+from imitation.algorithms.ppo import RewardScaler, clipped_surrogate, kl_penalty_objective, policy_kl, update_kl_penalty
+from imitation.algorithms.advantages import compute_gae
 
 GAMMA, LAMBDA = 0.9, 0.5
 

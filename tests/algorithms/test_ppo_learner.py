@@ -24,10 +24,10 @@ from imitation.algorithms.ppo import (
     RewardScaler,
     UpdateBatch,
     check_finite_step,
-    compute_gae,
-    make_vector_env,
     ppo_update,
 )
+from imitation.algorithms.advantages import compute_gae
+from imitation.envs.vector import make_vector_env
 from imitation.checkpoints import snapshot, unprefixed
 from imitation.envs.rollout import Rollout
 from imitation.errors import ConfigError, ImitationError

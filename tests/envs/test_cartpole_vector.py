@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from imitation.algorithms.ppo import make_vector_env
+from imitation.envs.vector import make_vector_env
 from imitation.envs.cartpole_vector import SameStepCartPole
 
 N_ENVS = 6
