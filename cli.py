@@ -172,188 +172,17 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_train_ppo(args: argparse.Namespace) -> int:
-    from imitation.algorithms.ppo_config import PPOConfig
-    from imitation.envs.pixels import PixelRecipe
-    from imitation.jobs.ppo import train_ppo
+def cmd_train(args: argparse.Namespace) -> int:
+    from imitation.jobs.learners import LEARNERS
 
-    pixels = (
-        {"pixels": PixelRecipe.parse(args.pixels, grayscale=args.grayscale, crop=args.crop).to_json()} if args.pixels else {}
-    )
-    fields = given(args, PPOConfig)
-    config, result = train_ppo(
-        fields.pop("env_id"),
-        args.out,
-        fields | pixels,
-        reward_run=args.reward,
-        shaped=args.shaped,
-        resume=args.resume,
-        progress=not args.quiet,
-        workers=_workers(args),
-    )
-    if args.json:
-        _print_json(result)
-    else:
-        evaluation = result["eval"]
-        print(
-            f"trained PPO ({config.objective}) on {args.env} for {result['steps']} steps in {result['seconds']:.0f} s "
-            f"({result['steps_per_second']:.0f} steps/s); eval return {evaluation['mean_return']:.1f} ± "
-            f"{evaluation['std_return']:.1f}; run: {result['run']}"
-        )
-    return 0
-
-
-def cmd_train_pg(args: argparse.Namespace) -> int:
-    from imitation.algorithms.policy_gradient_config import PGConfig
-    from imitation.jobs.pg import pg_config, pg_job
-
-    config = pg_config(**given(args, PGConfig))
-    result = pg_job(config, args.out, progress=not args.quiet, resume=args.resume)
-    if args.json:
-        _print_json(result)
-    else:
-        evaluation = result["eval"]
-        print(
-            f"trained policy gradient ({config.estimator}) on {args.env} for {result['steps']} steps in "
-            f"{result['batches']} batches, {result['seconds']:.0f} s; eval return {evaluation['mean_return']:.1f} ± "
-            f"{evaluation['std_return']:.1f}; run: {result['run']}"
-        )
-    return 0
-
-
-def cmd_train_search(args: argparse.Namespace) -> int:
-    from imitation.algorithms.policy_search_config import SearchConfig
-    from imitation.jobs.search import search_config, search_job
-
-    config = search_config(method=args.algorithm, **given(args, SearchConfig))
-    result = search_job(config, args.out, progress=not args.quiet, resume=args.resume)
-    if args.json:
-        _print_json(result)
-    else:
-        evaluation = result["eval"]
-        print(
-            f"searched {result['parameters']} policy parameters by {args.algorithm} on {args.env}: {result['steps']} steps, "
-            f"{result['generations']} generations in {result['seconds']:.0f} s; eval return of the "
-            f"{'incumbent' if args.algorithm == 'hill-climb' else 'mean'} {evaluation['mean_return']:.1f} ± "
-            f"{evaluation['std_return']:.1f}; run: {result['run']}"
-        )
-    return 0
-
-
-def cmd_train_bc(args: argparse.Namespace) -> int:
-    from imitation.algorithms.bc_config import BCConfig
-    from imitation.jobs.bc import bc_job
-
-    result = bc_job(
-        args.demos, args.env, BCConfig(**given(args, BCConfig)), args.out, progress=not args.quiet, resume=args.resume
-    )
-    if "run" not in result:  # a torchrun process other than rank 0, which reports the run
+    trained = LEARNERS[args.algorithm].train(args)
+    if trained is None:
         return 0
-    _print_warnings(result["warnings"])
+    _print_warnings(trained.result.get("warnings", []))
     if args.json:
-        _print_json(result)
-        return 0
-    if result["offline"]:
-        print(
-            f"trained BC offline (no --env, so no rollouts) on {result['train_transitions']} transitions for "
-            f"{result['epochs']} epochs (best {result['best_epoch']}); validation loss {result['best_validation_loss']:.4f} "
-            f"on {result['validation_transitions']} held-out transitions; run: {result['run']}"
-        )
+        _print_json(trained.result)
     else:
-        evaluation = result["eval"]
-        print(
-            f"trained BC on {result['train_transitions']} transitions for {result['epochs']} epochs (best "
-            f"{result['best_epoch']}, validation loss {result['best_validation_loss']:.4f}); eval return "
-            f"{evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f}; run: {result['run']}"
-        )
-    if result["validation"] is not None:
-        print(_yardstick_line(result["validation"], result["baselines"], result["beats_baselines"]))
-    return 0
-
-
-def _yardstick_line(scores: dict[str, float], baselines: dict[str, dict[str, float]], beats: dict[str, bool]) -> str:
-    """BC beside the trivial baselines, on the held-out transitions, in one line."""
-
-    def shown(values: dict[str, float]) -> str:
-        return ", ".join(f"{key.replace('_', ' ')} {value:.4g}" for key, value in values.items())
-
-    rows = "; ".join(
-        f"{name.replace('_', '-')} {shown(values)} ({'beaten' if beats[name] else 'NOT beaten'})"
-        for name, values in baselines.items()
-    )
-    return f"held-out: BC {shown(scores)}; baselines: {rows}"
-
-
-def cmd_train_dagger(args: argparse.Namespace) -> int:
-    from imitation.algorithms.dagger_config import DAggerConfig
-    from imitation.jobs.dagger import dagger_job
-
-    config = DAggerConfig(**given(args, DAggerConfig))
-    from imitation.envs.pixels import PixelRecipe
-
-    pixels = PixelRecipe.parse(args.pixels, grayscale=args.grayscale, crop=args.crop) if args.pixels else None
-    result = dagger_job(
-        args.env,
-        args.expert,
-        config,
-        args.out,
-        demos=args.demos,
-        pixels=pixels,
-        speed=args.speed,
-        progress=not args.quiet,
-        resume=args.resume,
-        workers=_workers(args),
-    )
-    if args.json:
-        _print_json(result)
-    else:
-        evaluation = result["eval"]
-        returns = ", ".join(f"{value:.1f}" for value in result["round_returns"])
-        print(
-            f"DAgger on {args.env} with expert {args.expert}: {result['rounds']} rounds, {result['expert_labels']} expert "
-            f"labels; return by round: {returns}; eval return {evaluation['mean_return']:.1f} ± "
-            f"{evaluation['std_return']:.1f}; run: {result['run']}"
-        )
-        if config.mode == "takeover":
-            rates = ", ".join(f"{100 * rate:.1f} %" for rate in result["intervention_rates"])
-            print(f"intervention rate by round (share of steps the expert drove): {rates}")
-    return 0
-
-
-def cmd_train_irl(args: argparse.Namespace) -> int:
-    from imitation.algorithms.adversarial_config import DISCRIMINATOR_TRAINING, AdversarialConfig
-    from imitation.jobs.irl_methods import IRL_METHODS, IRLRun
-
-    method = IRL_METHODS[args.method]
-    if args.workers is not None and not method.rollouts:
-        raise ImitationError(f"--workers: --method {args.method} has no PPO rollouts to spread; use it with gcl, airl or gail")
-    if args.gail_reward is not None and args.method != "gail":
-        raise ImitationError(f"--gail-reward: chooses GAIL's reward, and --method {args.method} is not gail")
-    for name in given(args, AdversarialConfig, only=DISCRIMINATOR_TRAINING):
-        if not method.discriminator:
-            raise ImitationError(
-                f"{flags.flag_of(args.configs, 'AdversarialConfig', name)}: sets the training of GAIL's and AIRL's "
-                f"discriminator, and --method {args.method} has none"
-            )
-    if args.warm_start is not None and not method.discriminator:
-        raise ImitationError(f"--warm-start: starts GAIL's and AIRL's discriminator, and --method {args.method} has none")
-    run = IRLRun(
-        args.method,
-        args.demos,
-        args.env,
-        args.out,
-        {config: given(args, config, only) for config, only in method.configs},
-        seed=args.seed,
-        progress=not args.quiet,
-        resume=args.resume,
-        workers=_workers(args),
-        warm_start=args.warm_start,
-    )
-    result = method.train(run)
-    if args.json:
-        _print_json(result)
-    else:
-        print(method.describe(run, result))
+        print("\n".join(trained.lines()))
     return 0
 
 
@@ -500,14 +329,10 @@ def _flag_message(error: ConfigError, args: argparse.Namespace) -> str:
 
 
 def _workers(args: argparse.Namespace) -> Any:
-    """The `Workers` the flags of `_add_workers` ask for, or None to run in this process."""
-    from imitation.ray_engine import LOCAL, Workers
+    """The `Workers` the flags of `RayWorkers` ask for, or None to run in this process."""
+    from imitation.ray_engine import requested_workers
 
-    if args.workers is None:
-        if args.ray_address != LOCAL or args.cpus is not None:
-            raise ImitationError("--ray-address and --cpus go with --workers N")
-        return None
-    return Workers(args.workers, args.ray_address, args.cpus)
+    return requested_workers(args.workers, args.ray_address, args.cpus)
 
 
 HANDLERS: dict[str, Callable[[argparse.Namespace], int]] = {
@@ -516,14 +341,6 @@ HANDLERS: dict[str, Callable[[argparse.Namespace], int]] = {
     "recover": cmd_recover,
     "convert": cmd_convert,
     "export": cmd_export,
-    "train ppo": cmd_train_ppo,
-    "train pg": cmd_train_pg,
-    "train hill-climb": cmd_train_search,
-    "train cem": cmd_train_search,
-    "train cmaes": cmd_train_search,
-    "train bc": cmd_train_bc,
-    "train dagger": cmd_train_dagger,
-    "train irl": cmd_train_irl,
     "eval policy": cmd_eval_policy,
     "eval reward": cmd_eval_reward,
     "demo": cmd_demo,
@@ -533,7 +350,8 @@ HANDLERS: dict[str, Callable[[argparse.Namespace], int]] = {
 
 def make_parser() -> argparse.ArgumentParser:
     """The command line, built from its declarations (imitation/commands.py): each command's
-    flags from the dataclasses it names, each with its handler here."""
+    flags from the dataclasses it names, each with its handler here (every `train` command's
+    `cmd_train`, which runs its learner from imitation/jobs/learners.py)."""
     from imitation.commands import COMMANDS, GROUPS, Global
 
     parser = argparse.ArgumentParser(
@@ -564,7 +382,7 @@ def make_parser() -> argparse.ArgumentParser:
                 fill=options.fill,
                 choices=options.choices,
             )
-        sub.set_defaults(handler=HANDLERS[words], parser=sub)
+        sub.set_defaults(handler=cmd_train if group == ["train"] else HANDLERS[words], parser=sub)
     return parser
 
 

@@ -11,6 +11,10 @@ the training loop (`imitation.jobs.loop`) decides when to save and resume:
 - `rng_checkpoint` / `restore_rng`: torch's CPU generator and numpy's global one;
 - `restoring`: turns what a checkpoint that does not fit raises into one line;
 - `checked_counter`: a counter read back must lie in the run's range.
+
+A learner uses them through `CheckpointWriter` (its `state_dict()` adds its parts one by one) and
+`CheckpointReader` (its `load_state_dict()` reads them back inside `restoring`), which keep the
+names every learner shares: "optimizer", "rng" and "seconds".
 """
 
 from __future__ import annotations
@@ -148,3 +152,66 @@ def tree_of_names(flat: Tensors) -> dict[str, Any]:
             node = node.setdefault(key, {})
         node[leaf] = tensor
     return trees
+
+
+class CheckpointWriter:
+    """A learner's checkpoint assembled part by part: networks and tensors under a prefix each,
+    optimisers, the random generators, the training clock, and JSON state."""
+
+    def __init__(self, **state: Any) -> None:
+        self.tensors: Tensors = {}
+        self.state: dict[str, Any] = dict(state)
+
+    def module(self, name: str, tensors: Tensors) -> None:
+        """A part's tensors (a state dict), named `name.…`."""
+        self.tensors |= prefixed(name, tensors)
+
+    def optimizer(self, optimizer: torch.optim.Optimizer | FlatAdam, name: str = "optimizer") -> None:
+        tensors, self.state[name] = optimizer_checkpoint(optimizer, name)
+        self.tensors |= tensors
+
+    def rng(self) -> None:
+        """torch's CPU generator and numpy's global one, where they are now."""
+        tensors, self.state["rng"] = rng_checkpoint()
+        self.tensors |= tensors
+
+    def clock(self, clock: TrainingClock) -> None:
+        self.state["seconds"] = clock.seconds
+
+    def data(self) -> CheckpointData:
+        return self.tensors, self.state
+
+
+class CheckpointReader:
+    """A checkpoint read back part by part (what `CheckpointWriter` wrote), as a context: inside
+    it, a checkpoint that does not fit this `what` run fails in one line (`restoring`)."""
+
+    def __init__(self, checkpoint: CheckpointData, what: str) -> None:
+        self.tensors, self.state = checkpoint
+        self._restoring = restoring(what)
+
+    def __enter__(self) -> CheckpointReader:
+        self._restoring.__enter__()
+        return self
+
+    def __exit__(self, *exc: Any) -> bool | None:
+        return self._restoring.__exit__(*exc)
+
+    def module(self, name: str) -> Tensors:
+        """The tensors `CheckpointWriter.module(name, …)` wrote, under their own names."""
+        return unprefixed(name, self.tensors)
+
+    def optimizer(self, optimizer: torch.optim.Optimizer | FlatAdam, name: str = "optimizer") -> None:
+        restore_optimizer(optimizer, self.tensors, self.state[name], name)
+
+    def rng(self) -> None:
+        restore_rng(self.tensors, self.state["rng"])
+
+    def clock(self, clock: TrainingClock) -> None:
+        clock.before = float(self.state["seconds"])
+
+    def counter(self, key: str, name: str, first: int, last: int, *, default: int | None = None) -> int:
+        """The counter saved as `key` (`default` where a checkpoint may lack it), refused outside
+        [first, last] (`checked_counter`)."""
+        value = self.state[key] if default is None else self.state.get(key, default)
+        return checked_counter(int(value), name, first, last)

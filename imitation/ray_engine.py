@@ -45,6 +45,15 @@ class Workers:
         return ray_session(self.address, num_cpus=self.cpus)
 
 
+def requested_workers(count: int | None, address: str, cpus: int | None) -> Workers | None:
+    """The `Workers` that `--workers N --ray-address ADDR --cpus C` ask for, or None to run in this process."""
+    if count is None:
+        if address != LOCAL or cpus is not None:
+            raise ImitationError("--ray-address and --cpus go with --workers N")
+        return None
+    return Workers(count, address, cpus)
+
+
 def worker_session(workers: Workers | None) -> contextlib.AbstractContextManager[ModuleType | None]:
     """`workers`' Ray session for the block, or nothing to connect to when the work stays in this process."""
     return workers.session() if workers is not None else contextlib.nullcontext()

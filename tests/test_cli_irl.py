@@ -94,13 +94,13 @@ def test_adversarial_runs_write_a_policy_and_a_reward_that_ppo_and_eval_consume(
 @pytest.mark.parametrize("method", ["gcl", "mce"])
 @pytest.mark.parametrize("flag", ["--discriminator-steps", "--policy-updates", "--pool-rollouts", "--latest-share", "--gradient-penalty"])
 def test_discriminator_flags_are_refused_by_a_method_without_a_discriminator(method: str, flag: str, tmp_path) -> None:
-    from cli import make_parser, cmd_train_irl
+    from cli import make_parser
 
     args = make_parser().parse_args(
         ["train", "irl", "--method", method, "--env", "CartPole-v1", "--demos", "d.mcap", flag, "2", "--out", str(tmp_path / "r")]
     )
     with pytest.raises(ImitationError, match=f"^{flag}: sets the training of GAIL's and AIRL's discriminator, and --method {method} has none$"):
-        cmd_train_irl(args)
+        args.handler(args)
     assert not any(tmp_path.iterdir())
 
 
@@ -205,10 +205,10 @@ def test_warm_start_refuses_another_method_or_other_networks(tmp_path) -> None:
 
 
 def test_warm_start_is_refused_by_a_method_without_a_discriminator(tmp_path) -> None:
-    from cli import make_parser, cmd_train_irl
+    from cli import make_parser
 
     args = make_parser().parse_args(
         ["train", "irl", "--method", "gcl", "--env", "CartPole-v1", "--demos", "d.mcap", "--warm-start", "r", "--out", str(tmp_path / "r")]
     )
     with pytest.raises(ImitationError, match="^--warm-start: starts GAIL's and AIRL's discriminator, and --method gcl has none$"):
-        cmd_train_irl(args)
+        args.handler(args)

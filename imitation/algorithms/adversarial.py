@@ -38,9 +38,8 @@ from imitation.algorithms.beside_ppo import BesidePPO, env_action_log_probs
 from imitation.algorithms.ppo import PPO
 from imitation.checkpoints import (
     CheckpointData,
+    CheckpointWriter,
     flat_names,
-    optimizer_checkpoint,
-    prefixed,
     restore_optimizer,
     tree_of_names,
     unprefixed,
@@ -236,17 +235,13 @@ class DiscriminatorLearner:
         return parts[0].cat(*parts[1:]).select(torch.cat(positions).argsort())
 
     def state_dict(self) -> CheckpointData:
-        optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")
-        tensors = prefixed("discriminator", self.discriminator.state_dict()) | optimizer_tensors
-        tensors["generator"] = self.generator.get_state()
+        checkpoint = CheckpointWriter(learned=self.learned, pooled=len(self.rollouts), last=self.last)
+        checkpoint.module("discriminator", self.discriminator.state_dict())
+        checkpoint.optimizer(self.optimizer)
+        checkpoint.tensors["generator"] = self.generator.get_state()
         for k, steps in enumerate(self.rollouts):
-            tensors |= prefixed(f"pool.{k}", flat_names(vars(steps)))
-        return tensors, {
-            "optimizer": optimizer_state,
-            "learned": self.learned,
-            "pooled": len(self.rollouts),
-            "last": self.last,
-        }
+            checkpoint.module(f"pool.{k}", flat_names(vars(steps)))
+        return checkpoint.data()
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
         """Continue from a `state_dict()` (KeyError, TypeError or RuntimeError when it is not one)."""

@@ -55,15 +55,7 @@ import torch
 
 from imitation.algorithms.apprenticeship_config import ApprenticeshipConfig
 from imitation.algorithms.ppo import PPO, PPOConfig
-from imitation.checkpoints import (
-    CheckpointData,
-    Tensors,
-    TrainingClock,
-    checked_counter,
-    prefixed,
-    restoring,
-    unprefixed,
-)
+from imitation.checkpoints import CheckpointData, CheckpointReader, CheckpointWriter, TrainingClock, unprefixed
 from imitation.envs.tabular import TabularMDP
 from imitation.envs.tabular_planning import Dynamics, check_horizon, state_visitation
 from imitation.policies import ActorCritic, PolicyConfig, SingleObservationPolicy
@@ -299,11 +291,11 @@ class PPOSolver:
         return self.feature_expectations(self.policies[-1], seed)
 
     def state_dict(self) -> CheckpointData:
-        tensors: Tensors = {}
-        for index, policy in enumerate(self.policies):
-            tensors |= prefixed(f"policy{index}", policy.state_dict())
         config = self.policies[0].config.to_json() if self.policies else None
-        return tensors, {"policies": len(self.policies), "policy": config, "steps": self.steps}
+        checkpoint = CheckpointWriter(policies=len(self.policies), policy=config, steps=self.steps)
+        for index, policy in enumerate(self.policies):
+            checkpoint.module(f"policy{index}", policy.state_dict())
+        return checkpoint.data()
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
         tensors, state = checkpoint
@@ -389,35 +381,34 @@ class Apprenticeship:
 
     def state_dict(self) -> CheckpointData:
         """μ^(j), w^(i), λ, μ̄ and the solver's policies (float64: the mixture's weights are kept exact)."""
-        tensors = {
+        checkpoint = CheckpointWriter(
+            iteration=self.iterations + 1,
+            # Why the run stopped before its budget, if it did: a run resumed after its last step
+            # (from a Ctrl-C in its final evaluation) must not iterate on.
+            converged=self.converged,
+            stalled=self.stalled,
+        )
+        checkpoint.clock(self.clock)
+        checkpoint.tensors |= {
             "mus": torch.as_tensor(self.mus),
             "weights": torch.as_tensor(self.weights),
             "lambdas": torch.as_tensor(self.lambdas),
             "mu_bar": torch.as_tensor(self.mu_bar),
         }
-        solver_tensors, solver_state = self.solver.state_dict()
-        state = {
-            "iteration": self.iterations + 1,
-            "seconds": self.clock.seconds,
-            "solver": solver_state,
-            # Why the run stopped before its budget, if it did: a run resumed after its last step
-            # (from a Ctrl-C in its final evaluation) must not iterate on.
-            "converged": self.converged,
-            "stalled": self.stalled,
-        }
-        return tensors | prefixed("solver", solver_tensors), state
+        solver_tensors, checkpoint.state["solver"] = self.solver.state_dict()
+        checkpoint.module("solver", solver_tensors)
+        return checkpoint.data()
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
-        tensors, state = checkpoint
-        with restoring("apprenticeship learning"):
-            self.iterations = checked_counter(int(state["iteration"]), "next iteration", 1, self.total + 1) - 1
-            self.mus = tensors["mus"].double().numpy().reshape(self.iterations + 1, len(self.mu_expert))
-            self.weights = tensors["weights"].double().numpy().reshape(self.iterations, len(self.mu_expert))
-            self.lambdas = tensors["lambdas"].double().numpy().reshape(self.iterations + 1)
-            self.mu_bar = tensors["mu_bar"].double().numpy().reshape(len(self.mu_expert))
-            self.solver.load_state_dict((unprefixed("solver", tensors), state["solver"]))
-            self.clock.before = float(state["seconds"])
-            self.converged, self.stalled = bool(state.get("converged", False)), bool(state.get("stalled", False))
+        with CheckpointReader(checkpoint, "apprenticeship learning") as saved:
+            self.iterations = saved.counter("iteration", "next iteration", 1, self.total + 1) - 1
+            self.mus = saved.tensors["mus"].double().numpy().reshape(self.iterations + 1, len(self.mu_expert))
+            self.weights = saved.tensors["weights"].double().numpy().reshape(self.iterations, len(self.mu_expert))
+            self.lambdas = saved.tensors["lambdas"].double().numpy().reshape(self.iterations + 1)
+            self.mu_bar = saved.tensors["mu_bar"].double().numpy().reshape(len(self.mu_expert))
+            self.solver.load_state_dict((saved.module("solver"), saved.state["solver"]))
+            saved.clock(self.clock)
+            self.converged, self.stalled = bool(saved.state.get("converged", False)), bool(saved.state.get("stalled", False))
 
 
 def mixture_summary(learner: Apprenticeship) -> dict[str, Any]:

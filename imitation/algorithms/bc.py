@@ -45,18 +45,7 @@ import numpy as np
 import torch
 
 from imitation.algorithms.bc_config import BCConfig
-from imitation.checkpoints import (
-    CheckpointData,
-    TrainingClock,
-    checked_counter,
-    optimizer_checkpoint,
-    prefixed,
-    restore_optimizer,
-    restore_rng,
-    restoring,
-    rng_checkpoint,
-    unprefixed,
-)
+from imitation.checkpoints import CheckpointData, CheckpointReader, CheckpointWriter, TrainingClock
 from imitation.data.loader import MinibatchLoader, TransitionTensors
 from imitation.data.stream import StreamingLoader
 from imitation.encoders import CNNConfig, cnn_activation_count, cnn_weight_count
@@ -385,72 +374,62 @@ class BehaviouralCloning:
         weights so far, Adam's moments, the shuffling and torch generators; within an epoch
         (stopped between minibatches), the batches taken, their fits and the shuffling
         generator as the epoch began, to draw its order again."""
-        optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")
-        rng_tensors, rng_state = rng_checkpoint()
-        tensors = (
-            prefixed("policy", self.policy.state_dict())
-            | prefixed("best", self.best_state)
-            | optimizer_tensors
-            | rng_tensors
-            | {"loader.generator": self.loader.generator_state()}
+        checkpoint = CheckpointWriter(
+            epoch=self.epochs + 1,
+            best_loss=self.best_loss,
+            best_epoch=self.best_epoch,
+            samples=self.samples,
+            scaler=self.scaler.state_dict(),
         )
-        state = {
-            "epoch": self.epochs + 1,
-            "best_loss": self.best_loss,
-            "best_epoch": self.best_epoch,
-            "samples": self.samples,
-            "seconds": self.clock.seconds,
-            "optimizer": optimizer_state,
-            "rng": rng_state,
-            "scaler": self.scaler.state_dict(),
-        }
+        checkpoint.module("policy", self.policy.state_dict())
+        checkpoint.module("best", self.best_state)
+        checkpoint.optimizer(self.optimizer)
+        checkpoint.rng()
+        checkpoint.clock(self.clock)
+        checkpoint.tensors["loader.generator"] = self.loader.generator_state()
         if self.batch:
-            tensors["loader.epoch_start"] = self.epoch_start
-            state |= {"batch": self.batch, "fits": list(self.fits)}
+            checkpoint.tensors["loader.epoch_start"] = self.epoch_start
+            checkpoint.state |= {"batch": self.batch, "fits": list(self.fits)}
         if self.parallel is not None:
             # Every process's place in its own data and random streams, so that each resumes where it was.
-            tensors |= {
+            checkpoint.tensors |= {
                 "loader.generators": self.parallel.all_gather(self.loader.generator_state()),
                 "rng.torch.ranks": self.parallel.all_gather(torch.get_rng_state()),
             }
-            state["world_size"] = self.parallel.world_size
-        return tensors, state
+            checkpoint.state["world_size"] = self.parallel.world_size
+        return checkpoint.data()
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
-        tensors, state = checkpoint
-        with restoring("BC"):
-            self.policy.load_state_dict(unprefixed("policy", tensors))
+        with CheckpointReader(checkpoint, "BC") as saved:
+            self.policy.load_state_dict(saved.module("policy"))
             device = next(self.policy.parameters()).device
-            self.best_state = {name: t.to(device) for name, t in unprefixed("best", tensors).items()}
-            restore_optimizer(self.optimizer, tensors, state["optimizer"], "optimizer")
-            restore_rng(tensors, state["rng"])
-            if state.get("scaler"):
-                self.scaler.load_state_dict(state["scaler"])
-            self.loader.set_generator_state(tensors["loader.generator"])
+            self.best_state = {name: t.to(device) for name, t in saved.module("best").items()}
+            saved.optimizer(self.optimizer)
+            saved.rng()
+            if saved.state.get("scaler"):
+                self.scaler.load_state_dict(saved.state["scaler"])
+            self.loader.set_generator_state(saved.tensors["loader.generator"])
             if self.parallel is not None:
-                self._restore_ranks(tensors, state, self.parallel)
-            self.best_loss = float("inf") if state["best_loss"] is None else float(state["best_loss"])
-            self.best_epoch, self.samples, self.clock.before = (
-                int(state["best_epoch"]),
-                int(state["samples"]),
-                float(state["seconds"]),
-            )
-            self.epochs = checked_counter(int(state["epoch"]), "next epoch", 1, self.total + 1) - 1
-            self.batch = checked_counter(int(state.get("batch", 0)), "batch within the epoch", 0, len(self.loader))
+                self._restore_ranks(saved, self.parallel)
+            self.best_loss = float("inf") if saved.state["best_loss"] is None else float(saved.state["best_loss"])
+            self.best_epoch, self.samples = int(saved.state["best_epoch"]), int(saved.state["samples"])
+            saved.clock(self.clock)
+            self.epochs = saved.counter("epoch", "next epoch", 1, self.total + 1) - 1
+            self.batch = saved.counter("batch", "batch within the epoch", 0, len(self.loader), default=0)
             if self.batch:
-                self.epoch_start = tensors["loader.epoch_start"].clone()
-                self.fits = [float(fit) for fit in state["fits"]]
+                self.epoch_start = saved.tensors["loader.epoch_start"].clone()
+                self.fits = [float(fit) for fit in saved.state["fits"]]
 
-    def _restore_ranks(self, tensors: dict[str, torch.Tensor], state: dict[str, Any], parallel: DataParallel) -> None:
+    def _restore_ranks(self, checkpoint: CheckpointReader, parallel: DataParallel) -> None:
         """This process's loader and torch generators from a data-parallel checkpoint."""
-        saved = int(state.get("world_size", 1))
+        saved = int(checkpoint.state.get("world_size", 1))
         if saved != parallel.world_size:
             raise ImitationError(
                 f"--resume: the run was trained by {saved} process(es), not {parallel.world_size}; "
                 f"resume it with torchrun --nproc-per-node {saved}"
             )
-        self.loader.set_generator_state(tensors["loader.generators"][parallel.rank].clone())
-        torch.set_rng_state(tensors["rng.torch.ranks"][parallel.rank].clone())
+        self.loader.set_generator_state(checkpoint.tensors["loader.generators"][parallel.rank].clone())
+        torch.set_rng_state(checkpoint.tensors["rng.torch.ranks"][parallel.rank].clone())
 
 
 def fit(learner: BehaviouralCloning) -> list[dict[str, float]]:

@@ -9,7 +9,7 @@ from typing import Protocol
 import torch
 
 from imitation.algorithms.ppo import PPO
-from imitation.checkpoints import CheckpointData, prefixed, restoring, unprefixed
+from imitation.checkpoints import CheckpointData, CheckpointReader, CheckpointWriter
 from imitation.policies import ActorCritic
 from imitation.rewards import tree_index
 from imitation.tensors import TensorTree
@@ -65,12 +65,13 @@ class BesidePPO[Side: Checkpointed]:
         return self.ppo.progress(row) | {"demo_acc": f"{row['demo_accuracy']:.2f}"}
 
     def state_dict(self) -> CheckpointData:
-        tensors, state = self.ppo.state_dict()
-        side_tensors, state["learner"] = self.side.state_dict()
-        return tensors | prefixed("learner", side_tensors), state
+        checkpoint = CheckpointWriter()
+        checkpoint.tensors, checkpoint.state = self.ppo.state_dict()
+        side_tensors, checkpoint.state["learner"] = self.side.state_dict()
+        checkpoint.module("learner", side_tensors)
+        return checkpoint.data()
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
-        tensors, state = checkpoint
         self.ppo.load_state_dict(checkpoint)
-        with restoring("PPO"):
-            self.side.load_state_dict((unprefixed("learner", tensors), state["learner"]))
+        with CheckpointReader(checkpoint, "PPO") as saved:
+            self.side.load_state_dict((saved.module("learner"), saved.state["learner"]))

@@ -55,7 +55,7 @@ import numpy as np
 
 from imitation.algorithms.bc import BehaviouralCloning, fit
 from imitation.algorithms.dagger_config import DAggerConfig
-from imitation.checkpoints import CheckpointData, checked_counter, prefixed, restoring, unprefixed
+from imitation.checkpoints import CheckpointData, CheckpointReader, CheckpointWriter
 from imitation.data.dataset import DemoDataset
 from imitation.data.loader import (
     TransitionTensors,
@@ -438,20 +438,20 @@ class DAgger:
     def state_dict(self) -> CheckpointData:
         """The learner, the mixture's generator, the label count and the finished rounds' files
         (by name: the run directory is renamed when it finishes)."""
-        state = {
-            "round": self.rounds + 1,
-            "labels": self.labels,
-            "rng": self.rng.bit_generator.state,
-            "round_files": [path.name for path in self.files],
-        }
-        return prefixed("policy", self.policy.state_dict()), state
+        checkpoint = CheckpointWriter(
+            round=self.rounds + 1,
+            labels=self.labels,
+            rng=self.rng.bit_generator.state,
+            round_files=[path.name for path in self.files],
+        )
+        checkpoint.module("policy", self.policy.state_dict())
+        return checkpoint.data()
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
-        tensors, state = checkpoint
-        with restoring("DAgger"):
-            self.policy.load_state_dict(unprefixed("policy", tensors))
-            self.rng.bit_generator.state = state["rng"]
-            self.files = [self.round_dir / name for name in state["round_files"]]
-            self.labels = int(state["labels"])
-            self.rounds = checked_counter(int(state["round"]), "next round", 1, self.total + 1) - 1
+        with CheckpointReader(checkpoint, "DAgger") as saved:
+            self.policy.load_state_dict(saved.module("policy"))
+            self.rng.bit_generator.state = saved.state["rng"]
+            self.files = [self.round_dir / name for name in saved.state["round_files"]]
+            self.labels = int(saved.state["labels"])
+            self.rounds = saved.counter("round", "next round", 1, self.total + 1) - 1
         self.learner = SingleObservationPolicy(self.policy, deterministic=True)

@@ -73,9 +73,8 @@ from imitation.algorithms.gcl_config import GCLConfig
 from imitation.algorithms.ppo import PPO
 from imitation.checkpoints import (
     CheckpointData,
+    CheckpointWriter,
     flat_names,
-    optimizer_checkpoint,
-    prefixed,
     restore_optimizer,
     tree_of_names,
     unprefixed,
@@ -171,27 +170,20 @@ class RewardLearner:
 
     def state_dict(self) -> CheckpointData:
         """Everything to go on as if never stopped (live tensors: the loop copies them)."""
-        optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")
-        tensors = (
-            prefixed("reward", self.reward.state_dict())
-            | optimizer_tensors
-            | {
-                "generator": self.generator.get_state(),
-                "log_partition": self.log_partition.detach(),
-                "demo_log_mass": self.demo_log_mass,
-            }
-        )
-        if self.pool is not None:
-            tensors |= prefixed("pool", flat_names(vars(self.pool)))
-        for k, sampler in enumerate(self.samplers):
-            tensors |= prefixed(f"sampler.{k}", sampler.state_dict())
         samplers = self.samplers[0].config.to_json() if self.samplers else None
-        return tensors, {
-            "optimizer": optimizer_state,
-            "learned": self.learned,
-            "samplers": len(self.samplers),
-            "sampler_policy": samplers,
+        checkpoint = CheckpointWriter(learned=self.learned, samplers=len(self.samplers), sampler_policy=samplers)
+        checkpoint.module("reward", self.reward.state_dict())
+        checkpoint.optimizer(self.optimizer)
+        checkpoint.tensors |= {
+            "generator": self.generator.get_state(),
+            "log_partition": self.log_partition.detach(),
+            "demo_log_mass": self.demo_log_mass,
         }
+        if self.pool is not None:
+            checkpoint.module("pool", flat_names(vars(self.pool)))
+        for k, sampler in enumerate(self.samplers):
+            checkpoint.module(f"sampler.{k}", sampler.state_dict())
+        return checkpoint.data()
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
         """Continue from a `state_dict()` (KeyError or RuntimeError when it is not one)."""

@@ -25,16 +25,7 @@ import numpy as np
 import torch
 
 from imitation.algorithms.maxent_irl_config import MaxEntIRLConfig
-from imitation.checkpoints import (
-    CheckpointData,
-    TrainingClock,
-    checked_counter,
-    optimizer_checkpoint,
-    prefixed,
-    restore_optimizer,
-    restoring,
-    unprefixed,
-)
+from imitation.checkpoints import CheckpointData, CheckpointReader, CheckpointWriter, TrainingClock
 from imitation.data.types import Episode, Transitions
 from imitation.envs.tabular import TabularMDP
 from imitation.envs.tabular_planning import Dynamics, check_horizon, soft_value_iteration, state_visitation
@@ -182,14 +173,15 @@ class MaxEntIRL:
 
     def state_dict(self) -> CheckpointData:
         """r_θ and Adam's state: an iteration holds nothing else that carries over."""
-        optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")
-        tensors = prefixed("reward", self.reward_model.state_dict()) | optimizer_tensors
-        return tensors, {"iteration": self.iterations + 1, "seconds": self.clock.seconds, "optimizer": optimizer_state}
+        checkpoint = CheckpointWriter(iteration=self.iterations + 1)
+        checkpoint.clock(self.clock)
+        checkpoint.module("reward", self.reward_model.state_dict())
+        checkpoint.optimizer(self.optimizer)
+        return checkpoint.data()
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
-        tensors, state = checkpoint
-        with restoring("tabular IRL"):
-            self.reward_model.load_state_dict(unprefixed("reward", tensors))
-            restore_optimizer(self.optimizer, tensors, state["optimizer"], "optimizer")
-            self.clock.before = float(state["seconds"])
-            self.iterations = checked_counter(int(state["iteration"]), "next iteration", 1, self.total + 1) - 1
+        with CheckpointReader(checkpoint, "tabular IRL") as saved:
+            self.reward_model.load_state_dict(saved.module("reward"))
+            saved.optimizer(self.optimizer)
+            saved.clock(self.clock)
+            self.iterations = saved.counter("iteration", "next iteration", 1, self.total + 1) - 1

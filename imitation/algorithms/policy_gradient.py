@@ -56,18 +56,7 @@ import torch
 
 from imitation.algorithms.advantages import compute_gae
 from imitation.algorithms.policy_gradient_config import WITH_CRITIC, PGConfig
-from imitation.checkpoints import (
-    CheckpointData,
-    TrainingClock,
-    checked_counter,
-    optimizer_checkpoint,
-    prefixed,
-    restore_optimizer,
-    restore_rng,
-    restoring,
-    rng_checkpoint,
-    unprefixed,
-)
+from imitation.checkpoints import CheckpointData, CheckpointReader, CheckpointWriter, TrainingClock
 from imitation.envs.make import make_env
 from imitation.errors import ImitationError
 from imitation.policies import RunningMeanStd, make_policy, require_flat_observations
@@ -519,48 +508,46 @@ class PolicyGradient:
         """Everything to continue after this batch: networks, both Adams, the normalisers, the
         counters (the episode counter seeds the next resets), recent returns and the RNGs; with
         `rollout_steps`, each episode in progress as its reset seed and actions, to replay."""
-        optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")
-        value_tensors, value_state = optimizer_checkpoint(self.value_optimizer, "value_optimizer")
-        rng_tensors, rng_state = rng_checkpoint()
-        tensors = prefixed("policy", self.policy.state_dict()) | optimizer_tensors | value_tensors | rng_tensors
-        if self.reward_scaler is not None:
-            tensors |= prefixed("reward_scaler", self.reward_scaler.state_dict())
         in_progress = self.config.rollout_steps is not None and self.observations is not None
+        checkpoint = CheckpointWriter(
+            batch=self.batches,
+            global_step=self.global_step,
+            episodes=self.episodes,
+            policy=self.policy.config.to_json(),
+            recent_returns=list(self.recent_returns),
+            episodes_in_progress=({"seeds": self.episode_seeds, "rewards": self.episode_rewards} if in_progress else None),
+        )
+        checkpoint.module("policy", self.policy.state_dict())
+        checkpoint.optimizer(self.optimizer)
+        checkpoint.optimizer(self.value_optimizer, "value_optimizer")
+        checkpoint.rng()
+        checkpoint.clock(self.clock)
+        if self.reward_scaler is not None:
+            checkpoint.module("reward_scaler", self.reward_scaler.state_dict())
         if in_progress:
-            tensors |= {
+            checkpoint.tensors |= {
                 f"episode_actions.{copy}": torch.as_tensor(np.asarray(actions))
                 for copy, actions in enumerate(self.episode_actions)
             }
-        state = {
-            "batch": self.batches,
-            "global_step": self.global_step,
-            "episodes": self.episodes,
-            "seconds": self.clock.seconds,
-            "policy": self.policy.config.to_json(),
-            "optimizer": optimizer_state,
-            "value_optimizer": value_state,
-            "rng": rng_state,
-            "recent_returns": list(self.recent_returns),
-            "episodes_in_progress": ({"seeds": self.episode_seeds, "rewards": self.episode_rewards} if in_progress else None),
-        }
-        return tensors, state
+        return checkpoint.data()
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
-        tensors, state = checkpoint
-        with restoring("policy gradient"):
-            self.policy.load_state_dict(unprefixed("policy", tensors))
-            restore_optimizer(self.optimizer, tensors, state["optimizer"], "optimizer")
-            restore_optimizer(self.value_optimizer, tensors, state["value_optimizer"], "value_optimizer")
+        with CheckpointReader(checkpoint, "policy gradient") as saved:
+            self.policy.load_state_dict(saved.module("policy"))
+            saved.optimizer(self.optimizer)
+            saved.optimizer(self.value_optimizer, "value_optimizer")
             if self.reward_scaler is not None:
-                self.reward_scaler.load_state_dict(unprefixed("reward_scaler", tensors))
-            restore_rng(tensors, state["rng"])
-            self.recent_returns.extend(state["recent_returns"])
-            self.global_step, self.episodes = int(state["global_step"]), int(state["episodes"])
-            self.clock.before = float(state["seconds"])
-            self.batches = checked_counter(int(state["batch"]), "next batch", 0, self.total)
-            in_progress = state.get("episodes_in_progress")
+                self.reward_scaler.load_state_dict(saved.module("reward_scaler"))
+            saved.rng()
+            self.recent_returns.extend(saved.state["recent_returns"])
+            self.global_step, self.episodes = int(saved.state["global_step"]), int(saved.state["episodes"])
+            saved.clock(self.clock)
+            self.batches = saved.counter("batch", "next batch", 0, self.total)
+            in_progress = saved.state.get("episodes_in_progress")
             if in_progress is not None:
                 self.episode_seeds = [int(seed) for seed in in_progress["seeds"]]
                 self.episode_rewards = [float(reward) for reward in in_progress["rewards"]]
-                self.episode_actions = [list(tensors[f"episode_actions.{copy}"].numpy()) for copy in range(self.config.n_envs)]
+                self.episode_actions = [
+                    list(saved.tensors[f"episode_actions.{copy}"].numpy()) for copy in range(self.config.n_envs)
+                ]
                 self._replay()

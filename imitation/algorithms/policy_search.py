@@ -49,7 +49,7 @@ import torch
 from torch import nn
 
 from imitation.algorithms.policy_search_config import NAMES, SearchConfig
-from imitation.checkpoints import CheckpointData, TrainingClock, checked_counter, restoring
+from imitation.checkpoints import CheckpointData, CheckpointReader, CheckpointWriter, TrainingClock
 from imitation.envs.vector import make_vector_env
 from imitation.errors import ConfigError, ImitationError
 from imitation.policies import ActorCritic, make_policy, require_flat_observations
@@ -423,22 +423,19 @@ class PolicySearch:
 
     def state_dict(self) -> CheckpointData:
         tensors, search_state = self.search.state()
-        state = {
-            "generation": self.generations,
-            "global_step": self.global_step,
-            "episodes": self.episodes,
-            "seconds": self.clock.seconds,
-            "search": search_state,
-        }
-        return dict(tensors), state
+        checkpoint = CheckpointWriter(
+            generation=self.generations, global_step=self.global_step, episodes=self.episodes, search=search_state
+        )
+        checkpoint.clock(self.clock)
+        checkpoint.tensors |= tensors
+        return checkpoint.data()
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
-        tensors, state = checkpoint
-        with restoring(self.name):
-            self.search.restore(tensors, state["search"])
-            self.global_step = checked_counter(int(state["global_step"]), "env step", 0, self.config.total_steps)
-            self.generations = checked_counter(int(state["generation"]), "next generation", 0, self.global_step)
-            self.episodes = int(state["episodes"])
-            self.clock.before = float(state["seconds"])
+        with CheckpointReader(checkpoint, self.name) as saved:
+            self.search.restore(saved.tensors, saved.state["search"])
+            self.global_step = saved.counter("global_step", "env step", 0, self.config.total_steps)
+            self.generations = saved.counter("generation", "next generation", 0, self.global_step)
+            self.episodes = int(saved.state["episodes"])
+            saved.clock(self.clock)
             self.total = self._projected_total()
             load_actor_vector(self.policy, self.search.centre())

@@ -61,18 +61,7 @@ from torch.distributions import Distribution, kl_divergence
 
 from imitation.algorithms.advantages import compute_gae
 from imitation.algorithms.ppo_config import PPOConfig
-from imitation.checkpoints import (
-    CheckpointData,
-    TrainingClock,
-    checked_counter,
-    optimizer_checkpoint,
-    prefixed,
-    restore_optimizer,
-    restore_rng,
-    restoring,
-    rng_checkpoint,
-    unprefixed,
-)
+from imitation.checkpoints import CheckpointData, CheckpointReader, CheckpointWriter, TrainingClock
 from imitation.envs.pixels import PIXELS_KEY
 from imitation.envs.rollout import Rollout
 from imitation.envs.vector import finished_episode_returns, make_observed_env, make_vector_env
@@ -627,40 +616,34 @@ class PPO:
     def state_dict(self) -> CheckpointData:
         """Everything to continue after this update: networks, Adam, the normalisers, β, the
         counters, the recent returns and the random generators (live tensors: the loop copies them)."""
-        optimizer_tensors, optimizer_state = optimizer_checkpoint(self.optimizer, "optimizer")
-        rng_tensors, rng_state = rng_checkpoint()
-        tensors = prefixed("policy", self.policy.state_dict()) | optimizer_tensors | rng_tensors
+        checkpoint = CheckpointWriter(
+            update=self.updates,
+            global_step=self.global_step,
+            beta=self.beta,
+            policy=self.policy.config.to_json(),
+            recent_returns=list(self.recent_returns),
+            recent_optimised_returns=list(self.recent_optimised_returns),
+            timers=self.timers,
+        )
+        checkpoint.module("policy", self.policy.state_dict())
+        checkpoint.optimizer(self.optimizer)
+        checkpoint.rng()
+        checkpoint.clock(self.clock)
         if self.reward_scaler is not None:
-            tensors |= prefixed("reward_scaler", self.reward_scaler.stats.state_dict())
-        state = {
-            "update": self.updates,
-            "global_step": self.global_step,
-            "beta": self.beta,
-            "seconds": self.clock.seconds,
-            "policy": self.policy.config.to_json(),
-            "optimizer": optimizer_state,
-            "rng": rng_state,
-            "recent_returns": list(self.recent_returns),
-            "recent_optimised_returns": list(self.recent_optimised_returns),
-            "timers": self.timers,
-        }
-        return tensors, state
+            checkpoint.module("reward_scaler", self.reward_scaler.stats.state_dict())
+        return checkpoint.data()
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
-        tensors, state = checkpoint
-        with restoring("PPO"):
-            self.policy.load_state_dict(unprefixed("policy", tensors))
-            restore_optimizer(self.optimizer, tensors, state["optimizer"], "optimizer")
+        with CheckpointReader(checkpoint, "PPO") as saved:
+            self.policy.load_state_dict(saved.module("policy"))
+            saved.optimizer(self.optimizer)
             if self.reward_scaler is not None:
-                self.reward_scaler.stats.load_state_dict(unprefixed("reward_scaler", tensors))
-            restore_rng(tensors, state["rng"])
-            self.recent_returns.extend(state["recent_returns"])
-            self.recent_optimised_returns.extend(state["recent_optimised_returns"])
-            self.timers.update(state["timers"])
-            self.global_step, self.beta, self.clock.before = (
-                int(state["global_step"]),
-                float(state["beta"]),
-                float(state["seconds"]),
-            )
-            self.updates = checked_counter(int(state["update"]), "next update", 0, self.total)
+                self.reward_scaler.stats.load_state_dict(saved.module("reward_scaler"))
+            saved.rng()
+            self.recent_returns.extend(saved.state["recent_returns"])
+            self.recent_optimised_returns.extend(saved.state["recent_optimised_returns"])
+            self.timers.update(saved.state["timers"])
+            self.global_step, self.beta = int(saved.state["global_step"]), float(saved.state["beta"])
+            saved.clock(self.clock)
+            self.updates = saved.counter("update", "next update", 0, self.total)
             self.folds_first_frames = self.updates == 0

@@ -26,7 +26,8 @@ from typing import Any
 
 from imitation.data.convert.yaml_bounded import read_yaml_file
 from imitation.errors import ImitationError
-from imitation.jobs.irl_methods import DEFAULT_METHOD, IRL_METHODS, RETURN
+from imitation.jobs.irl_methods import DEFAULT_METHOD, IRL_METHODS
+from imitation.jobs.learners import LEARNERS
 from imitation.seeding import seed_problem
 
 KEYS = (
@@ -51,25 +52,16 @@ SWEEP_FLAGS = ("out", "quiet", "json", "resume", "help")
 Scalar = str | int | float | bool
 RUN_PLACEHOLDER = "OUT/runs/TRIAL"
 
-# The metric a sweep optimises unless the file names one: a column of the rows the command's
-# learner logs (its progress.csv), whether lower or higher is better, and which of a trial's
-# values is its result: BC keeps the weights of its best epoch, the others end with their last.
-DEFAULT_METRICS: dict[str, tuple[str, str, str]] = {
-    "train bc": ("validation_loss", "min", "best"),
-    "train dagger": RETURN,
-    "train ppo": RETURN,
-    "train pg": RETURN,
-    "train hill-climb": RETURN,
-    "train cem": RETURN,
-    "train cmaes": RETURN,
-}
-
 
 def default_metric(command: str, args: dict[str, Any]) -> tuple[str, str, str] | None:
     """The metric a sweep of `command` with fixed flags `args` optimises unless its file names
-    one; for `train irl`, its method's (imitation.jobs.irl_methods), None for an unknown one."""
+    one: a column of the rows the command's learner logs (its progress.csv), whether lower or
+    higher is better, and which of a trial's values is its result (`TrainLearner.metric`,
+    imitation.jobs.learners); for `train irl`, its method's (imitation.jobs.irl_methods), None for
+    an unknown one."""
     if command != "train irl":
-        return DEFAULT_METRICS.get(command)
+        learner = LEARNERS.get(command.removeprefix("train "))
+        return learner.metric if learner is not None else None
     method = IRL_METHODS.get(str(args.get("method", DEFAULT_METHOD)))
     return method.metric if method is not None else None
 
