@@ -173,7 +173,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from imitation.jobs.learners import LEARNERS
+    from imitation.train_commands import LEARNERS
 
     trained = LEARNERS[args.algorithm].train(args)
     if trained is None:
@@ -254,9 +254,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from imitation.jobs.sweep import sweep_job
-    from imitation.jobs.sweep_config import CommandLine, read_sweep_config
+    from imitation.jobs.sweep_config import read_sweep_config
 
-    config = read_sweep_config(args.config, CommandLine(commands=_train_commands(), problem=_train_problem))
+    config = read_sweep_config(args.config, _command_line())
     if args.cpus is not None and args.cpus < 1:
         raise ImitationError(f"--cpus must be at least 1, got {args.cpus}")
     out = args.out or str(Path("sweeps") / Path(args.config).stem)
@@ -280,6 +280,14 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
     return next(action.choices for action in parser._actions if isinstance(action, argparse._SubParsersAction))
+
+
+def _command_line() -> Any:
+    """What a sweep reads of the command line (`imitation.jobs.sweep_config.CommandLine`)."""
+    from imitation.jobs.sweep_config import CommandLine
+    from imitation.train_commands import default_metric
+
+    return CommandLine(commands=_train_commands(), problem=_train_problem, metric=default_metric)
 
 
 def _train_commands() -> dict[str, frozenset[str]]:
@@ -351,8 +359,9 @@ HANDLERS: dict[str, Callable[[argparse.Namespace], int]] = {
 def make_parser() -> argparse.ArgumentParser:
     """The command line, built from its declarations (imitation/commands.py): each command's
     flags from the dataclasses it names, each with its handler here (every `train` command's
-    `cmd_train`, which runs its learner from imitation/jobs/learners.py)."""
-    from imitation.commands import COMMANDS, GROUPS, Global
+    `cmd_train`, which runs its learner from imitation/train_commands.py)."""
+    from imitation.commands import GROUPS, Global
+    from imitation.train_commands import all_commands
 
     parser = argparse.ArgumentParser(
         prog="imitation", description="Imitation learning on MCAP demonstration files: record, inspect, train, evaluate."
@@ -361,7 +370,7 @@ def make_parser() -> argparse.ArgumentParser:
     add_flags(parser, Global, fill=True)
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     groups: dict[str, Any] = {}
-    for words, command in COMMANDS.items():
+    for words, command in all_commands().items():
         *group, name = words.split()
         container = commands
         if group:

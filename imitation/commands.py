@@ -11,11 +11,6 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-from imitation.algorithms.bc_config import BCConfig
-from imitation.algorithms.dagger_config import DAggerConfig
-from imitation.algorithms.policy_gradient_config import PGConfig
-from imitation.algorithms.policy_search_config import SearchConfig
-from imitation.algorithms.ppo_config import PPOConfig
 from imitation.data.convert.sources import SOURCES
 from imitation.data.export.formats import FORMATS
 from imitation.flags import flag, quality, seconds, speed
@@ -26,7 +21,7 @@ from imitation.jobs.record_config import COMPRESSIONS, IMAGE_CODECS, RecordConfi
 
 ENV_ID = "gymnasium environment id"
 DEMO_FILES = "F.mcap"
-# Helps whose subject each command names (`Options(..., helps=_pixels(...))`).
+# Helps whose subject each command names (`Options(..., helps=pixels_helps(...))`).
 PIXELS_HELP = (
     "observations {what} rendered frames resized to H×W (e.g. 84x84) under the key 'pixels', with the env's own "
     "observation beside them as 'state' (the expert acts on the state)"
@@ -119,11 +114,11 @@ class RayWorkers:
     )
 
 
-def _workers(what: str) -> dict[str, str]:
+def workers_helps(what: str) -> dict[str, str]:
     return {"workers": WORKERS_HELP.format(what=what)}
 
 
-def _pixels(what: str) -> dict[str, str]:
+def pixels_helps(what: str) -> dict[str, str]:
     return {"pixels": PIXELS_HELP.format(what=what)}
 
 
@@ -390,34 +385,6 @@ class Command:
     options: tuple[Options, ...] | Callable[[], tuple[Options, ...]]
 
 
-def _irl_options() -> tuple[Options, ...]:
-    """`train irl`'s flags: --method and the commands' own, then each method's configs, the
-    help of a flag shared by several methods saying what it does in each."""
-    methods: dict[tuple[type, tuple[str, ...] | None], list[str]] = {}
-    default_texts: dict[tuple[type, tuple[str, ...] | None], dict[str, str]] = {}
-    for method in IRL_METHODS.values():
-        for source in method.configs:
-            methods.setdefault(source, []).append(method.name)
-            default_texts.setdefault(source, {}).update(method.flag_defaults)
-    configs = tuple(
-        settings(config, only=only, label="/".join(names), default_texts=default_texts[config, only])
-        for (config, only), names in methods.items()
-    )
-    return (
-        Options(IRLOptions, choices={"method": tuple(IRL_METHODS)}),
-        *configs,
-        Options(RayWorkers, helps=_workers("PPO's rollouts (gcl, airl, gail)")),
-        TRAIN_OUTPUT,
-    )
-
-
-TRAIN_OUTPUT = Options(RunOutput)
-SEARCH_DESCRIPTION = (
-    " Candidates act deterministically (the mode of π_θ); each is scored by its mean return over the same "
-    "--episodes-per-candidate episodes, run side by side in --n-envs env copies. The budget is env steps: no generation "
-    "starts that could pass it. `eval policy RUN_DIR` evaluates the result."
-)
-
 # Groups of subcommands (`train`, `eval`): their help, description, and the name of the argument
 # that holds the subcommand.
 GROUPS: dict[str, tuple[str, str, str]] = {
@@ -433,7 +400,7 @@ COMMANDS: dict[str, Command] = {
         (
             settings(RecordConfig),
             Options(RecordOptions),
-            Options(Pixels, helps=_pixels("recorded as")),
+            Options(Pixels, helps=pixels_helps("recorded as")),
             Options(PersonSpeed),
             Options(Json),
             Options(Quiet),
@@ -474,84 +441,6 @@ COMMANDS: dict[str, Command] = {
         "plotting in Foxglove.",
         (Options(ExportOptions), Options(Json), Options(Quiet)),
     ),
-    "train ppo": Command(
-        "the bundled PPO trainer (clip or adaptive-KL objective, GAE)",
-        "Train PPO on a gymnasium env, on its own reward or on a learned one (--reward). Per-environment defaults "
-        "(rl-baselines3-zoo's settings where known; its Atari settings for image observations) make flags optional. A "
-        "reward learnt on pixels brings its --pixels, --grayscale, --crop and --frame-stack.",
-        (
-            settings(PPOConfig),
-            Options(PPOOptions),
-            Options(Pixels, helps=_pixels("the policy sees (through a CNN) are")),
-            Options(RayWorkers, helps=_workers("the rollouts (the environment copies split between them)")),
-            TRAIN_OUTPUT,
-        ),
-    ),
-    "train pg": Command(
-        "policy gradient: REINFORCE (whole return, reward-to-go, baseline) or actor-critic",
-        "Policy gradient from first principles: each batch of complete episodes gives one gradient step on "
-        "(1/m) Σ_i Σ_t ∇log π(a_t|s_t) w_t, w_t the trajectory's return, the reward-to-go, the reward-to-go minus a "
-        "learned V(s_t), or an actor-critic advantage (n-step with --n-step, else GAE(λ)). Softmax policies for discrete "
-        "actions, Gaussian for continuous ones. Per-environment defaults make the other flags optional.",
-        (settings(PGConfig), TRAIN_OUTPUT),
-    ),
-    "train hill-climb": Command(
-        "gradient-free: hill climbing with adaptive noise over the policy's parameters",
-        "Hill climbing: each generation perturbs the incumbent θ by σε for --population candidates and keeps the best if "
-        "it beats θ, re-evaluated on the same episodes; σ halves after an improvement and doubles otherwise. The run "
-        "keeps the incumbent." + SEARCH_DESCRIPTION,
-        (settings(SearchConfig), TRAIN_OUTPUT),
-    ),
-    "train cem": Command(
-        "gradient-free: the cross-entropy method over the policy's parameters",
-        "The cross-entropy method: each generation samples --population parameter vectors from N(μ, diag σ²) and refits "
-        "μ and σ² to the --elite-fraction best, plus a decreasing extra variance. The run keeps the mean μ."
-        + SEARCH_DESCRIPTION,
-        (settings(SearchConfig), TRAIN_OUTPUT),
-    ),
-    "train cmaes": Command(
-        "gradient-free: CMA-ES (the cma library) over the policy's parameters",
-        "CMA-ES by the cma library (ask/tell): full covariance and global step size. The run keeps the mean."
-        + SEARCH_DESCRIPTION,
-        (settings(SearchConfig), TRAIN_OUTPUT),
-    ),
-    "train bc": Command(
-        "behavioural cloning on MCAP demos",
-        "Behavioural cloning: fit a policy to the demos' (observation, action) pairs. Whole episodes are held out for "
-        "validation (offline, a single recording holds out the last steps of each episode instead); training stops early "
-        "when the validation loss stops improving.",
-        (Options(BCOptions), settings(BCConfig), TRAIN_OUTPUT),
-    ),
-    "train dagger": Command(
-        "DAgger: BC on expert-labelled states the learner itself visits",
-        "DAgger: each round rolls out a β-mixture of expert and learner, labels every visited state with the expert's "
-        "action, writes the round as RUN_DIR/rounds/round-NN.mcap and retrains BC on everything so far. With --mode "
-        "takeover (HG-DAgger) the learner drives until the expert takes the controls, and BC learns from the steps the "
-        "expert drove. Each round file records who drove every step, the learner's proposed and the executed action "
-        "(/intervention channels; `imitation info RUN_DIR` shows the rate by round). A person as the expert (keyboard, "
-        "gamepad) sees a window: P pauses, - and = halve and double the speed, Esc stops (the round's finished episodes "
-        "are kept; --resume continues the round).",
-        (
-            Options(DAggerOptions),
-            Options(PersonSpeed),
-            Options(Pixels, helps=_pixels("the learner sees")),
-            settings(DAggerConfig),
-            Options(RayWorkers, helps=_workers("each round's episodes, each worker writing its own shard of the round")),
-            TRAIN_OUTPUT,
-        ),
-    ),
-    "train irl": Command(
-        "IRL: recover a reward from demos (tabular maxent/mce, continuous gcl, airl, gail, apprenticeship)",
-        "Maximum-entropy inverse RL. maxent (Ziebart 2008, deterministic dynamics) and mce (maximum causal entropy, any "
-        "dynamics) need a tabular env with known dynamics (imitation/GridWorld8x8-v0, ...); gcl (guided cost learning) "
-        "works on continuous envs and trains PPO on the reward as it learns it; so do the adversarial methods, airl (Fu et "
-        "al. 2018: a discriminator structured by the policy's density and a shaping potential, whose state-only reward g "
-        "is recovered) and gail (Ho & Ermon 2016: a free discriminator, PPO on −log(1 − D); its policy is the product, its "
-        "discriminator a reward only with that caveat). apprenticeship (Abbeel & Ng 2004, projection method) matches the "
-        "demos' feature expectations with a mixture of policies: exactly on a tabular env, with PPO as the solver on Box "
-        "observations. The run directory holds the reward model, for `train ppo --reward RUN_DIR`.",
-        _irl_options,
-    ),
     "eval policy": Command(
         "return of a run's policy",
         "Mean, std, min and max return of a run directory's policy.",
@@ -567,7 +456,7 @@ COMMANDS: dict[str, Command] = {
         (
             Options(EvalRewardOptions),
             settings(RewardEvaluationConfig),
-            Options(RayWorkers, helps=_workers("the retrainings as Ray tasks (instead of --jobs local processes)")),
+            Options(RayWorkers, helps=workers_helps("the retrainings as Ray tasks (instead of --jobs local processes)")),
             Options(Json),
             Options(Quiet),
         ),

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import pytest
 
 import cli
-from imitation.commands import COMMANDS
+from imitation.train_commands import all_commands
 from imitation.errors import ImitationError
 from imitation.flags import NESTED, add_flags, flag, flag_name, flag_of, flagged, given, hidden_sizes, nested
 
@@ -43,10 +43,11 @@ CONFIGURED = {name: parser for name, parser in commands(cli.make_parser()).items
 
 
 def test_the_commands_with_settings_take_their_flags_from_their_configs() -> None:
-    from imitation.jobs.learners import LEARNERS
+    from imitation.train_commands import LEARNERS
 
+    commands = all_commands()
     handled = set(cli.HANDLERS) | {f"train {name}" for name in LEARNERS}  # every train command runs its learner
-    assert set(CONFIGURED) == set(COMMANDS) and set(COMMANDS) == handled
+    assert set(CONFIGURED) == set(commands) and set(commands) == handled
 
 
 @pytest.mark.parametrize("name", sorted(CONFIGURED))

@@ -67,6 +67,6 @@ def test_a_registered_method_refuses_what_it_does_not_do(toy_method: None, tmp_p
 
 
 def test_a_sweep_takes_a_registered_methods_metric(toy_method: None) -> None:
-    from imitation.jobs.sweep_config import default_metric
+    from imitation.train_commands import default_metric
 
     assert default_metric("train irl", {"method": "toy"}) == ("loss", "min", "last")

@@ -32,6 +32,7 @@ PREFIXES = {
     "imitation.jobs": "jobs",
     "cli": "cli",
     "imitation.commands": "cli",  # the command line's declarations, read by cli.py
+    "imitation.train_commands": "cli",  # the train commands' table: declarations and how each runs its learner
     "imitation.__main__": "cli",  # the entry point: `python -m imitation` runs the command line
 }
 

@@ -300,7 +300,7 @@ def test_a_sweep_keeps_to_its_own_folder(tmp_path: Path) -> None:
     stranger.mkdir()
     (stranger / "notes.txt").write_text("mine")
     other.mkdir()
-    settings = read_sweep_config(EXAMPLE, CommandLine(cli._train_commands(), cli._train_problem)).to_json()
+    settings = read_sweep_config(EXAMPLE, cli._command_line()).to_json()
     (other / "sweep.json").write_text(json.dumps(settings | {"seed": 1}))
     torn.mkdir()
     (torn / "sweep.json").write_text("{")
@@ -338,7 +338,7 @@ def test_random_search_plans_every_trial_from_the_seed_within_the_space() -> Non
 
     config = read_sweep_config(write_config(Path(tempfile.mkdtemp()), "grid", space={
         "lr": {"loguniform": [1.0e-4, 1.0e-1]}, "batch-size": {"randint": [16, 18]}, "hidden": {"grid": ["8", "16"]}}, trials=50),
-        CommandLine(cli._train_commands(), cli._train_problem))
+        cli._command_line())
     planned = plan_trials(config)
     assert [trial.trial for trial in planned] == [f"trial-{index:03d}" for index in range(100)]
     assert [trial.params["hidden"] for trial in planned] == ["8", "16"] * 50  # each sample runs the whole grid

@@ -7,7 +7,9 @@
   method);
 - reinforcement learning: `ppo` (the bundled PPO trainer; `ray_rollouts` collects its rollouts on Ray
   actors), `policy_gradient` (REINFORCE, with a baseline, actor-critic), `policy_search` (hill climbing, the
-  cross-entropy method, CMA-ES).
+  cross-entropy method, CMA-ES);
+- shared by several: `advantages` (GAE: PPO, policy gradient), `beside_ppo` (the loop GCL, GAIL and AIRL
+  run beside PPO).
 
 Each learner's settings live in `<module>_config.py` beside it, light (no torch), because their fields
 are the command line's flags (imitation/flags.py) and `--help` reads them.

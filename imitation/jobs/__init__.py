@@ -7,6 +7,7 @@
 - `bc`, `dagger`, `ppo`, `pg` (policy gradient), `search` (hill climbing, CEM, CMA-ES), `irl` (MaxEnt,
   MCE, guided cost learning, GAIL, AIRL) and `apprenticeship`: the `train` jobs; `record`;
   `evaluate_policy`, `evaluate_reward`: the `eval` jobs; `demo`: the whole chain on the bundled data;
+- `irl_methods`: the table of `train irl --method` (each method's configs, how it trains, a sweep's metric);
 - `record_config`, `evaluate_policy_config`, `evaluate_reward_config`: those commands' settings, light
   like the learners' `algorithms/*_config.py` (their fields are the commands' flags);
 - `sweep` (with `sweep_config`, `sweep_process`, `sweep_tune`, `sweep_trials`, `sweep_results`):

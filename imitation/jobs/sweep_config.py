@@ -26,8 +26,6 @@ from typing import Any
 
 from imitation.data.convert.yaml_bounded import read_yaml_file
 from imitation.errors import ImitationError
-from imitation.jobs.irl_methods import DEFAULT_METHOD, IRL_METHODS
-from imitation.jobs.learners import LEARNERS
 from imitation.seeding import seed_problem
 
 KEYS = (
@@ -53,27 +51,16 @@ Scalar = str | int | float | bool
 RUN_PLACEHOLDER = "OUT/runs/TRIAL"
 
 
-def default_metric(command: str, args: dict[str, Any]) -> tuple[str, str, str] | None:
-    """The metric a sweep of `command` with fixed flags `args` optimises unless its file names
-    one: a column of the rows the command's learner logs (its progress.csv), whether lower or
-    higher is better, and which of a trial's values is its result (`TrainLearner.metric`,
-    imitation.jobs.learners); for `train irl`, its method's (imitation.jobs.irl_methods), None for
-    an unknown one."""
-    if command != "train irl":
-        learner = LEARNERS.get(command.removeprefix("train "))
-        return learner.metric if learner is not None else None
-    method = IRL_METHODS.get(str(args.get("method", DEFAULT_METHOD)))
-    return method.metric if method is not None else None
-
-
 @dataclass(frozen=True)
 class CommandLine:
     """What reading a sweep needs of the command line, which the jobs layer may not import: each
-    `train` command with its flags (without dashes), and argparse's one-line objection to a
-    command line (None when it parses)."""
+    `train` command with its flags (without dashes), argparse's one-line objection to a command
+    line (None when it parses), and the metric a command with fixed flags optimises unless the
+    file names one (None where the file must: `imitation.train_commands.default_metric`)."""
 
     commands: dict[str, frozenset[str]]
     problem: Callable[[list[str]], str | None]
+    metric: Callable[[str, dict[str, Any]], tuple[str, str, str] | None]
 
 
 @dataclass(frozen=True)
@@ -175,7 +162,7 @@ def read_sweep_config(path: str | Path, command_line: CommandLine) -> SweepConfi
         raise ImitationError(f"{path}: space: give at least one flag to search over, such as lr with a loguniform range")
     if both := sorted(set(args) & set(space)):
         raise ImitationError(f"{path}: space.{both[0]}: the flag is also in args; give it in one place")
-    metric, mode, scope = _metric(document, command, args, space, where)
+    metric, mode, scope = _metric(document, command, args, space, where, command_line.metric)
     search = _one_of(document.get("search", "random"), SEARCHES, where.at("search"))
     if search == "optuna" and (grids := [key for key, value in space.items() if value.kind == "grid"]):
         raise ImitationError(f"{path}: space.{grids[0]}: grid needs search: random (Optuna samples; use choice)")
@@ -274,7 +261,12 @@ def _distribution(value: Any, where: _Where) -> Distribution:
 
 
 def _metric(
-    document: dict[str, Any], command: str, args: dict[str, Any], space: dict[str, Distribution], where: _Where
+    document: dict[str, Any],
+    command: str,
+    args: dict[str, Any],
+    space: dict[str, Distribution],
+    where: _Where,
+    default_metric: Callable[[str, dict[str, Any]], tuple[str, str, str] | None],
 ) -> tuple[str, str, str]:
     """(metric, mode, scope): the file's, or the command's default."""
     default = None if command == "train irl" and "method" in space else default_metric(command, args)
