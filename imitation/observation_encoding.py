@@ -2,8 +2,9 @@
 models (`imitation.rewards`): a Box or Discrete observation read flat (Discrete one-hot); a Dict
 or image observation by its `ObservationLayout`, each image leaf (a stack of `frame_stack`
 frames) as frames for a CNN (`imitation.encoders`) and the other leaves flattened side by side,
-in key order. The checks on the image fields of a config read from a file, and on a CNN's size
-before it is built, sit here too."""
+in key order. `ObservationConfig` holds the fields that say so, embedded in both configs; the
+checks on those fields of a config read from a file, and on a CNN's size before it is built, sit
+here too."""
 
 from __future__ import annotations
 
@@ -144,3 +145,28 @@ def one_hot_or_flat(values: torch.Tensor, space: gym.Space) -> torch.Tensor:
 def vector_leaves(observations: Any, layout: ObservationLayout) -> torch.Tensor:
     """The non-image leaves of a batch, flattened (Discrete ones one-hot) side by side."""
     return torch.cat([one_hot_or_flat(_leaf(observations, path), space) for path, space in layout.vectors], dim=1)
+
+
+@dataclass(kw_only=True)
+class ObservationConfig:
+    """How a network reads its observations, the fields `PolicyConfig` and `RewardConfig` share
+    (flat in their JSON): the top-level leaves read (None: all), frames per image leaf, the CNN on
+    image leaves (`encoders.CNNConfig` JSON; None: the Nature CNN), and how the acting env renders
+    its frames (`PixelRecipe` JSON; None: the env's own observations), so that a policy acting, or
+    PPO on a learnt reward, sees what training saw."""
+
+    observation_keys: list[str] | None = None
+    frame_stack: int = 1
+    cnn: dict[str, Any] | None = None
+    pixels: dict[str, Any] | None = None
+
+    def check_observation_fields(self) -> None:
+        """Of a config read from a file: TypeError or ValueError naming a malformed field."""
+        check_image_fields(self.observation_keys, self.frame_stack, self.cnn, self.pixels)
+
+    def layout(self, space: gym.Space) -> ObservationLayout | None:
+        """How observations of `space` are read (None for a plain Box or Discrete one)."""
+        return observation_layout(space, self.observation_keys, self.frame_stack)
+
+    def cnn_config(self) -> CNNConfig:
+        return CNNConfig.from_json(self.cnn or {})

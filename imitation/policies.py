@@ -45,7 +45,7 @@ from torch.distributions import Categorical, Distribution, Normal, kl_divergence
 from imitation.data.frame_transform import FrameTransform, TransformFrames
 from imitation.data.loader import TransitionTensors
 from imitation.data.spaces import check_spaces_fit, describe_space, space_from_json, space_to_json
-from imitation.encoders import CNNConfig, ImageEncoder, cnn_weight_count, conv_output_sides, random_shift
+from imitation.encoders import ImageEncoder, cnn_weight_count, conv_output_sides, random_shift
 from imitation.envs.make import make_env
 from imitation.envs.pixels import (
     PixelObservation,
@@ -67,7 +67,6 @@ from imitation.observation_encoding import (
     ImageLeaf,
     check_cnn_size,
     leaf_frames,
-    observation_layout,
     observation_size,
     vector_leaves,
 )
@@ -201,7 +200,7 @@ class ActorCritic(ImitationPolicy):
         if config.activation not in ACTIVATIONS:
             raise ImitationError(f"activation must be one of {sorted(ACTIVATIONS)}, got {config.activation!r}")
         super().__init__(config)
-        self.layout = observation_layout(self.observation_space, config.observation_keys, config.frame_stack)
+        self.layout = config.layout(self.observation_space)
         encoders = self._image_encoders()
         self.image_encoders = nn.ModuleList(encoders)
         obs_size = (
@@ -278,7 +277,7 @@ class ActorCritic(ImitationPolicy):
     def _image_encoders(self) -> list[ImageEncoder]:
         if self.layout is None:
             return []
-        cnn = CNNConfig.from_json(self.config.cnn or {})
+        cnn = self.config.cnn_config()
         check_cnn_size(self.layout, cnn)
         encoders = []
         for leaf in self.layout.images:
@@ -617,8 +616,8 @@ def planned_weights(config: PolicyConfig) -> int:
     observations, actions = space_from_json(config.observation_space), space_from_json(config.action_space)
     outputs = action_logits_size(actions)
     trunks = 1 if config.shared_trunk else 2
-    layout = observation_layout(observations, config.observation_keys, config.frame_stack)
-    cnn = CNNConfig.from_json(config.cnn or {})
+    layout = config.layout(observations)
+    cnn = config.cnn_config()
     inputs = observation_size(observations) if layout is None else layout.vector_size + cnn.features * len(layout.images)
     planned = trunks * mlp_weight_count(inputs, config.hidden_sizes, 0) + (config.hidden_sizes or [inputs])[-1] * (outputs + 1)
     if layout is not None:

@@ -30,7 +30,7 @@ from imitation.data.frame_transform import FrameTransform
 from imitation.data.loader import TransitionTensors
 from imitation.data.spaces import space_from_json
 from imitation.mlp import check_layer_widths
-from imitation.observation_encoding import check_image_fields
+from imitation.observation_encoding import ObservationConfig
 
 if TYPE_CHECKING:
     from imitation.policies import RunningMeanStd
@@ -42,9 +42,10 @@ ACTOR_CRITIC = "actor-critic"
 
 
 @dataclass(kw_only=True)
-class PolicyConfig:
+class PolicyConfig(ObservationConfig):
     """Everything needed to rebuild a policy before loading its weights: its kind, its spaces,
-    how it reads observations, and the network options (what a kind does not use it ignores)."""
+    how it reads observations (`ObservationConfig`, and the crop and size its frames are brought
+    to), and the network options (what a kind does not use it ignores)."""
 
     # The registered kind (`imitation.policy_kinds`); run directories written before kinds existed hold actor-critics.
     kind: str = ACTOR_CRITIC
@@ -61,14 +62,8 @@ class PolicyConfig:
     normalize_actions: bool = False
     # Box actions: the observation is x_t = [s_t, a_{t-1}, 1{t=0}] and μ is a_{t-1} plus the head's output.
     previous_action: bool = False
-    # Pixel observations: the leaves read (top-level keys; None: all), frames per image leaf, the
-    # CNN for image leaves, how the acting env renders its frames (`make_acting_env`), and the
-    # crop and size its frames are brought to, as the demos' were when loaded (`acting_env`,
-    # `FrameTransform.to_json`).
-    observation_keys: list[str] | None = None
-    frame_stack: int = 1
-    cnn: dict[str, Any] | None = None
-    pixels: dict[str, Any] | None = None
+    # Camera frames: the crop and size they are brought to, as the demos' were when loaded
+    # (`acting_env`, `FrameTransform.to_json`).
     image_transform: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
@@ -93,7 +88,7 @@ class PolicyConfig:
             raise TypeError(
                 "activation must be a name, shared_trunk, normalize_observations/actions and previous_action true or false"
             )
-        check_image_fields(config.observation_keys, config.frame_stack, config.cnn, config.pixels)
+        config.check_observation_fields()
         if config.image_transform is not None:
             FrameTransform.from_json(config.image_transform)
         if (

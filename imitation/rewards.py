@@ -1,8 +1,8 @@
 """Reward models r_φ(s), r_φ(s, a) or r_φ(s, a, s'): linear or MLP, and loading them.
 
 Image observations (uint8 frames or frame stacks, and Dicts holding them beside vectors) are read
-as the policies read them (`imitation.policies.observation_layout`): each image leaf, scaled to
-[0, 1], through its own CNN (`imitation.encoders.ImageEncoder`, shared by s and s'), the other
+as the policies read them (`imitation.observation_encoding`, `ObservationConfig`): each image leaf,
+scaled to [0, 1], through its own CNN (`imitation.encoders.ImageEncoder`, shared by s and s'), the other
 leaves flattened (one-hot for Discrete), and the MLP on their concatenation,
 
     r_φ(s, a, s') = MLP([CNN_1(s_1), …, CNN_m(s_m), CNN_1(s'_1), …, vec(s), vec(s'), a]),
@@ -29,15 +29,14 @@ import torch
 from torch import nn
 
 from imitation.data.spaces import space_from_json, space_to_json
-from imitation.encoders import CNNConfig, ImageEncoder, cnn_weight_count, conv_output_sides
+from imitation.encoders import ImageEncoder, cnn_weight_count, conv_output_sides
 from imitation.envs.rollout import Rollout
 from imitation.errors import ImitationError, SpaceError
 from imitation.mlp import ACTIVATIONS, check_layer_widths, check_weights_cover, mlp_weight_count
 from imitation.observation_encoding import (
+    ObservationConfig,
     ObservationLayout,
-    check_image_fields,
     leaf_frames,
-    observation_layout,
     observation_size,
     one_hot_or_flat,
     vector_leaves,
@@ -52,7 +51,10 @@ REWARD_OUTPUTS = ("linear", "softplus")
 
 
 @dataclass(kw_only=True)
-class RewardConfig:
+class RewardConfig(ObservationConfig):
+    """Everything needed to rebuild a reward model before loading its weights: its spaces and
+    inputs, the network, and how it reads observations (`ObservationConfig`)."""
+
     observation_space: dict[str, Any]
     action_space: dict[str, Any]
     inputs: str = "s"
@@ -65,13 +67,6 @@ class RewardConfig:
     # Box observations: standardised by fixed statistics (set once, e.g. from the demos, and
     # saved with the weights).
     normalize_observations: bool = False
-    # Image observations: the top-level leaves read (None: all), frames per image leaf, the CNN
-    # (encoders.CNNConfig; None: Nature CNN), and how the env renders its frames (PixelRecipe JSON),
-    # so that PPO on this reward sees what it was learnt on.
-    observation_keys: list[str] | None = None
-    frame_stack: int = 1
-    cnn: dict[str, Any] | None = None
-    pixels: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -98,20 +93,20 @@ class RewardConfig:
             isinstance(features, bool) or not isinstance(features, int) or not 1 <= features <= 2**20
         ):
             raise ValueError(f"state_features must be a width in [1, 2^20] or null, got {str(features)[:40]}")
-        check_image_fields(config.observation_keys, config.frame_stack, config.cnn, config.pixels)
+        config.check_observation_fields()
         return config
 
 
 def reward_layout(config: RewardConfig) -> ObservationLayout | None:
     """How an image or Dict observation is read (None for a plain Box or Discrete one)."""
-    return observation_layout(space_from_json(config.observation_space), config.observation_keys, config.frame_stack)
+    return config.layout(space_from_json(config.observation_space))
 
 
 def _state_size(config: RewardConfig, layout: ObservationLayout | None) -> int:
     """The width of one encoded state: the CNNs' features and the vector leaves, or the flat state."""
     if layout is None:
         return observation_size(space_from_json(config.observation_space))
-    return CNNConfig.from_json(config.cnn or {}).features * len(layout.images) + layout.vector_size
+    return config.cnn_config().features * len(layout.images) + layout.vector_size
 
 
 def _planned_weights(config: RewardConfig) -> int:
@@ -123,7 +118,7 @@ def _planned_weights(config: RewardConfig) -> int:
     if config.state_features is not None and isinstance(observations, gym.spaces.Discrete):
         table, size = int(observations.n) * config.state_features, config.state_features
     size += (observation_size(actions) if "a" in config.inputs else 0) + (state if config.inputs == "sas" else 0)
-    cnn = CNNConfig.from_json(config.cnn or {})
+    cnn = config.cnn_config()
     encoders = sum(
         cnn_weight_count(leaf.frames * leaf.channels, leaf.height, leaf.width, cnn)
         for leaf in (layout.images if layout else [])
@@ -199,7 +194,7 @@ class RewardNet(nn.Module):
     def _image_encoders(self) -> list[ImageEncoder]:
         if self.layout is None:
             return []
-        cnn = CNNConfig.from_json(self.config.cnn or {})
+        cnn = self.config.cnn_config()
         for leaf in self.layout.images:
             if min(conv_output_sides(leaf.height, leaf.width, cnn)) < 1:
                 raise ImitationError(
