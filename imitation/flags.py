@@ -11,6 +11,12 @@ enters, as argparse usage errors (exit 2).
 
 This module is imported by the light config modules that `imitation --help` loads: it imports
 nothing heavier than argparse.
+
+A small generator over `dataclasses.fields` rather than a library: draccus, the one already
+installed (lerobot's, 0.11.6), makes exactly one `--field_name` option per field, without aliases
+or positional arguments (its `FieldWrapper.option_strings`), while the command line keeps the names
+its users' scripts use (`--lr`, `--hidden`, `--episodes-per-round`, `info FILE`); tyro,
+jsonargparse and simple-parsing would be a new dependency for the same argparse underneath.
 """
 
 from __future__ import annotations
