@@ -45,6 +45,7 @@ from torch.distributions import Categorical, Distribution, Normal, kl_divergence
 from imitation.data.frame_transform import FrameTransform, TransformFrames
 from imitation.data.loader import TransitionTensors
 from imitation.data.spaces import check_spaces_fit, describe_space, space_from_json, space_to_json
+from imitation.data.windows import WindowBatch
 from imitation.encoders import ImageEncoder, cnn_weight_count, conv_output_sides, random_shift
 from imitation.envs.make import make_env
 from imitation.envs.pixels import (
@@ -199,6 +200,11 @@ class ActorCritic(ImitationPolicy):
     def __init__(self, config: PolicyConfig) -> None:
         if config.activation not in ACTIVATIONS:
             raise ImitationError(f"activation must be one of {sorted(ACTIVATIONS)}, got {config.activation!r}")
+        if config.history != 1 or config.chunk != 1:
+            raise ImitationError(
+                f"the actor-critic reads one observation and predicts one action, not {config.history} and "
+                f"{config.chunk}: train sequences with --policy chunk"
+            )
         super().__init__(config)
         self.layout = config.layout(self.observation_space)
         encoders = self._image_encoders()
@@ -493,7 +499,9 @@ class ActorCritic(ImitationPolicy):
 
     # -- as an imitation policy (`ImitationPolicy`) --------------------------------------------------
 
-    def imitation_loss(self, batch: TransitionTensors, objective: ImitationObjective) -> tuple[torch.Tensor, torch.Tensor]:
+    def imitation_loss(
+        self, batch: TransitionTensors | WindowBatch, objective: ImitationObjective
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """BC's objective for this kind (docs/THEORY.md §5),
 
             −log π_θ(a|s)  (or, with loss "mse", ||μ_θ(s) − a||²)  −  c_H · H[π_θ(·|s)]  +  c_2 · ||θ_actor||²,
@@ -501,6 +509,8 @@ class ActorCritic(ImitationPolicy):
         the NLL that of the categorical(s) over the class index of the demo's action or of the
         Gaussian; the L2 term over the actor's trunk and head. In training, image observations are
         randomly shifted first."""
+        if not isinstance(batch, TransitionTensors):
+            raise ImitationError("the actor-critic trains on single transitions, not windows of them")
         assert isinstance(batch.actions, torch.Tensor)  # a policy takes no Dict actions
         observations = self.shifted(batch.observations, objective.random_shift) if self.training else batch.observations
         distribution = self.distribution(self.encode(observations))

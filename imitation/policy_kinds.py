@@ -14,6 +14,7 @@ from typing import Any
 
 import gymnasium as gym
 
+from imitation import chunk_policy
 from imitation.data.spaces import space_to_json
 from imitation.errors import ConfigError, ImitationError, SpaceError
 from imitation.mlp import check_weights_cover
@@ -25,12 +26,14 @@ from imitation.runs import read_run
 @dataclass(frozen=True)
 class PolicyKind:
     """A policy kind: its name (`--policy`, and "kind" in a run's policy config), a line for
-    the help, its constructor, and the weight count a config plans."""
+    the help, its constructor, the weight count a config plans, and whether it reads histories
+    and predicts chunks (`--history`, `--chunk`)."""
 
     name: str
     summary: str
     build: Callable[[PolicyConfig], ImitationPolicy]
     planned_weights: Callable[[PolicyConfig], int]
+    sequences: bool = False
 
 
 POLICY_KINDS: dict[str, PolicyKind] = {}
@@ -49,15 +52,35 @@ register(
         planned_weights,
     )
 )
+register(
+    PolicyKind(
+        "chunk",
+        "action chunking (ACT without its latent): an MLP from the last --history observations to the next --chunk "
+        "actions, executed --execute at a time",
+        chunk_policy.ActionChunking,
+        chunk_policy.planned_weights,
+        sequences=True,
+    )
+)
 
 
-def policy_kind(name: str) -> PolicyKind:
-    """The kind registered as `name`; a `ConfigError` on BC's `policy` field naming the known ones otherwise."""
+def policy_kind(name: str, *, history: int = 1, chunk: int = 1) -> PolicyKind:
+    """The kind registered as `name`, for a policy of `history` observations and `chunk` actions;
+    a `ConfigError` on BC's field naming what is wrong otherwise."""
     if name not in POLICY_KINDS:
         raise ConfigError(
             "policy", f"must be a registered policy kind ({', '.join(POLICY_KINDS)}), got {name[:40]!r}", owner="BCConfig"
         )
-    return POLICY_KINDS[name]
+    kind = POLICY_KINDS[name]
+    sequential = [field for field, value in (("history", history), ("chunk", chunk)) if value != 1]
+    if sequential and not kind.sequences:
+        sequence_kinds = ", ".join(other.name for other in POLICY_KINDS.values() if other.sequences)
+        raise ConfigError(
+            sequential[0],
+            f"is for sequence policies ({sequence_kinds}); the {name} policy reads one observation and predicts one action",
+            owner="BCConfig",
+        )
+    return kind
 
 
 def build_policy(kind: str, observation_space: gym.Space, action_space: gym.Space, **options: Any) -> ImitationPolicy:

@@ -29,6 +29,7 @@ from torch import nn
 from imitation.data.frame_transform import FrameTransform
 from imitation.data.loader import TransitionTensors
 from imitation.data.spaces import space_from_json
+from imitation.data.windows import MAX_WINDOW, WindowBatch, WindowSpec
 from imitation.mlp import check_layer_widths
 from imitation.observation_encoding import ObservationConfig
 
@@ -65,6 +66,12 @@ class PolicyConfig(ObservationConfig):
     # Camera frames: the crop and size they are brought to, as the demos' were when loaded
     # (`acting_env`, `FrameTransform.to_json`).
     image_transform: dict[str, Any] | None = None
+    # Sequence policies: the observations a policy reads (the current one and those before it),
+    # the actions it predicts at once, and how many of them it executes before planning again
+    # (None: the kind's default).
+    history: int = 1
+    chunk: int = 1
+    execute: int | None = None
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -91,6 +98,14 @@ class PolicyConfig(ObservationConfig):
         config.check_observation_fields()
         if config.image_transform is not None:
             FrameTransform.from_json(config.image_transform)
+        for name in ("history", "chunk"):
+            value = getattr(config, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_WINDOW:
+                raise ValueError(f"{name} must be a whole number in [1, {MAX_WINDOW}], got {str(value)[:40]}")
+        if config.execute is not None and not (
+            isinstance(config.execute, int) and not isinstance(config.execute, bool) and 1 <= config.execute <= config.chunk
+        ):
+            raise ValueError(f"execute must be a whole number in [1, chunk = {config.chunk}], got {str(config.execute)[:40]}")
         if (
             isinstance(config.log_std_init, bool)
             or not isinstance(config.log_std_init, (int, float))
@@ -127,10 +142,20 @@ class ImitationPolicy(nn.Module, ABC):
         self.action_space = space_from_json(config.action_space)
         self.is_continuous = isinstance(self.action_space, gym.spaces.Box)
 
+    @property
+    def window(self) -> WindowSpec | None:
+        """For a sequence policy, the observations it reads and the actions it predicts at once:
+        BC trains it on windows of the demos of these lengths (`imitation.data.windows`); None
+        (the default) for a policy of single transitions."""
+        return None
+
     @abstractmethod
-    def imitation_loss(self, batch: TransitionTensors, objective: ImitationObjective) -> tuple[torch.Tensor, torch.Tensor]:
-        """(the loss to minimise, its fit term alone) on a batch of demo transitions; random
-        training-time augmentation only in training mode."""
+    def imitation_loss(
+        self, batch: TransitionTensors | WindowBatch, objective: ImitationObjective
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(the loss to minimise, its fit term alone) on a batch of demo transitions, or of
+        windows for a policy of a longer `window`; random training-time augmentation only in
+        training mode."""
 
     @abstractmethod
     def point_action(self, observations: Any) -> torch.Tensor:

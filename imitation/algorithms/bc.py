@@ -48,6 +48,7 @@ from imitation.algorithms.bc_config import BCConfig
 from imitation.checkpoints import CheckpointData, CheckpointReader, CheckpointWriter, TrainingClock
 from imitation.data.loader import MinibatchLoader, TransitionTensors
 from imitation.data.stream import StreamingLoader
+from imitation.data.windows import WindowBatch, gather_windows, window_index
 from imitation.encoders import CNNConfig, cnn_activation_count, cnn_weight_count
 from imitation.errors import ConfigError, ImitationError
 from imitation.flat_adam import FlatAdam
@@ -98,7 +99,11 @@ def _loss_sum(policy: ImitationPolicy, data: TransitionTensors | StreamingLoader
     training batch for a policy with a CNN, whose activations then stay within a training step's."""
     streamed = isinstance(data, StreamingLoader)
     piece = config.batch_size if policy.reads_images else 4096
-    batches = data if isinstance(data, StreamingLoader) else MinibatchLoader(data, batch_size=piece, shuffle=False)
+    batches = (
+        data
+        if isinstance(data, StreamingLoader)
+        else MinibatchLoader(data, batch_size=piece, shuffle=False, gather=windows_of(policy, data))
+    )
     count = data.transitions if isinstance(data, StreamingLoader) else len(data)
     device = next(policy.parameters()).device
     with torch.no_grad():
@@ -143,7 +148,19 @@ def _moments_merge(parallel: DataParallel) -> Callable[[int, torch.Tensor, torch
     return merge
 
 
-def _rank_loader(train: TransitionTensors, config: BCConfig, parallel: DataParallel) -> MinibatchLoader:
+def windows_of(policy: ImitationPolicy, data: TransitionTensors) -> Callable[[torch.Tensor], WindowBatch] | None:
+    """How minibatches of `data` are gathered for `policy`: as windows of its length
+    (`imitation.data.windows`), or, for a policy of single transitions, None (the transitions
+    themselves)."""
+    if policy.window is None:
+        return None
+    index = window_index(data.episode_index.cpu().numpy(), policy.window)
+    return lambda rows: gather_windows(data, index, rows.cpu().numpy())
+
+
+def _rank_loader(
+    train: TransitionTensors, config: BCConfig, parallel: DataParallel, policy: ImitationPolicy
+) -> MinibatchLoader:
     """This process's minibatches: batch_size / W rows each, as many per epoch as one process
     would take on all the data, shuffled by a generator of this rank's own."""
     rows = torch.tensor(len(train), dtype=torch.float64)
@@ -152,7 +169,13 @@ def _rank_loader(train: TransitionTensors, config: BCConfig, parallel: DataParal
     passes = max(1, -(-config.epoch_samples // total))
     steps = math.ceil(passes * total / config.batch_size)
     seed = int(np.random.SeedSequence([config.seed, parallel.rank]).generate_state(1)[0])
-    return MinibatchLoader(train, batch_size=config.batch_size // parallel.world_size, seed=seed, steps=steps)
+    return MinibatchLoader(
+        train,
+        batch_size=config.batch_size // parallel.world_size,
+        seed=seed,
+        steps=steps,
+        gather=windows_of(policy, train),
+    )
 
 
 def _fit_normalizers(policy: ImitationPolicy, stream: StreamingLoader, device: torch.device) -> None:
@@ -217,6 +240,13 @@ class BehaviouralCloning:
                 raise ConfigError(
                     "stream_memory", "streams no data for a policy of the previous action; leave it unset", owner="BCConfig"
                 )
+            if policy.window is not None:
+                raise ConfigError(
+                    "stream_memory",
+                    "streams single transitions, and a sequence policy (--history, --chunk) trains on windows of them; "
+                    "leave it unset",
+                    owner="BCConfig",
+                )
             self.validation, self.loader = validation, train
             _fit_normalizers(policy, train, device)
         else:
@@ -227,13 +257,17 @@ class BehaviouralCloning:
             if parallel is None:
                 policy.fit_action_normalizer(self.train.actions, self.train.observations)
                 self.loader = MinibatchLoader(
-                    self.train, batch_size=config.batch_size, seed=config.seed, min_samples=config.epoch_samples
+                    self.train,
+                    batch_size=config.batch_size,
+                    seed=config.seed,
+                    min_samples=config.epoch_samples,
+                    gather=windows_of(policy, self.train),
                 )
             else:
                 for statistics in policy.observation_normalizers:
                     _merge_statistics(statistics, parallel)
                 policy.fit_action_normalizer(self.train.actions, self.train.observations, merge=_moments_merge(parallel))
-                self.loader = _rank_loader(self.train, config, parallel)
+                self.loader = _rank_loader(self.train, config, parallel, policy)
         self.config = config
         self.total = config.epochs
         self.evaluate, self.evaluate_every = evaluate, evaluate_every
@@ -494,7 +528,7 @@ SMALL_DATA = 1000  # training transitions below which "auto" picks tanh (see BCC
 def policy_options(config: BCConfig, transitions: int | None = None) -> dict[str, Any]:
     """The `PolicyConfig` options a BC run uses (its kind aside): normalised observations and
     Box actions, the configured MLP, "auto" resolved for `transitions` training transitions
-    (unknown: ReLU)."""
+    (unknown: ReLU), and a sequence kind's windows and horizon."""
     activation = config.activation
     if activation == "auto":
         activation = "tanh" if transitions is not None and transitions < SMALL_DATA else "relu"
@@ -503,4 +537,7 @@ def policy_options(config: BCConfig, transitions: int | None = None) -> dict[str
         "activation": activation,
         "normalize_observations": True,
         "normalize_actions": True,
+        "history": config.history,
+        "chunk": config.chunk,
+        "execute": config.execute,
     }

@@ -43,6 +43,18 @@ class BCConfig:
         help="the policy kind to train: actor-critic (an MLP, after a CNN for frames, with a categorical or Gaussian "
         "head; what PPO trains too) or another kind registered in imitation.policy_kinds",
     )
+    # Sequence kinds (--policy chunk): windows of the demos (imitation.data.windows), and the
+    # receding horizon they act with.
+    history: int = flag(
+        1, metavar="N", help="sequence policies: the observations the policy reads, the current one and N-1 before it"
+    )
+    chunk: int = flag(1, metavar="H", help="sequence policies: the actions the policy predicts at once")
+    execute: int | None = flag(
+        None,
+        metavar="K",
+        help="sequence policies: the actions of a chunk executed before the policy plans again",
+        default_text="half the chunk",
+    )
     epochs: int = flag(300, metavar="N", help="maximum epochs")
     batch_size: int = flag(256, metavar="B", help="minibatch size")
     learning_rate: float = flag(1e-3, name="--lr", metavar="LR", help="Adam learning rate")
@@ -171,6 +183,11 @@ class BCConfig:
             raise ConfigError("frame_stack", f"must be in [1, 64], got {self.frame_stack}", owner="BCConfig")
         if self.random_shift < 0:
             raise ConfigError("random_shift", f"must be at least 0 pixels, got {self.random_shift}", owner="BCConfig")
+        for name in ("history", "chunk"):
+            if not 1 <= getattr(self, name) <= 1024:
+                raise ConfigError(name, f"must be in [1, 1024], got {getattr(self, name)}", owner="BCConfig")
+        if self.execute is not None and not 1 <= self.execute <= self.chunk:
+            raise ConfigError("execute", f"must be in [1, --chunk {self.chunk}], got {self.execute}", owner="BCConfig")
         if self.threads is not None and not 1 <= self.threads <= 1024:
             raise ConfigError("threads", f"must be in [1, 1024], got {self.threads}", owner="BCConfig")
         if self.steps not in STEPS:

@@ -13,7 +13,20 @@ SCHEDULES = ("linear", "exponential")
 MODES = ("label", "takeover")
 LABELS = ("human", "all")
 # The BC settings `train dagger` takes as flags.
-BC_FLAGS = ("policy", "epochs", "patience", "hidden_sizes", "frame_stack", "random_shift", "mixed_precision", "seed", "device")
+BC_FLAGS = (
+    "policy",
+    "history",
+    "chunk",
+    "execute",
+    "epochs",
+    "patience",
+    "hidden_sizes",
+    "frame_stack",
+    "random_shift",
+    "mixed_precision",
+    "seed",
+    "device",
+)
 
 
 @dataclass(kw_only=True)

@@ -16,6 +16,7 @@ import os
 import resource
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 import torch
@@ -333,7 +334,8 @@ class MinibatchLoader:
     reach `min_samples` samples; or, with `steps`, exactly that many full batches, from as many
     passes as they take (the last one cut short): the processes of a data-parallel run must all
     take the same number of steps on shares of different sizes. Indexing happens on the tensors'
-    device, so once the data is on a GPU no batch crosses the bus.
+    device, so once the data is on a GPU no batch crosses the bus. `gather(rows)` makes a batch of
+    the rows drawn (default: those transitions; `imitation.data.windows` gathers windows).
     """
 
     def __init__(
@@ -346,6 +348,7 @@ class MinibatchLoader:
         drop_last: bool = False,
         min_samples: int = 0,
         steps: int | None = None,
+        gather: Callable[[torch.Tensor], Any] | None = None,
     ) -> None:
         if batch_size < 1:
             raise ImitationError(f"batch size must be positive, got {batch_size}")
@@ -354,6 +357,7 @@ class MinibatchLoader:
         self.shuffle = shuffle
         self.drop_last = drop_last
         self.steps = steps
+        self.gather = gather or data.select
         wanted = min_samples if steps is None else steps * batch_size
         self.passes = max(1, -(-wanted // max(1, len(data))))
         self._generator = torch.Generator(device="cpu").manual_seed(seed)
@@ -371,10 +375,10 @@ class MinibatchLoader:
         full, rest = divmod(self.passes * len(self.data), self.batch_size)
         return full if self.drop_last or rest == 0 else full + 1
 
-    def __iter__(self) -> Iterator[TransitionTensors]:
+    def __iter__(self) -> Iterator[Any]:
         return self.batches()
 
-    def batches(self, skip: int = 0) -> Iterator[TransitionTensors]:
+    def batches(self, skip: int = 0) -> Iterator[Any]:
         """An epoch's batches, the first `skip` of them left out (an epoch resumed midway: the
         order is drawn as for the whole epoch, and the batches left out are never gathered)."""
         count = len(self.data)
@@ -390,7 +394,7 @@ class MinibatchLoader:
             index = order[start : start + self.batch_size]
             if self.drop_last and len(index) < self.batch_size:
                 break
-            yield self.data.select(index)
+            yield self.gather(index)
 
 
 __all__ = [

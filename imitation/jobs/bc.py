@@ -92,7 +92,7 @@ def _bc_job(
     parallel: ProcessGroup | None,
 ) -> dict[str, Any]:
     """`bc_job` as one process, or as one of the data-parallel `parallel`."""
-    policy_kind(config.policy)  # an unknown kind refused before anything loads
+    kind = policy_kind(config.policy, history=config.history, chunk=config.chunk)  # refused before anything loads
     seed_everything(config.seed)
     dataset = DemoDataset(demos)
     first = dataset.files[0]
@@ -106,7 +106,8 @@ def _bc_job(
     elif dataset.num_transitions == 0:
         raise ImitationError(f"{dataset.files[0].path}: the demos hold no transitions (no episode, or only empty ones)")
     spaces = env if env is not None else dataset
-    previous_action = _conditions_on_previous_action(
+    # A sequence policy reads the actions of its history from its windows, not from its observation.
+    previous_action = (config.previous_action == "on" or not kind.sequences) and _conditions_on_previous_action(
         config,
         spaces.observation_space,
         spaces.action_space,

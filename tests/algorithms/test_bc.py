@@ -268,6 +268,9 @@ def test_policy_options_resolve_auto_to_tanh_below_small_data_and_normalise_both
         "activation": activation,
         "normalize_observations": True,
         "normalize_actions": True,
+        "history": 1,
+        "chunk": 1,
+        "execute": None,
     }
     assert policy_options(BCConfig(activation="elu"), transitions)["activation"] == "elu"  # a named one stays
 
