@@ -25,12 +25,11 @@ from imitation.runs import read_run
 
 @dataclass(frozen=True)
 class PolicyKind:
-    """A policy kind: its name (`--policy`, and "kind" in a run's policy config), a line for
-    the help, its constructor, the weight count a config plans, and whether it reads histories
-    and predicts chunks (`--history`, `--chunk`)."""
+    """A policy kind: its name (`--policy`, and "kind" in a run's policy config), its
+    constructor, the weight count a config plans, and whether it reads histories and predicts
+    chunks (`--history`, `--chunk`)."""
 
     name: str
-    summary: str
     build: Callable[[PolicyConfig], ImitationPolicy]
     planned_weights: Callable[[PolicyConfig], int]
     sequences: bool = False
@@ -47,7 +46,6 @@ def register(kind: PolicyKind) -> PolicyKind:
 register(
     PolicyKind(
         ACTOR_CRITIC,
-        "an MLP (a CNN before it for frames) with a categorical or Gaussian head, the policy PPO trains too",
         ActorCritic,
         planned_weights,
     )
@@ -55,8 +53,6 @@ register(
 register(
     PolicyKind(
         "chunk",
-        "action chunking (ACT without its latent): an MLP from the last --history observations to the next --chunk "
-        "actions, executed --execute at a time",
         chunk_policy.ActionChunking,
         chunk_policy.planned_weights,
         sequences=True,

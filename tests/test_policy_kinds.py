@@ -68,7 +68,7 @@ def _planned(config: PolicyConfig) -> int:
 
 @pytest.fixture
 def linear_kind() -> Iterator[None]:
-    register(PolicyKind("linear", "a toy linear softmax", LinearSoftmax, _planned))
+    register(PolicyKind("linear", LinearSoftmax, _planned))
     yield
     del POLICY_KINDS["linear"]
 
@@ -119,7 +119,7 @@ def test_an_unknown_kind_is_refused_by_name(linear_kind: None, tmp_path: Path, c
 
 def test_a_run_of_a_kind_not_registered_here_is_refused_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     run = tmp_path / "bc"
-    register(PolicyKind("linear", "a toy linear softmax", LinearSoftmax, _planned))
+    register(PolicyKind("linear", LinearSoftmax, _planned))
     try:
         _main(capsys, "train", "bc", "--policy", "linear", "--demos", CARTPOLE_DEMOS, "--epochs", "2", "--out", str(run))
     finally:

@@ -41,7 +41,8 @@ class BCConfig:
         "actor-critic",
         metavar="KIND",
         help="the policy kind to train: actor-critic (an MLP, after a CNN for frames, with a categorical or Gaussian "
-        "head; what PPO trains too) or another kind registered in imitation.policy_kinds",
+        "head; what PPO trains too), chunk (action chunking: --history, --chunk, --execute) or another kind registered "
+        "in imitation.policy_kinds",
     )
     # Sequence kinds (--policy chunk): windows of the demos (imitation.data.windows), and the
     # receding horizon they act with.
