@@ -12,9 +12,14 @@ ones, averaged over the entries that lie inside the episode (m_{t,k} = 1 − pad
     ℓ_θ = Σ_{t,k} m_{t,k} |â_{t+k} − a_{t+k}|₁ / Σ_{t,k} m_{t,k}  +  c_2 · ||θ||²
 
 Acting, it executes the first k of a chunk's H actions, then plans again from the n latest
-observations (receding horizon; k = H executes whole chunks, ACT's default without ensembling).
+observations (receding horizon; k = H executes whole chunks). With temporal ensembling (ACT) it
+plans at every step and executes, for Box actions, the weighted mean of what every chunk still
+covering step t planned for it, the i-th oldest weighted w_i = exp(−m·i):
+
+    a_t = Σ_i w_i â_t^{(i)} / Σ_i w_i.
+
 Before the episode's n-th step its first observation stands in for the missing ones, as in
-training. `reset` forgets the history and the plan when an episode starts.
+training. `reset` forgets the history and the plans when an episode starts.
 """
 
 from __future__ import annotations
@@ -64,6 +69,8 @@ class ActionChunking(ImitationPolicy):
             raise ImitationError(f"activation must be one of {sorted(ACTIVATIONS)}, got {config.activation!r}")
         if config.previous_action:
             raise ImitationError("the chunk policy is not conditioned on the previous action; leave --previous-action off")
+        if config.ensemble is not None and not isinstance(self.action_space, gym.spaces.Box):
+            raise ImitationError("temporal ensembling averages Box actions; a Discrete one executes its chunks (--execute)")
         inputs, outputs = _sizes(config)
         if (weights := planned_weights(config)) > LIMITS.policy_parameters:
             raise over_limit(f"chunk policy parameters ({inputs} inputs, {outputs} outputs)", weights, "policy_parameters")
@@ -75,10 +82,10 @@ class ActionChunking(ImitationPolicy):
         self.head = orthogonal_linear(hidden, outputs, 0.01)
         self.register_buffer("action_mean", torch.zeros(self.width if self.is_continuous else 0))
         self.register_buffer("action_scale", torch.ones(self.width if self.is_continuous else 0))
-        self.execute = config.execute or max(1, self.steps // 2)
+        self.execute = 1 if config.ensemble is not None else config.execute or max(1, self.steps // 2)
         self._history: np.ndarray | None = None  # (batch, n, features), newest last
-        self._plan: np.ndarray | None = None  # (batch, H, …) env actions
-        self._done = 0  # actions of the plan executed
+        self._plans: list[np.ndarray] = []  # (batch, H, …) env actions, oldest first; the newest is executed
+        self._done = 0  # actions of the newest plan executed
 
     # -- the network -------------------------------------------------------------------------------
 
@@ -155,19 +162,29 @@ class ActionChunking(ImitationPolicy):
         return first.reshape(len(observations), -1) if self.is_continuous else first
 
     def predict(self, observations: np.ndarray, *, deterministic: bool = True) -> np.ndarray:
-        """The next action of each row's plan, planning again every `execute` actions."""
+        """The next action of each row: its plan's, planning again every `execute` actions, or
+        the ensemble of every plan that covers this step."""
         current = np.asarray(observations, dtype=np.float32).reshape(len(observations), -1)
         if self._history is None or len(self._history) != len(current):
             self._history = np.repeat(current[:, None], self.config.history, axis=1)
-            self._plan = None
+            self._plans = []
         else:
             self._history = np.concatenate([self._history[:, 1:], current[:, None]], axis=1)
-        if self._plan is None or self._done >= self.execute:
+        if not self._plans or self._done >= self.execute:
             with torch.no_grad():
                 history = torch.as_tensor(self._history, device=self.action_mean.device)
-                self._plan = self._env_actions(self._chunk(history)).cpu().numpy()
+                plan = self._env_actions(self._chunk(history)).cpu().numpy()
+            # Ensembling keeps the H latest plans (one per step): the oldest covers this step with its last action.
+            kept = self._plans[max(0, len(self._plans) - self.steps + 1) :] if self.config.ensemble is not None else []
+            self._plans = [*kept, plan]
             self._done = 0
-        action = self._plan[:, self._done]
+        if self.config.ensemble is None:
+            action = self._plans[-1][:, self._done]
+        else:
+            ages = len(self._plans) - 1 - np.arange(len(self._plans))  # steps since each plan was made
+            weights = np.exp(-self.config.ensemble * np.arange(len(self._plans)))
+            planned = np.stack([plan[:, age] for plan, age in zip(self._plans, ages)])
+            action = np.tensordot(weights, planned, axes=1) / weights.sum()
         self._done += 1
         if self.is_continuous:
             assert isinstance(self.action_space, gym.spaces.Box)
@@ -175,4 +192,4 @@ class ActionChunking(ImitationPolicy):
         return action.astype(np.int64)
 
     def reset(self) -> None:
-        self._history, self._plan, self._done = None, None, 0
+        self._history, self._plans, self._done = None, [], 0

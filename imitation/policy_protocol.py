@@ -72,6 +72,9 @@ class PolicyConfig(ObservationConfig):
     history: int = 1
     chunk: int = 1
     execute: int | None = None
+    # Temporal ensembling (ACT): plan every step and execute the weighted mean of every chunk's
+    # action for it, weight exp(−m·i) for the i-th oldest (None: the receding horizon above).
+    ensemble: float | None = None
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -106,6 +109,12 @@ class PolicyConfig(ObservationConfig):
             isinstance(config.execute, int) and not isinstance(config.execute, bool) and 1 <= config.execute <= config.chunk
         ):
             raise ValueError(f"execute must be a whole number in [1, chunk = {config.chunk}], got {str(config.execute)[:40]}")
+        if config.ensemble is not None and (
+            isinstance(config.ensemble, bool)
+            or not isinstance(config.ensemble, (int, float))
+            or not 0 <= config.ensemble < 1e3
+        ):
+            raise ValueError(f"ensemble must be a weight in [0, 1000), got {str(config.ensemble)[:40]}")
         if (
             isinstance(config.log_std_init, bool)
             or not isinstance(config.log_std_init, (int, float))

@@ -26,11 +26,13 @@ from imitation.policy_protocol import ImitationObjective
 
 BOX1 = gym.spaces.Box(-np.inf, np.inf, (1,), np.float32)
 CARTPOLE_DEMOS = str(DATASETS / "CartPole-v1.mcap")
+PENDULUM = ["--env", "Pendulum-v1", "--demos", str(DATASETS / "Pendulum-v1.mcap")]
 
 
-def _constant(action_space: gym.Space, outputs: list[float], *, chunk: int, history: int = 1, execute: int | None = None) -> ActionChunking:
+def _constant(action_space: gym.Space, outputs: list[float], *, chunk: int, history: int = 1, execute: int | None = None,
+              ensemble: float | None = None) -> ActionChunking:
     """A linear chunk policy (no hidden layer) whose head ignores the observation and outputs `outputs`."""
-    policy = build_policy("chunk", BOX1, action_space, hidden_sizes=[], chunk=chunk, history=history, execute=execute)
+    policy = build_policy("chunk", BOX1, action_space, hidden_sizes=[], chunk=chunk, history=history, execute=execute, ensemble=ensemble)
     assert isinstance(policy, ActionChunking)
     with torch.no_grad():
         policy.head.weight.zero_()
@@ -95,6 +97,19 @@ def test_it_executes_k_actions_of_a_chunk_then_plans_again_and_forgets_at_reset(
     assert plans[-1][0, :, 0].tolist() == [9.0, 9.0]
 
 
+@pytest.mark.parametrize("m", [0.0, math.log(2.0)])
+def test_temporal_ensembling_averages_every_plan_that_covers_the_step(m: float) -> None:
+    policy = _constant(gym.spaces.Box(-5, 5, (1,), np.float32), [1.0, 2.0, 3.0], chunk=3, ensemble=m)
+    actions = [float(policy.predict(np.zeros((1, 1)))[0, 0]) for _ in range(4)]
+    w = [math.exp(-m * i) for i in range(3)]  # the i-th oldest plan's weight
+    # Step t's plans, oldest first: made at t-2, t-1, t, each planning (1, 2, 3) from when it was made.
+    assert actions == pytest.approx([1.0, (2 * w[0] + 1 * w[1]) / (w[0] + w[1]), (3 * w[0] + 2 * w[1] + 1 * w[2]) / sum(w), (3 * w[0] + 2 * w[1] + 1 * w[2]) / sum(w)])
+    policy.reset()
+    assert float(policy.predict(np.zeros((1, 1)))[0, 0]) == 1.0
+    one = _constant(gym.spaces.Box(-5, 5, (1,), np.float32), [4.0], chunk=1, ensemble=0.5)
+    assert [float(one.predict(np.zeros((1, 1)))[0, 0]) for _ in range(3)] == [4.0, 4.0, 4.0] and len(one._plans) == 1
+
+
 def test_actions_are_clipped_to_the_space() -> None:
     policy = _constant(gym.spaces.Box(-2, 2, (1,), np.float32), [7.0], chunk=1)
     assert policy.predict(np.zeros((1, 1))).tolist() == [[2.0]]
@@ -107,6 +122,8 @@ def test_what_it_cannot_read_is_refused_in_one_line() -> None:
         build_policy("chunk", BOX1, gym.spaces.MultiDiscrete([2, 2]), chunk=2)
     with pytest.raises(ImitationError, match="trains on windows"):
         _constant(gym.spaces.Discrete(2), [0.0, 0.0], chunk=1).imitation_loss(None, ImitationObjective())  # type: ignore[arg-type]
+    with pytest.raises(ImitationError, match="temporal ensembling averages Box actions"):
+        build_policy("chunk", BOX1, gym.spaces.Discrete(2), chunk=2, ensemble=0.1)
     with pytest.raises(ImitationError, match="reads one observation and predicts one action, not 1 and 4"):
         build_policy("actor-critic", BOX1, gym.spaces.Discrete(2), chunk=4)
 
@@ -139,8 +156,11 @@ def test_the_kind_trains_evaluates_records_and_runs_dagger_through_the_command_l
     [
         (["--chunk", "4"], "--chunk is for sequence policies (chunk); the actor-critic policy reads one observation and predicts one action"),
         (["--policy", "chunk", "--chunk", "4", "--execute", "5"], "--execute must be in [1, --chunk 4], got 5"),
+        (["--policy", "chunk", "--chunk", "4", "--execute", "2", "--ensemble", "0.1", *PENDULUM], "--ensemble plans every step; leave --execute unset"),
+        (["--policy", "chunk", "--chunk", "4", "--ensemble", "-1", *PENDULUM], "--ensemble must be a weight in [0, 1000), got -1.0"),
+        (["--policy", "chunk", "--chunk", "4", "--ensemble", "0.1"], "--env CartPole-v1: temporal ensembling averages Box actions"),
         (["--policy", "chunk", "--chunk", "4", "--stream-memory", "64"], "--stream-memory streams single transitions, and a sequence policy"),
-        (["--policy", "chunk", "--previous-action", "on", "--env", "Pendulum-v1", "--demos", str(DATASETS / "Pendulum-v1.mcap")],
+        (["--policy", "chunk", "--previous-action", "on", *PENDULUM],
          "the chunk policy is not conditioned on the previous action"),
         (["--policy", "chunk", "--env", "imitation/GridWorld8x8-v0", "--demos", str(DATASETS / "GridWorld8x8-v0.mcap")],
          "--env imitation/GridWorld8x8-v0: the chunk policy reads flat Box observations, not Discrete(64)"),

@@ -540,4 +540,5 @@ def policy_options(config: BCConfig, transitions: int | None = None) -> dict[str
         "history": config.history,
         "chunk": config.chunk,
         "execute": config.execute,
+        "ensemble": config.ensemble,
     }

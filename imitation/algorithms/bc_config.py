@@ -56,6 +56,13 @@ class BCConfig:
         help="sequence policies: the actions of a chunk executed before the policy plans again",
         default_text="half the chunk",
     )
+    ensemble: float | None = flag(
+        None,
+        metavar="M",
+        help="sequence policies: plan every step and execute the mean of every chunk's action for the step, the i-th "
+        "oldest weighted exp(-M i) (ACT's temporal ensembling; Box actions)",
+        default_text="off: execute --execute actions of each chunk",
+    )
     epochs: int = flag(300, metavar="N", help="maximum epochs")
     batch_size: int = flag(256, metavar="B", help="minibatch size")
     learning_rate: float = flag(1e-3, name="--lr", metavar="LR", help="Adam learning rate")
@@ -189,6 +196,10 @@ class BCConfig:
                 raise ConfigError(name, f"must be in [1, 1024], got {getattr(self, name)}", owner="BCConfig")
         if self.execute is not None and not 1 <= self.execute <= self.chunk:
             raise ConfigError("execute", f"must be in [1, --chunk {self.chunk}], got {self.execute}", owner="BCConfig")
+        if self.ensemble is not None and not 0 <= self.ensemble < 1e3:  # NaN fails too
+            raise ConfigError("ensemble", f"must be a weight in [0, 1000), got {self.ensemble}", owner="BCConfig")
+        if self.ensemble is not None and self.execute is not None:
+            raise ConfigError("ensemble", "plans every step; leave --execute unset", owner="BCConfig")
         if self.threads is not None and not 1 <= self.threads <= 1024:
             raise ConfigError("threads", f"must be in [1, 1024], got {self.threads}", owner="BCConfig")
         if self.steps not in STEPS:

@@ -18,6 +18,7 @@ BC_FLAGS = (
     "history",
     "chunk",
     "execute",
+    "ensemble",
     "epochs",
     "patience",
     "hidden_sizes",
