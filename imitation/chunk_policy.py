@@ -30,6 +30,7 @@ import torch
 from torch import nn
 
 from imitation.data.loader import TransitionTensors
+from imitation.data.spaces import space_from_json
 from imitation.data.windows import WindowBatch, WindowSpec
 from imitation.errors import ImitationError
 from imitation.limits import LIMITS, over_limit
@@ -41,8 +42,6 @@ from imitation.policy_protocol import ImitationObjective, ImitationPolicy, Momen
 
 def _sizes(config: PolicyConfig) -> tuple[int, int]:
     """(inputs, outputs) of the network: n flat observations in, H action heads out."""
-    from imitation.data.spaces import space_from_json
-
     observations, actions = space_from_json(config.observation_space), space_from_json(config.action_space)
     if not isinstance(observations, gym.spaces.Box) or config.layout(observations) is not None:
         raise ImitationError(f"the chunk policy reads flat Box observations, not {observations}")

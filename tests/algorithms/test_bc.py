@@ -271,6 +271,7 @@ def test_policy_options_resolve_auto_to_tanh_below_small_data_and_normalise_both
         "history": 1,
         "chunk": 1,
         "execute": None,
+        "ensemble": None,
     }
     assert policy_options(BCConfig(activation="elu"), transitions)["activation"] == "elu"  # a named one stays
 
