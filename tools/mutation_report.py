@@ -6,7 +6,9 @@ the observation encoding and MLPs they share with the reward models), BC,
 DAgger, tabular MaxEnt IRL and its planning, EPIC, GCL, the reward models and the loader's
 column placement; and since issue 50 policy gradient, policy search, apprenticeship learning,
 GAIL/AIRL and their discriminator loop, PPO's rollouts and DAgger's rounds on Ray workers, the
-envs' true rewards, the converters' resampling and image frames as messages. `--modules` runs
+envs' true rewards, the converters' resampling and image frames as messages; and since issue 52
+the pieces moved into rooms of their own (GAE, vector envs, the loop beside PPO), the policy
+protocol and its kinds, with issue 53's windows and action chunking. `--modules` runs
 only some of them (their prefixes; mutmut's results for the others are kept). Each of their mutants is counted as killed (a test failed, or it ran past
 mutmut's time limit), equivalent (it survived, and bench/mutation_equivalents.toml says why no
 test can tell it from the original) or surviving; the score is killed / (generated -
@@ -67,6 +69,13 @@ SCOPE = (
     "imitation.envs.true_rewards.",
     "imitation.data.convert.resample.",
     "imitation.data.mcap.images.",
+    "imitation.algorithms.advantages.",
+    "imitation.envs.vector.",
+    "imitation.algorithms.beside_ppo.",
+    "imitation.policy_protocol.",
+    "imitation.policy_kinds.",
+    "imitation.chunk_policy.",
+    "imitation.data.windows.",
 )
 # imitation.algorithms.ppo.x_compute_gae__mutmut_17, imitation.policies.xǁActorCriticǁsample__mutmut_3
 _NAME = re.compile(r"^(?P<module>[\w.]+)\.x(?:_|ǁ)")
