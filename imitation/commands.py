@@ -1,7 +1,8 @@
 """The command line, declared: each command's words, help and description, and the dataclasses
 its flags come from (imitation/flags.py): the learners' and jobs' configs, whose flags a user may
-leave out so that a default or a preset applies, and the commands' own options below. cli.py
-builds the parser from `COMMANDS` and holds one handler per command.
+leave out so that a default or a preset applies, and the commands' own options below. The
+`train` commands are declared in their table, imitation/train_commands.py, with their learners;
+cli.py builds the parser from both and holds one handler per other command.
 
 Light, like the configs: `imitation --help` reads this module without importing torch.
 """
