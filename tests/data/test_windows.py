@@ -100,6 +100,11 @@ def test_episodes_out_of_order_are_refused(episodes: np.ndarray, message: str) -
         window_index(episodes, WindowSpec())
 
 
+def test_the_longest_window_is_allowed() -> None:
+    spec = WindowSpec(observations=1024, actions=1024)
+    assert (spec.observations, spec.actions) == (1024, 1024)
+
+
 @pytest.mark.parametrize("value", [0, -1, 1025, 2.0, True])
 def test_window_lengths_are_checked(value: object) -> None:
     with pytest.raises(ImitationError, match="whole number in"):
