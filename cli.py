@@ -215,11 +215,12 @@ def cmd_eval_reward(args: argparse.Namespace) -> int:
 
     from imitation.jobs.evaluate_reward import evaluate_reward
     from imitation.jobs.evaluate_reward_config import RewardEvaluationConfig
+    from imitation.train_commands import workers_of
 
     torch.set_num_threads(1)  # EPIC's many small reward calls: faster on one thread (bench/RESULTS.md)
     config = RewardEvaluationConfig(**given(args, RewardEvaluationConfig))
     out = args.out or str(Path(args.run) / "eval-reward")
-    result = evaluate_reward(args.run, args.env, config, out, progress=not args.quiet, workers=_workers(args))
+    result = evaluate_reward(args.run, args.env, config, out, progress=not args.quiet, workers=workers_of(args))
     if args.json:
         _print_json(result)
         return 0
@@ -334,13 +335,6 @@ def _flag_message(error: ConfigError, args: argparse.Namespace) -> str:
     if flag is None and error.field in vars(args):
         flag = "--" + error.field.replace("_", "-")
     return error.renamed(flag) if flag is not None else str(error)
-
-
-def _workers(args: argparse.Namespace) -> Any:
-    """The `Workers` the flags of `RayWorkers` ask for, or None to run in this process."""
-    from imitation.ray_engine import requested_workers
-
-    return requested_workers(args.workers, args.ray_address, args.cpus)
 
 
 HANDLERS: dict[str, Callable[[argparse.Namespace], int]] = {

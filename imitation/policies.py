@@ -531,8 +531,10 @@ class ActorCritic(ImitationPolicy):
         return loss, fit
 
     def point_action(self, observations: Any) -> torch.Tensor:
+        return self._point(self.distribution(self.encode(observations)))
+
+    def _point(self, distribution: Distribution) -> torch.Tensor:
         """The Gaussian's mean (unclipped), or the most likely class as an env action."""
-        distribution = self.distribution(self.encode(observations))
         if self.is_continuous:
             return distribution.mean
         if self.action_sizes is not None:
@@ -542,6 +544,10 @@ class ActorCritic(ImitationPolicy):
 
     def action_nll(self, observations: Any, actions: torch.Tensor) -> torch.Tensor:
         return -self.log_prob(self.distribution(self.encode(observations)), self.from_env_action(actions))
+
+    def held_out(self, observations: Any, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        distribution = self.distribution(self.encode(observations))  # one forward pass (a CNN's is most of it)
+        return self._point(distribution), -self.log_prob(distribution, self.from_env_action(actions))
 
     @property
     def reads_images(self) -> bool:

@@ -180,6 +180,11 @@ class ImitationPolicy(nn.Module, ABC):
         """−log π(a|s) per row of the env actions `actions` (None for a kind without a likelihood)."""
         return None
 
+    def held_out(self, observations: Any, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(`point_action`, `action_nll`) of a batch, what BC scores it by; a kind whose two share
+        a forward pass overrides this to run it once."""
+        return self.point_action(observations), self.action_nll(observations, actions)
+
     def reset(self) -> None:
         """Forget the episode so far (a new one starts): nothing, for a policy of the current observation alone."""
 

@@ -97,7 +97,8 @@ def default_metric(command: str, args: dict[str, Any]) -> tuple[str, str, str] |
     return method.metric if method is not None else None
 
 
-def _workers(args: argparse.Namespace) -> Any:
+def workers_of(args: argparse.Namespace) -> Any:
+    """The `Workers` the flags of `RayWorkers` ask for, or None to run in this process."""
     return requested_workers(args.workers, args.ray_address, args.cpus)
 
 
@@ -122,7 +123,7 @@ def _train_ppo(args: argparse.Namespace) -> Trained:
         shaped=args.shaped,
         resume=args.resume,
         progress=not args.quiet,
-        workers=_workers(args),
+        workers=workers_of(args),
     )
     return Trained(
         result,
@@ -220,7 +221,7 @@ def _train_dagger(args: argparse.Namespace) -> Trained:
         speed=args.speed,
         progress=not args.quiet,
         resume=args.resume,
-        workers=_workers(args),
+        workers=workers_of(args),
     )
 
     def lines() -> list[str]:
@@ -261,7 +262,7 @@ def _irl_run(args: argparse.Namespace) -> IRLRun:
         seed=args.seed,
         progress=not args.quiet,
         resume=args.resume,
-        workers=_workers(args),
+        workers=workers_of(args),
         warm_start=args.warm_start,
     )
 

@@ -430,3 +430,14 @@ def test_acting_one_observation_at_a_time_runs_an_mlp_on_one_thread_and_leaves_a
         assert torch.get_num_threads() == 1
     finally:
         torch.set_num_threads(previous)
+
+
+@pytest.mark.parametrize("actions", [gym.spaces.Discrete(3, start=2), gym.spaces.Box(-1.0, 1.0, (2,), np.float32)])
+def test_held_out_scores_equal_the_point_action_and_nll_taken_apart(actions: gym.Space) -> None:
+    torch.manual_seed(0)
+    policy = make_policy(BOX4, actions, hidden_sizes=[8])
+    observations = torch.randn(5, 4)
+    taken = torch.as_tensor(np.stack([actions.sample() for _ in range(5)]))
+    point, nll = policy.held_out(observations, taken)
+    assert torch.equal(point, policy.point_action(observations))
+    assert torch.allclose(nll, policy.action_nll(observations, taken))

@@ -9,7 +9,7 @@ from typing import Protocol
 import torch
 
 from imitation.algorithms.ppo import PPO
-from imitation.checkpoints import CheckpointData, CheckpointReader, CheckpointWriter
+from imitation.checkpoints import CheckpointData, CheckpointReader, prefixed
 from imitation.policies import ActorCritic
 from imitation.rewards import tree_index
 from imitation.tensors import TensorTree
@@ -65,11 +65,9 @@ class BesidePPO[Side: Checkpointed]:
         return self.ppo.progress(row) | {"demo_acc": f"{row['demo_accuracy']:.2f}"}
 
     def state_dict(self) -> CheckpointData:
-        checkpoint = CheckpointWriter()
-        checkpoint.tensors, checkpoint.state = self.ppo.state_dict()
-        side_tensors, checkpoint.state["learner"] = self.side.state_dict()
-        checkpoint.module("learner", side_tensors)
-        return checkpoint.data()
+        tensors, state = self.ppo.state_dict()
+        side_tensors, state["learner"] = self.side.state_dict()
+        return tensors | prefixed("learner", side_tensors), state
 
     def load_state_dict(self, checkpoint: CheckpointData) -> None:
         self.ppo.load_state_dict(checkpoint)

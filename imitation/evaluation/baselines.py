@@ -93,9 +93,9 @@ def _piece_scores(policy: ImitationPolicy, validation: TransitionTensors) -> Sco
     observations, actions = validation.observations, validation.actions
     assert isinstance(actions, torch.Tensor)  # BC refuses Dict action spaces
     with torch.no_grad():
-        nll = policy.action_nll(observations, actions)
+        point, nll = policy.held_out(observations, actions)
         scores = {"nll": float(nll.mean())} if nll is not None else {}
-        guess = policy.point_action(observations).reshape(len(validation), -1)
+        guess = point.reshape(len(validation), -1)
         held = actions.reshape(len(validation), -1)
         if policy.is_continuous:
             return scores | {"mse": float(((guess - held.float()) ** 2).sum(-1).mean())}
