@@ -187,6 +187,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_eval_policy(args: argparse.Namespace) -> int:
+    from imitation.evaluation.task_measures import measures_line
     from imitation.jobs.evaluate_policy import eval_policy_job
     from imitation.jobs.evaluate_policy_config import PolicyEvaluationConfig
 
@@ -199,12 +200,16 @@ def cmd_eval_policy(args: argparse.Namespace) -> int:
         f"{args.run} on {args.env}: mean return {result['mean_return']:.2f} ± {result['std_return']:.2f} "
         f"(min {result['min_return']:.2f}, max {result['max_return']:.2f}) over {settings.episodes} episodes"
     )
+    if measured := measures_line(result):
+        print(measured)
     if "normalized_return" in result:
         reference = result["reference"]
         print(
             f"normalised return {result['normalized_return']:.3f} (0 = {reference['random_return']:.2f}, 1 = "
             f"{reference['expert_return']:.2f}: {reference['source']})"
         )
+    if "no_normalized_return" in result:
+        print(f"no normalised return: {result['no_normalized_return']}")
     if args.video:
         print(f"video of episode 0 (return {result['video']['return']:.2f}): {args.video}")
     return 0

@@ -154,7 +154,8 @@ class ConvertOptions:
     source: str = flag(
         positional=True,
         metavar="SRC",
-        help="a .mcap bag or rosbag2 folder, a ROS 1 .bag, a LeRobot dataset root, an .npz file, or a .npy array",
+        help="a .mcap bag or rosbag2 folder, a ROS 1 .bag, a LeRobot dataset root, a zarr replay buffer, an .npz file, "
+        "or a .npy array",
     )
     source_kind: str | None = flag(
         None, name="--from", metavar="KIND", help=", ".join(SOURCES), default_text="recognised from SRC"
@@ -422,14 +423,16 @@ COMMANDS: dict[str, Command] = {
         (Options(RecoverOptions), Options(Json)),
     ),
     "convert": Command(
-        "convert a ROS bag, a LeRobot dataset or npz rollouts into an MCAP demo file",
+        "convert a ROS bag, a LeRobot dataset, a zarr replay buffer or npz rollouts into an MCAP demo file",
         "Convert recordings into an MCAP demo file. ROS bags (ROS 2 .mcap file or rosbag2 directory, ROS 1 .bag, rosbag2 "
         "sqlite directory) need a map (YAML: topics and fields for the observation and action, rate, alignment, episodes, "
         "what a laser's inf beams stand for; see docs/CONVERT.md); --inspect lists a bag's topics and numeric fields and "
         "--write-map writes a starter map. LeRobot datasets (v3.0, v2.1) and npz rollouts (stable-baselines GAIL, "
-        "HumanCompatibleAI/imitation) convert without a map; a bare (episodes, steps, columns) array needs a layout "
-        "(--layout). Cameras become image observations: LeRobot video and image features, and ROS image topics a map "
-        "names with image:, stored as --image-codec says and resized once by --image-size (or a map entry's resize:). "
+        "HumanCompatibleAI/imitation) convert without a map, and so do zarr replay buffers (the Diffusion Policy code's "
+        "layout: PushT's human demos; with --env, the array that fits the env's observation); a bare (episodes, steps, "
+        "columns) array needs a layout (--layout). Cameras become image observations: LeRobot video and image features, "
+        "zarr frame arrays, and ROS image topics a map names with image:, stored as --image-codec says and resized once "
+        "by --image-size (or a map entry's resize:). "
         "With --env, end flags that the source cannot tell apart (a time limit or a terminal state) are decided from the "
         "env's time limit, or, for a layout with ends: terminal_state, where the env's own termination rule first holds "
         "on the recorded states (the steps after it are cut).",

@@ -103,8 +103,13 @@ def workers_of(args: argparse.Namespace) -> Any:
 
 
 def _evaluation(result: Result) -> str:
+    from imitation.evaluation.task_measures import measures_line
+
     evaluation = result["eval"]
-    return f"eval return {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f}"
+    measured = measures_line(evaluation)
+    return f"eval return {evaluation['mean_return']:.1f} ± {evaluation['std_return']:.1f}" + (
+        f" ({measured})" if measured else ""
+    )
 
 
 def _train_ppo(args: argparse.Namespace) -> Trained:

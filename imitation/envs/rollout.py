@@ -58,13 +58,18 @@ def _cpu_copy(tree: Any) -> Any:
     return tree.to("cpu", copy=True)
 
 
-def play_episode(env: gym.Env, policy: Policy, *, seed: int | None) -> tuple[float, int]:
-    """Reset with `seed`, act with `policy` until the episode ends; its return and length."""
+def play_episode(
+    env: gym.Env, policy: Policy, *, seed: int | None, on_info: Callable[[dict[str, Any]], None] | None = None
+) -> tuple[float, int]:
+    """Reset with `seed`, act with `policy` until the episode ends; its return and length.
+    `on_info` sees each step's info."""
     observation, _ = env.reset(seed=seed)
     start_episode(policy)
     episode_return, length, done = 0.0, 0, False
     while not done:
-        observation, reward, terminated, truncated, _ = env.step(policy(observation))
+        observation, reward, terminated, truncated, info = env.step(policy(observation))
+        if on_info is not None:
+            on_info(info)
         episode_return += float(reward)
         length += 1
         done = terminated or truncated

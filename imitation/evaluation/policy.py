@@ -8,6 +8,7 @@ import gymnasium as gym
 import numpy as np
 
 from imitation.envs.rollout import Policy, play_episode
+from imitation.evaluation.task_measures import EpisodeMeasures, averaged
 
 # Evaluation episodes start here, away from training and demo seeds; every run's final evaluation
 # and the random policy's reference return use them.
@@ -16,12 +17,15 @@ EVAL_EPISODES = 10
 
 
 def evaluate_policy(policy: Policy, env: gym.Env, *, episodes: int = 10, seed: int = 0) -> dict[str, Any]:
-    """Run `episodes` episodes (episode i reset with seed `seed + i`); return statistics."""
-    returns, lengths = [], []
+    """Run `episodes` episodes (episode i reset with seed `seed + i`); return statistics, with
+    the task's own measures where the env's infos report them (success rate, PushT's coverage)."""
+    returns, lengths, measured = [], [], []
     for i in range(episodes):
-        episode_return, length = play_episode(env, policy, seed=seed + i)
+        measures = EpisodeMeasures()
+        episode_return, length = play_episode(env, policy, seed=seed + i, on_info=measures.step)
         returns.append(episode_return)
         lengths.append(length)
+        measured.append(measures.result())
     values = np.asarray(returns)
     return {
         "mean_return": float(values.mean()),
@@ -31,6 +35,7 @@ def evaluate_policy(policy: Policy, env: gym.Env, *, episodes: int = 10, seed: i
         "mean_length": float(np.mean(lengths)),
         "episodes": episodes,
         "returns": returns,
+        **averaged(measured),
     }
 
 
@@ -57,7 +62,14 @@ def normalized(value: float, random: float, expert: float) -> float:
 
 
 def normalized_return(policy_stats: dict[str, Any], env: gym.Env, demos: list[str]) -> dict[str, Any]:
-    """The policy's mean return between the two ends of `reference_returns`."""
+    """The policy's mean return between the two ends of `reference_returns`; where a demo file
+    was converted from a source without rewards (they are zero), no normalised return but why."""
+    from imitation.data.convert.converted import REWARDS_RECORDED
+    from imitation.data.mcap.reader import DemoFile
+
+    for path in demos:
+        if DemoFile(path).user_metadata.get(REWARDS_RECORDED) is False:
+            return {"no_normalized_return": f"{path} was converted from a source without rewards (they are zero)"}
     reference = reference_returns(env, demos)
     return {
         "normalized_return": normalized(policy_stats["mean_return"], reference["random_return"], reference["expert_return"]),

@@ -208,7 +208,7 @@ def test_flags_for_other_sources_and_bad_values_are_refused(tmp_path: Path) -> N
         ["convert", npz, "--out", tmp_path / "e.mcap", "--video-tolerance", "-1"],
     ])
     assert [r.returncode for r in results] == [1, 1, 1, 2, 2]
-    assert results[0].stderr.strip() == f"error: --image-size resizes the cameras of bags and LeRobot datasets; {npz} is a npz source"
+    assert results[0].stderr.strip() == f"error: --image-size resizes the cameras of bags, LeRobot datasets and zarr replay buffers; {npz} is a npz source"
     assert results[1].stderr.strip() == f"error: --video-tolerance places a LeRobot dataset's video frames; {npz} is a npz source"
     assert results[2].stderr.strip() == "error: --image-size 8: give HEIGHTxWIDTH in pixels, each 1 to 65536, e.g. 96x96"
     assert "--image-quality: expected a whole number from 1 to 100, got '101'" in results[3].stderr

@@ -53,7 +53,7 @@ def test_a_registered_source_converts_through_the_command_line(csv_source: None,
 def test_a_registered_source_is_refused_the_options_it_does_not_take(csv_source: None, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     source = write_csv(tmp_path / "steps.csv")
     for flag, value, said in [
-        ("--image-size", "8x8", "--image-size resizes the cameras of bags and LeRobot datasets"),
+        ("--image-size", "8x8", "--image-size resizes the cameras of bags, LeRobot datasets and zarr replay buffers"),
         ("--map", "m.yaml", "--map is for ROS bags"),
     ]:
         assert cli.main(["convert", str(source), flag, value, "--out", str(tmp_path / "c.mcap")]) == 1

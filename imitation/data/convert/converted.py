@@ -25,6 +25,10 @@ from imitation.data.types import Episode, first_nonfinite
 from imitation.errors import ImitationError
 from imitation.progress import progress_over
 
+# In a demo file's metadata: false where the source held no rewards (they are zero), so that
+# nothing scores a policy against the demos' return.
+REWARDS_RECORDED = "rewards_recorded"
+
 
 @dataclass
 class Converted:

@@ -139,7 +139,10 @@ def _refuse_options(source: Source, request: Request, options: tuple[str, ...]) 
             continue
         path, kind = request.path, source.name
         if option == "image_size":
-            raise ImitationError(f"--image-size resizes the cameras of bags and LeRobot datasets; {path} is a {kind} source")
+            raise ImitationError(
+                "--image-size resizes the cameras of bags, LeRobot datasets and zarr replay buffers; "
+                f"{path} is a {kind} source"
+            )
         if option == "video_tolerance_s":
             raise ImitationError(f"--video-tolerance places a LeRobot dataset's video frames; {path} is a {kind} source")
         if option == "layout_path":

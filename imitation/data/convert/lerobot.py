@@ -61,7 +61,7 @@ import gymnasium as gym
 import numpy as np
 
 from imitation.data.convert.cameras import Camera, camera_for, decoded_images
-from imitation.data.convert.converted import Converted, box_for, cast_rows, infer_action_space
+from imitation.data.convert.converted import REWARDS_RECORDED, Converted, box_for, cast_rows, infer_action_space
 from imitation.data.convert.endings import SourceEnds
 from imitation.data.convert.video import frames_at
 from imitation.data.image_resize import RESIZE_FILTER
@@ -697,6 +697,8 @@ def _build(
         "action_feature": action_key,
         "names": {key: features[key].get("names") for key in [*observed, action_key]},
     }
+    if rewards is None:
+        metadata[REWARDS_RECORDED] = False
     if selected is not None:
         metadata["episodes"] = sorted(int(episode_index[bounds[k]]) for k in kept)
     if placement is not None and any(leaves.cameras[key].dtype == "video" for key in observed if key in leaves.cameras):

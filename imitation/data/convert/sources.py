@@ -152,5 +152,23 @@ register(
         frozenset({"image_size", "video_tolerance_s"}),
     )
 )
+
+
+def _zarr(request: Request) -> tuple[Converted, str | None]:
+    from imitation.data.convert.zarr_replay import replay_to_episodes
+
+    converted = replay_to_episodes(
+        request.path, env_id=request.env_id, progress=request.progress, image_size=request.image_size
+    )
+    return converted, request.env_id
+
+
+def _zarr_group(path: Path, _: bytes) -> bool:
+    from imitation.data.convert.zarr_replay import is_replay_buffer
+
+    return is_replay_buffer(path)
+
+
+register(Source("zarr", _zarr, _zarr_group, frozenset({"image_size"})))
 register(Source("npz", _npz, lambda path, head: head.startswith(b"PK") and path.suffix == ".npz", with_layout="array"))
 register(Source("array", _array, lambda _, head: head.startswith(b"\x93NUMPY"), frozenset({"layout_path"}), _needs_layout))
