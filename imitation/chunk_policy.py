@@ -36,6 +36,7 @@ from imitation.errors import ImitationError
 from imitation.limits import LIMITS, over_limit
 from imitation.mlp import ACTIVATIONS, hidden_layers, mlp_weight_count, orthogonal_linear
 from imitation.observation_encoding import observation_size
+from imitation.observation_history import ObservationHistory
 from imitation.policies import RunningMeanStd, action_logits_size
 from imitation.policy_protocol import ImitationObjective, ImitationPolicy, MomentsMerge, PolicyConfig
 
@@ -82,7 +83,7 @@ class ActionChunking(ImitationPolicy):
         self.register_buffer("action_mean", torch.zeros(self.width if self.is_continuous else 0))
         self.register_buffer("action_scale", torch.ones(self.width if self.is_continuous else 0))
         self.execute = 1 if config.ensemble is not None else config.execute or max(1, self.steps // 2)
-        self._history: np.ndarray | None = None  # (batch, n, features), newest last
+        self._history = ObservationHistory(config.history)
         self._plans: list[np.ndarray] = []  # (batch, H, …) env actions, oldest first; the newest is executed
         self._done = 0  # actions of the newest plan executed
 
@@ -163,15 +164,11 @@ class ActionChunking(ImitationPolicy):
     def predict(self, observations: np.ndarray, *, deterministic: bool = True) -> np.ndarray:
         """The next action of each row: its plan's, planning again every `execute` actions, or
         the ensemble of every plan that covers this step."""
-        current = np.asarray(observations, dtype=np.float32).reshape(len(observations), -1)
-        if self._history is None or len(self._history) != len(current):
-            self._history = np.repeat(current[:, None], self.config.history, axis=1)
+        if self._history.push(observations):
             self._plans = []
-        else:
-            self._history = np.concatenate([self._history[:, 1:], current[:, None]], axis=1)
         if not self._plans or self._done >= self.execute:
             with torch.no_grad():
-                history = torch.as_tensor(self._history, device=self.action_mean.device)
+                history = torch.as_tensor(self._history.rows, device=self.action_mean.device)
                 plan = self._env_actions(self._chunk(history)).cpu().numpy()
             # Ensembling keeps the H latest plans (one per step): the oldest covers this step with its last action.
             kept = self._plans[max(0, len(self._plans) - self.steps + 1) :] if self.config.ensemble is not None else []
@@ -191,4 +188,5 @@ class ActionChunking(ImitationPolicy):
         return action.astype(np.int64)
 
     def reset(self) -> None:
-        self._history, self._plans, self._done = None, [], 0
+        self._history.clear()
+        self._plans, self._done = [], 0

@@ -58,6 +58,21 @@ register(
         sequences=True,
     )
 )
+register(
+    PolicyKind(
+        "diffusion",
+        lambda config: _diffusion().DiffusionPolicy(config),
+        lambda config: _diffusion().planned_weights(config),
+        sequences=True,
+    )
+)
+
+
+def _diffusion() -> Any:
+    """imitation.diffusion_policy, imported when a diffusion policy is built (it imports diffusers)."""
+    from imitation import diffusion_policy
+
+    return diffusion_policy
 
 
 def policy_kind(name: str, *, history: int = 1, chunk: int = 1) -> PolicyKind:

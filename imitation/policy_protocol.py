@@ -40,6 +40,7 @@ if TYPE_CHECKING:
 MomentsMerge = Callable[[int, torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 
 ACTOR_CRITIC = "actor-critic"
+MAX_DENOISING_STEPS = 10_000  # far beyond the 100 of the Diffusion Policy paper; bounds a crafted config's loops
 
 
 @dataclass(kw_only=True)
@@ -75,6 +76,9 @@ class PolicyConfig(ObservationConfig):
     # Temporal ensembling (ACT): plan every step and execute the weighted mean of every chunk's
     # action for it, weight exp(−m·i) for the i-th oldest (None: the receding horizon above).
     ensemble: float | None = None
+    # Diffusion policies: the noise levels of training (K) and the denoising steps taken when acting (S ≤ K).
+    denoising_steps: int = 100
+    sampling_steps: int = 10
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -105,6 +109,14 @@ class PolicyConfig(ObservationConfig):
             value = getattr(config, name)
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_WINDOW:
                 raise ValueError(f"{name} must be a whole number in [1, {MAX_WINDOW}], got {str(value)[:40]}")
+        for name in ("denoising_steps", "sampling_steps"):
+            value = getattr(config, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_DENOISING_STEPS:
+                raise ValueError(f"{name} must be a whole number in [1, {MAX_DENOISING_STEPS}], got {str(value)[:40]}")
+        if config.sampling_steps > config.denoising_steps:
+            raise ValueError(
+                f"sampling_steps ({config.sampling_steps}) must be at most denoising_steps ({config.denoising_steps})"
+            )
         if config.execute is not None and not (
             isinstance(config.execute, int) and not isinstance(config.execute, bool) and 1 <= config.execute <= config.chunk
         ):
@@ -184,6 +196,9 @@ class ImitationPolicy(nn.Module, ABC):
         """(`point_action`, `action_nll`) of a batch, what BC scores it by; a kind whose two share
         a forward pass overrides this to run it once."""
         return self.point_action(observations), self.action_nll(observations, actions)
+
+    def after_update(self) -> None:
+        """Called after each optimiser step of BC (a moving average of the weights folds them in here)."""
 
     def reset(self) -> None:
         """Forget the episode so far (a new one starts): nothing, for a policy of the current observation alone."""

@@ -154,7 +154,7 @@ def test_the_kind_trains_evaluates_records_and_runs_dagger_through_the_command_l
 @pytest.mark.parametrize(
     ("flags", "message"),
     [
-        (["--chunk", "4"], "--chunk is for sequence policies (chunk); the actor-critic policy reads one observation and predicts one action"),
+        (["--chunk", "4"], "--chunk is for sequence policies (chunk, diffusion); the actor-critic policy reads one observation and predicts one action"),
         (["--policy", "chunk", "--chunk", "4", "--execute", "5"], "--execute must be in [1, --chunk 4], got 5"),
         (["--policy", "chunk", "--chunk", "4", "--execute", "2", "--ensemble", "0.1", *PENDULUM], "--ensemble plans every step; leave --execute unset"),
         (["--policy", "chunk", "--chunk", "4", "--ensemble", "-1", *PENDULUM], "--ensemble must be a weight in [0, 1000), got -1.0"),

@@ -113,7 +113,7 @@ def test_dagger_trains_a_registered_kind(linear_kind: None, tmp_path: Path, caps
 def test_an_unknown_kind_is_refused_by_name(linear_kind: None, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "never"
     assert cli.main(["train", "bc", "--policy", "gaussian-mixture", "--env", "CartPole-v1", "--demos", CARTPOLE_DEMOS, "--out", str(out)]) == 1
-    assert capsys.readouterr().err == "error: --policy must be a registered policy kind (actor-critic, chunk, linear), got 'gaussian-mixture'\n"
+    assert capsys.readouterr().err == "error: --policy must be a registered policy kind (actor-critic, chunk, diffusion, linear), got 'gaussian-mixture'\n"
     assert not out.exists() and not Path(f"{out}.partial").exists()
 
 
@@ -125,4 +125,4 @@ def test_a_run_of_a_kind_not_registered_here_is_refused_in_one_line(tmp_path: Pa
     finally:
         del POLICY_KINDS["linear"]
     assert cli.main(["eval", "policy", str(run), "--env", "CartPole-v1", "--episodes", "1"]) == 1
-    assert capsys.readouterr().err == f"error: {run}: the policy is of kind 'linear', which is not registered here (known: actor-critic, chunk)\n"
+    assert capsys.readouterr().err == f"error: {run}: the policy is of kind 'linear', which is not registered here (known: actor-critic, chunk, diffusion)\n"

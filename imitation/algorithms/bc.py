@@ -343,6 +343,7 @@ class BehaviouralCloning:
                 self._average_gradient(self.parallel)
             self.scaler.step(cast(torch.optim.Optimizer, self.optimizer))  # it reads only param_groups and step()
             self.scaler.update()
+            self.policy.after_update()
             fits.append(parts["fit"])
             self.samples += len(batch) * (self.parallel.world_size if self.parallel is not None else 1)
             self.batch, taken = self.batch + 1, taken + 1
@@ -541,4 +542,6 @@ def policy_options(config: BCConfig, transitions: int | None = None) -> dict[str
         "chunk": config.chunk,
         "execute": config.execute,
         "ensemble": config.ensemble,
+        "denoising_steps": config.denoising_steps,
+        "sampling_steps": config.sampling_steps,
     }

@@ -41,8 +41,8 @@ class BCConfig:
         "actor-critic",
         metavar="KIND",
         help="the policy kind to train: actor-critic (an MLP, after a CNN for frames, with a categorical or Gaussian "
-        "head; what PPO trains too), chunk (action chunking: --history, --chunk, --execute) or another kind registered "
-        "in imitation.policy_kinds",
+        "head; what PPO trains too), chunk (action chunking: --history, --chunk, --execute), diffusion (a denoised "
+        "chunk: --denoising-steps, --sampling-steps) or another kind registered in imitation.policy_kinds",
     )
     # Sequence kinds (--policy chunk): windows of the demos (imitation.data.windows), and the
     # receding horizon they act with.
@@ -63,6 +63,12 @@ class BCConfig:
         "oldest weighted exp(-M i) (ACT's temporal ensembling; Box actions)",
         default_text="off: execute --execute actions of each chunk",
     )
+    denoising_steps: int = flag(
+        100,
+        metavar="K",
+        help="diffusion policies: the noise levels the denoiser is trained on (DDPM, squared-cosine schedule)",
+    )
+    sampling_steps: int = flag(10, metavar="S", help="diffusion policies: the DDIM steps of each plan when acting (S ≤ K)")
     epochs: int = flag(300, metavar="N", help="maximum epochs")
     batch_size: int = flag(256, metavar="B", help="minibatch size")
     learning_rate: float = flag(1e-3, name="--lr", metavar="LR", help="Adam learning rate")
@@ -200,6 +206,14 @@ class BCConfig:
             raise ConfigError("ensemble", f"must be a weight in [0, 1000), got {self.ensemble}", owner="BCConfig")
         if self.ensemble is not None and self.execute is not None:
             raise ConfigError("ensemble", "plans every step; leave --execute unset", owner="BCConfig")
+        if not 1 <= self.denoising_steps <= 10_000:
+            raise ConfigError("denoising_steps", f"must be in [1, 10000], got {self.denoising_steps}", owner="BCConfig")
+        if not 1 <= self.sampling_steps <= self.denoising_steps:
+            raise ConfigError(
+                "sampling_steps",
+                f"must be in [1, --denoising-steps {self.denoising_steps}], got {self.sampling_steps}",
+                owner="BCConfig",
+            )
         if self.threads is not None and not 1 <= self.threads <= 1024:
             raise ConfigError("threads", f"must be in [1, 1024], got {self.threads}", owner="BCConfig")
         if self.steps not in STEPS:

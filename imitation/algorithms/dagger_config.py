@@ -19,6 +19,8 @@ BC_FLAGS = (
     "chunk",
     "execute",
     "ensemble",
+    "denoising_steps",
+    "sampling_steps",
     "epochs",
     "patience",
     "hidden_sizes",

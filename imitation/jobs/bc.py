@@ -175,6 +175,7 @@ def _bc_job(
         "pixels": pixels.to_json() if pixels is not None else None,
         "image_transform": transform.to_json() if transform is not None else None,
     }
+    config.validate(isinstance(spaces.action_space, gym.spaces.Box))  # the flags, before a policy is built from them
     try:
         policy = build_policy(
             config.policy,
@@ -186,7 +187,6 @@ def _bc_job(
         )
     except ImitationError as error:
         raise ImitationError(f"{f'--env {env_id}' if env is not None else dataset.files[0].path}: {error}") from None
-    config.validate(policy.is_continuous)
     policy_env = acting_env(policy, env) if env is not None else None
 
     def env_return(candidate: ImitationPolicy) -> float:

@@ -1,0 +1,257 @@
+"""Diffusion policy (Chi et al. 2023; docs/THEORY.md §5.5): the policy kind "diffusion" of
+`imitation.policy_kinds`, a policy of the last n observations o that samples the next H actions
+A = (a_t, …, a_{t+H−1}) by denoising, so that demonstrations that go two ways (left or right
+around PushT's T) are two modes of the policy, not their average.
+
+Actions are scaled to [−1, 1] per dimension by the training actions' range. Training (DDPM, Ho et
+al. 2020) draws a step k ∈ {0, …, K−1} and noise ε ~ N(0, I) per window, noises the demo chunk A⁰,
+
+    A^k = √ᾱ_k A⁰ + √(1 − ᾱ_k) ε,   ᾱ_k = Π_{i≤k} (1 − β_i)   (β: the squared-cosine schedule),
+
+and fits the denoiser ε_θ(A^k, k, o), an MLP on [A^k, o normalised, a sinusoidal embedding of k],
+by the squared error on every entry of the chunk (past an episode's end its last action stands
+in, as the Diffusion Policy code pads):
+
+    ℓ_θ = E_{k,ε} ||ε − ε_θ(A^k, k, o)||² / (H · d_a)  +  c_2 · ||θ||².
+
+Acting, DDIM (Song et al. 2021, η = 0) takes S of the K steps, k = K − 1, K − 1 − K/S, …, from
+A^{K−1} ~ N(0, I):
+
+    Â⁰ = (A^k − √(1 − ᾱ_k) ε_θ) / √ᾱ_k  (clipped to [−1, 1]),
+    A^{k'} = √ᾱ_{k'} Â⁰ + √(1 − ᾱ_{k'}) ε_θ   for the next step k' = k − K/S (ᾱ_{k'} = 1 below 0),
+
+and executes the first `execute` actions of Â⁰ before planning again (receding horizon). The
+schedules and the DDIM step are diffusers' (`DDPMScheduler.add_noise`, `DDIMScheduler.step`).
+The weights it acts with are an exponential moving average θ̄ ← λθ̄ + (1 − λ)θ after each update,
+λ = min(0.9999, 1 − (1 + u)^(−3/4)) at update u (the Diffusion Policy code's EMA), kept with the
+weights; validation and held-out scores use it too. The initial noise of each plan comes from a
+generator seeded afresh at every episode's start, so an episode is reproducible from its seed.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from torch import nn
+
+from imitation.data.loader import TransitionTensors
+from imitation.data.spaces import space_from_json
+from imitation.data.windows import WindowBatch, WindowSpec
+from imitation.errors import ImitationError
+from imitation.limits import LIMITS, over_limit
+from imitation.mlp import ACTIVATIONS, hidden_layers, mlp_weight_count, orthogonal_linear
+from imitation.observation_encoding import observation_size
+from imitation.observation_history import ObservationHistory
+from imitation.policies import RunningMeanStd
+from imitation.policy_protocol import ImitationObjective, ImitationPolicy, MomentsMerge, PolicyConfig
+
+STEP_FEATURES = 32  # the sinusoidal embedding of the diffusion step k
+EMA_POWER, EMA_MAX = 0.75, 0.9999
+
+
+def _sizes(config: PolicyConfig) -> tuple[int, int, int]:
+    """(observation inputs, chunk numbers, one action's numbers) of the denoiser."""
+    observations, actions = space_from_json(config.observation_space), space_from_json(config.action_space)
+    if not isinstance(observations, gym.spaces.Box) or config.layout(observations) is not None:
+        raise ImitationError(f"the diffusion policy reads flat Box observations, not {observations}")
+    if not isinstance(actions, gym.spaces.Box):
+        raise ImitationError(f"the diffusion policy samples Box actions, not {type(actions).__name__} ones")
+    action = math.prod(actions.shape)
+    return config.history * observation_size(observations), config.chunk * action, action
+
+
+def planned_weights(config: PolicyConfig) -> int:
+    """The weights a diffusion policy of `config` holds, its moving average included (biases and statistics not counted)."""
+    observations, chunk, _ = _sizes(config)
+    return 2 * mlp_weight_count(chunk + observations + STEP_FEATURES, config.hidden_sizes, chunk)
+
+
+def step_embedding(steps: torch.Tensor, features: int = STEP_FEATURES) -> torch.Tensor:
+    """[sin(k ω_i), cos(k ω_i)] with ω_i = 10000^(−i/(features/2 − 1)), i < features/2 (the Transformer's)."""
+    half = features // 2
+    frequencies = torch.exp(-math.log(10000.0) * torch.arange(half, device=steps.device) / (half - 1))
+    angles = steps.float()[:, None] * frequencies[None]
+    return torch.cat([angles.sin(), angles.cos()], dim=-1)
+
+
+class Denoiser(nn.Module):
+    """ε_θ(A^k, k, o): an MLP on the noisy chunk, the normalised observations and k's embedding."""
+
+    def __init__(self, observations: int, chunk: int, hidden_sizes: list[int], activation: str) -> None:
+        super().__init__()
+        inputs = chunk + observations + STEP_FEATURES
+        self.trunk = hidden_layers(inputs, hidden_sizes, activation)
+        self.head = orthogonal_linear(hidden_sizes[-1] if hidden_sizes else inputs, chunk, 1.0)
+
+    def forward(self, noisy: torch.Tensor, steps: torch.Tensor, observations: torch.Tensor) -> torch.Tensor:
+        return self.head(self.trunk(torch.cat([noisy, observations, step_embedding(steps)], dim=-1)))
+
+
+class DiffusionPolicy(ImitationPolicy):
+    """The module docstring's ε_θ with its moving average, statistics, schedulers and current plan."""
+
+    action_low: torch.Tensor  # buffers, declared for the type checker
+    action_high: torch.Tensor
+    updates: torch.Tensor
+
+    def __init__(self, config: PolicyConfig) -> None:
+        super().__init__(config)
+        from diffusers.schedulers.scheduling_ddim import DDIMScheduler
+        from diffusers.schedulers.scheduling_ddpm import DDPMScheduler
+
+        if config.activation not in ACTIVATIONS:
+            raise ImitationError(f"activation must be one of {sorted(ACTIVATIONS)}, got {config.activation!r}")
+        if config.previous_action or config.ensemble is not None:
+            raise ImitationError(
+                "the diffusion policy executes its plans (--execute); leave --previous-action and --ensemble off"
+            )
+        if config.sampling_steps > config.denoising_steps:
+            raise ImitationError(
+                f"the sampling steps ({config.sampling_steps}) are a subset of the denoising steps "
+                f"({config.denoising_steps}): lower --sampling-steps or raise --denoising-steps"
+            )
+        observations, chunk, self.action_width = _sizes(config)
+        if (weights := planned_weights(config)) > LIMITS.policy_parameters:
+            raise over_limit(
+                f"diffusion policy parameters ({observations} inputs, {chunk} outputs)", weights, "policy_parameters"
+            )
+        self.obs_rms = RunningMeanStd((observations // config.history,))
+        self.denoiser = Denoiser(observations, chunk, config.hidden_sizes, config.activation)
+        self.average = copy.deepcopy(self.denoiser).requires_grad_(False)
+        self.register_buffer("action_low", torch.full((self.action_width,), -1.0))
+        self.register_buffer("action_high", torch.ones(self.action_width))
+        self.register_buffer("updates", torch.zeros((), dtype=torch.long))
+        schedule: dict[str, Any] = {
+            "num_train_timesteps": config.denoising_steps,
+            "beta_schedule": "squaredcos_cap_v2",
+            "clip_sample": True,
+        }
+        self.training_schedule = DDPMScheduler(**schedule)
+        # Trailing spacing starts from the last noise level, K − 1, where A^K is pure noise (leading would start at K − K/S).
+        self.sampler = DDIMScheduler(**schedule, timestep_spacing="trailing")
+        self.sampler.set_timesteps(config.sampling_steps)
+        self.execute = config.execute or max(1, config.chunk // 2)
+        self.noise = torch.Generator().manual_seed(0)
+        self._history = ObservationHistory(config.history)
+        self._plan: np.ndarray | None = None  # (batch, H, *action shape) env actions
+        self._done = 0  # actions of the plan executed
+
+    # -- units -------------------------------------------------------------------------------------
+
+    def _scaled(self, actions: torch.Tensor) -> torch.Tensor:
+        """Env actions (batch, H, …) → the [−1, 1] units the chunk is denoised in, flat per window."""
+        flat = actions.reshape(len(actions), self.config.chunk, self.action_width).float()
+        middle, half = (self.action_high + self.action_low) / 2, (self.action_high - self.action_low) / 2
+        return ((flat - middle) / half).reshape(len(actions), -1)
+
+    def _env_actions(self, scaled: torch.Tensor) -> torch.Tensor:
+        assert isinstance(self.action_space, gym.spaces.Box)
+        chunk = scaled.reshape(len(scaled), self.config.chunk, self.action_width)
+        middle, half = (self.action_high + self.action_low) / 2, (self.action_high - self.action_low) / 2
+        return (middle + half * chunk).reshape(len(scaled), self.config.chunk, *self.action_space.shape)
+
+    def _conditioning(self, history: torch.Tensor) -> torch.Tensor:
+        flat = self.obs_rms.normalize(history.reshape(len(history), self.config.history, -1).float())
+        return flat.reshape(len(history), -1)
+
+    @property
+    def _acting(self) -> Denoiser:
+        """The weights that act and are scored: the moving average, once training has updated any."""
+        return self.average if int(self.updates) > 0 and not self.training else self.denoiser
+
+    # -- training ----------------------------------------------------------------------------------
+
+    @property
+    def window(self) -> WindowSpec:
+        return WindowSpec(self.config.history, self.config.chunk)
+
+    def imitation_loss(
+        self, batch: TransitionTensors | WindowBatch, objective: ImitationObjective
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        if not isinstance(batch, WindowBatch):
+            raise ImitationError("the diffusion policy trains on windows of the demos (its loader gathers them)")
+        assert isinstance(batch.observations, torch.Tensor)  # flat Box observations, checked when built
+        clean = self._scaled(batch.actions)
+        noise = torch.randn_like(clean)
+        steps = torch.randint(0, self.config.denoising_steps, (len(clean),), device=clean.device)
+        noisy = self.training_schedule.add_noise(clean, noise, steps)
+        predicted = self._acting(noisy, steps, self._conditioning(batch.observations))
+        fit = ((predicted - noise) ** 2).mean()
+        loss = fit
+        if objective.l2_coef:
+            loss = loss + objective.l2_coef * sum((parameter**2).sum() for parameter in self.denoiser.parameters())
+        return loss, fit
+
+    def after_update(self) -> None:
+        """Fold the updated weights into their moving average."""
+        self.updates += 1
+        decay = min(EMA_MAX, 1.0 - (1.0 + int(self.updates)) ** -EMA_POWER)
+        with torch.no_grad():
+            for average, current in zip(self.average.parameters(), self.denoiser.parameters()):
+                average.lerp_(current, 1.0 - decay)
+
+    @property
+    def observation_normalizers(self) -> list[RunningMeanStd]:
+        return [self.obs_rms]
+
+    def update_normalizer(self, observations: torch.Tensor) -> None:
+        self.obs_rms.update(observations.reshape(len(observations), -1))
+
+    def fit_action_normalizer(self, actions: torch.Tensor, observations: object, *, merge: MomentsMerge | None = None) -> None:
+        """The training actions' range per dimension, which [−1, 1] stands for (a dimension that
+        never moves spans ±1 around its value). Data-parallel runs pool it from each process's
+        mean ± √3·std, the range of a uniform with those moments."""
+        with torch.no_grad():
+            flat = actions.reshape(len(actions), -1).double()
+            low, high = flat.min(0).values, flat.max(0).values
+            if merge is not None:
+                mean, std = merge(len(flat), (low + high) / 2, (high - low) / (2 * math.sqrt(3)))
+                low, high = mean - math.sqrt(3) * std, mean + math.sqrt(3) * std
+            flat_range = (high - low) < 1e-6
+            self.action_low.copy_(torch.where(flat_range, low - 1, low))
+            self.action_high.copy_(torch.where(flat_range, high + 1, high))
+
+    # -- acting ------------------------------------------------------------------------------------
+
+    def sample(self, history: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        """Chunks (batch, H, …) of env actions denoised by DDIM from noise drawn from `generator`."""
+        conditioning = self._conditioning(history)
+        chunk = torch.randn(
+            (len(history), self.config.chunk * self.action_width), generator=generator or self.noise, dtype=torch.float32
+        ).to(conditioning.device)
+        denoiser = self._acting
+        for step in self.sampler.timesteps:
+            steps = torch.full((len(chunk),), int(step), device=chunk.device, dtype=torch.long)
+            chunk = self.sampler.step(denoiser(chunk, steps, conditioning), int(step), chunk).prev_sample
+        return self._env_actions(chunk.clamp(-1, 1))
+
+    def point_action(self, observations: torch.Tensor) -> torch.Tensor:
+        """The first action of a chunk sampled from each observation alone (standing in for the
+        history), with noise of a fixed seed so that held-out scores repeat."""
+        history = observations.unsqueeze(1).expand(len(observations), self.config.history, *observations.shape[1:])
+        first = self.sample(history, torch.Generator().manual_seed(0))[:, 0]
+        return first.reshape(len(observations), -1)
+
+    def predict(self, observations: np.ndarray, *, deterministic: bool = True) -> np.ndarray:
+        """The next action of each row, from the plan sampled every `execute` actions."""
+        if self._history.push(observations):
+            self._plan = None
+        if self._plan is None or self._done >= self.execute:
+            with torch.no_grad():
+                history = torch.as_tensor(self._history.rows, device=self.action_low.device)
+                self._plan = self.sample(history).cpu().numpy()
+            self._done = 0
+        action = self._plan[:, self._done]
+        self._done += 1
+        assert isinstance(self.action_space, gym.spaces.Box)
+        return np.clip(action, self.action_space.low, self.action_space.high).astype(self.action_space.dtype)
+
+    def reset(self) -> None:
+        self._history.clear()
+        self._plan, self._done = None, 0
+        self.noise.manual_seed(0)

@@ -1,0 +1,156 @@
+"""The diffusion policy kind (imitation/diffusion_policy.py): its noised-chunk loss, DDIM's denoising
+and the moving average against values worked by hand; the kind end to end through the command line
+on PushT's human demos (convert, train bc, eval policy with coverage) and on the bundled Pendulum
+demos, with its one-line refusals."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from support import DATASETS
+
+import cli
+from imitation.data.windows import WindowBatch
+from imitation.diffusion_policy import EMA_POWER, DiffusionPolicy
+from imitation.policy_kinds import build_policy, load_policy
+from imitation.policy_protocol import ImitationObjective
+
+OBSERVATION = gym.spaces.Box(-np.inf, np.inf, (1,), np.float32)
+ACTION = gym.spaces.Box(-10, 10, (1,), np.float32)
+PUSHT = Path("manipulation/pusht/pusht_cchi_v7_replay.zarr")
+
+
+def _alpha_bars(steps: int) -> np.ndarray:
+    """ᾱ_k of the squared-cosine schedule (Nichol and Dhariwal 2021), worked from its definition."""
+    f = lambda t: math.cos((t / steps + 0.008) / 1.008 * math.pi / 2) ** 2  # noqa: E731
+    betas = [min(1 - f(i + 1) / f(i), 0.999) for i in range(steps)]
+    return np.cumprod([1 - beta for beta in betas])
+
+
+def _linear(chunk: int, denoising_steps: int = 100, sampling_steps: int = 10) -> DiffusionPolicy:
+    """A diffusion policy whose denoiser is one linear layer (no hidden layer), actions scaled from [0, 4]."""
+    policy = build_policy(
+        "diffusion", OBSERVATION, ACTION, hidden_sizes=[], chunk=chunk, denoising_steps=denoising_steps, sampling_steps=sampling_steps
+    )
+    assert isinstance(policy, DiffusionPolicy)
+    policy.fit_action_normalizer(torch.tensor([[0.0], [4.0]]), None)
+    return policy
+
+
+def test_the_loss_is_the_error_of_the_predicted_noise_on_the_noised_chunk() -> None:
+    policy = _linear(chunk=2, denoising_steps=4, sampling_steps=2)
+    with torch.no_grad():  # ε_θ(A^k, k, o) = A^k: the head copies the noisy chunk and ignores the rest
+        policy.denoiser.head.weight.zero_()
+        policy.denoiser.head.weight[:, :2] = torch.eye(2)
+        policy.denoiser.head.bias.zero_()
+    actions = torch.tensor([[[1.0], [4.0]], [[2.0], [0.0]]])
+    batch = WindowBatch(torch.zeros(2, 1, 1), torch.zeros(2, 1, dtype=torch.bool), actions, torch.zeros(2, 2, dtype=torch.bool))
+    torch.manual_seed(3)
+    _, fit = policy.imitation_loss(batch, ImitationObjective())
+    torch.manual_seed(3)  # the loss's draws, in its order: the noise, then each window's step k
+    noise, steps = torch.randn(2, 2), torch.randint(0, 4, (2,))
+    clean = np.array([[-0.5, 1.0], [0.0, -1.0]])  # (a − 2) / 2: the actions' range [0, 4] is [−1, 1]
+    alpha_bar = _alpha_bars(4)[steps.numpy()][:, None]
+    noisy = np.sqrt(alpha_bar) * clean + np.sqrt(1 - alpha_bar) * noise.numpy()
+    assert fit.item() == pytest.approx(np.mean((noisy - noise.numpy()) ** 2), rel=1e-5)
+
+
+def test_ddim_denoises_from_the_last_noise_level_in_the_steps_worked_by_hand() -> None:
+    policy = _linear(chunk=2, denoising_steps=100, sampling_steps=2).eval()
+    c = 0.3  # ε_θ = c whatever its inputs
+    with torch.no_grad():
+        policy.denoiser.head.weight.zero_()
+        policy.denoiser.head.bias.fill_(c)
+    with torch.no_grad():
+        sampled = policy.sample(torch.zeros(1, 1, 1), torch.Generator().manual_seed(5))
+    x = torch.randn((1, 2), generator=torch.Generator().manual_seed(5)).numpy().astype(np.float64)
+    alpha_bar = _alpha_bars(100)
+    for k, previous in ((99, alpha_bar[49]), (49, 1.0)):  # trailing spacing: k = 99, 49; ᾱ = 1 below step 0
+        clean = np.clip((x - np.sqrt(1 - alpha_bar[k]) * c) / np.sqrt(alpha_bar[k]), -1, 1)
+        x = np.sqrt(previous) * clean + np.sqrt(1 - previous) * c
+    np.testing.assert_allclose(sampled.numpy().reshape(-1), 2 + 2 * np.clip(x, -1, 1).reshape(-1), rtol=1e-5)
+
+
+def test_the_moving_average_follows_the_updates_with_the_warm_up_decay() -> None:
+    policy = _linear(chunk=1)
+    before = policy.average.head.bias.detach().clone()
+    with torch.no_grad():
+        policy.denoiser.head.bias.add_(1.0)
+    policy.after_update()
+    decay = 1 - 2.0**-EMA_POWER  # update u = 1: λ = 1 − (1 + u)^(−3/4)
+    np.testing.assert_allclose(policy.average.head.bias.numpy(), decay * before.numpy() + (1 - decay) * (before.numpy() + 1), rtol=1e-6)
+    assert int(policy.updates) == 1
+    # Acting (eval mode) uses the average; training the current weights.
+    assert policy.eval()._acting is policy.average and policy.train()._acting is policy.denoiser
+
+
+def test_a_plan_executes_k_actions_then_samples_again_and_reset_repeats_an_episode() -> None:
+    policy = _linear(chunk=4, sampling_steps=2).eval()
+    policy.config.execute = None
+    policy.execute = 2
+    first = [policy.predict(np.array([[0.0]]))[0, 0] for _ in range(4)]
+    assert first[0] != first[2]  # a new plan after two actions (fresh noise)
+    policy.reset()
+    again = [policy.predict(np.array([[0.0]]))[0, 0] for _ in range(4)]
+    assert again == first
+
+
+def test_diffusion_trains_on_pendulum_and_acts_through_eval_policy(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    flags = ["--policy", "diffusion", "--history", "2", "--chunk", "4", "--hidden", "32,32", "--epochs", "2", "--epoch-samples", "512"]
+    assert cli.main(["train", "bc", "--env", "Pendulum-v1", "--demos", str(DATASETS / "Pendulum-v1.mcap"), *flags, "--out", str(out), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["epochs"] == 2
+    config = json.loads((out / "config.json").read_text())["policy"]
+    assert (config["kind"], config["history"], config["chunk"], config["denoising_steps"], config["sampling_steps"]) == ("diffusion", 2, 4, 100, 10)
+    policy = load_policy(out)
+    assert isinstance(policy, DiffusionPolicy) and int(policy.updates) > 0
+    assert cli.main(["eval", "policy", str(out), "--env", "Pendulum-v1", "--episodes", "1", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["episodes"] == 1
+
+
+@pytest.mark.parametrize(
+    ("demos", "flags", "message"),
+    [
+        ("CartPole-v1", ["--chunk", "4"], "the diffusion policy samples Box actions, not Discrete ones"),
+        ("Pendulum-v1", ["--sampling-steps", "20", "--denoising-steps", "10"], "--sampling-steps must be in [1, --denoising-steps 10], got 20"),
+        ("Pendulum-v1", ["--denoising-steps", "0"], "--denoising-steps must be in [1, 10000], got 0"),
+        ("Pendulum-v1", ["--ensemble", "0.1"], "the diffusion policy executes its plans (--execute); leave --previous-action and --ensemble off"),
+    ],
+)
+def test_what_the_diffusion_policy_cannot_do_is_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], demos: str, flags: list[str], message: str
+) -> None:
+    out = tmp_path / "run"
+    argv = ["train", "bc", "--env", demos, "--demos", str(DATASETS / f"{demos}.mcap"), "--policy", "diffusion", *flags, "--out", str(out)]
+    assert cli.main(argv) == 1
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and message in error, error
+    assert not out.exists()
+
+
+def test_pusht_from_the_published_demos_to_coverage(testdata: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The issue's path at a tiny size: convert the zarr, train the diffusion head briefly, evaluate
+    it in gym-pusht with the task's own measures (the full learning runs are in bench/)."""
+    demos = tmp_path / "pusht.mcap"
+    assert cli.main(["convert", str(testdata / PUSHT), "--env", "gym_pusht/PushT-v0", "--out", str(demos), "--quiet"]) == 0
+    out = tmp_path / "run"
+    flags = ["--policy", "diffusion", "--history", "2", "--chunk", "8", "--hidden", "64,64", "--epochs", "1", "--epoch-samples", "1024"]
+    assert cli.main(["train", "bc", "--demos", str(demos), "--env", "gym_pusht/PushT-v0", *flags, "--out", str(out), "--quiet"]) == 0
+    capsys.readouterr()
+    assert cli.main(["eval", "policy", str(out), "--env", "gym_pusht/PushT-v0", "--episodes", "2", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert len(result["episode_coverage"]) == 2 and all(0 <= value <= 1 for value in result["episode_coverage"])
+    assert result["mean_max_coverage"] == pytest.approx(np.mean(result["episode_coverage"]))
+    assert result["success_rate"] in (0.0, 0.5, 1.0)
+    # The buffer holds no rewards: the demos' zero return is no reference to normalise by.
+    assert "normalized_return" not in result and "without rewards" in result["no_normalized_return"]
+    assert cli.main(["eval", "policy", str(out), "--env", "gym_pusht/PushT-v0", "--episodes", "1"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[1].startswith("success rate ") and ", mean max coverage " in printed[1]
