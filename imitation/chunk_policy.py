@@ -4,7 +4,8 @@ next H actions at once,
 
     (â_t, …, â_{t+H−1}) = f_θ(s_{t−n+1}, …, s_t),
 
-an MLP on the n observations (normalised, side by side). BC fits it to the demos' windows
+an MLP on the n observations (normalised, side by side; an angle θ read as (cos θ, sin θ)
+where `--angles` says). BC fits it to the demos' windows
 (`imitation.data.windows`) by the L1 error of each predicted action, in standardised units for Box
 actions (loss "mse": the squared error), or the cross-entropy of each step's class for Discrete
 ones, averaged over the entries that lie inside the episode (m_{t,k} = 1 − pad_{t,k}):
@@ -35,7 +36,7 @@ from imitation.data.windows import WindowBatch, WindowSpec
 from imitation.errors import ImitationError
 from imitation.limits import LIMITS, over_limit
 from imitation.mlp import ACTIVATIONS, hidden_layers, mlp_weight_count, orthogonal_linear
-from imitation.observation_encoding import observation_size
+from imitation.observation_encoding import check_angles, observation_size, with_angles
 from imitation.observation_history import ObservationHistory
 from imitation.policies import RunningMeanStd, action_logits_size
 from imitation.policy_protocol import ImitationObjective, ImitationPolicy, MomentsMerge, PolicyConfig
@@ -48,7 +49,9 @@ def _sizes(config: PolicyConfig) -> tuple[int, int]:
         raise ImitationError(f"the chunk policy reads flat Box observations, not {observations}")
     if not isinstance(actions, (gym.spaces.Box, gym.spaces.Discrete)):
         raise ImitationError(f"the chunk policy predicts Box or Discrete actions, not {type(actions).__name__}")
-    return config.history * observation_size(observations), config.chunk * action_logits_size(actions)
+    check_angles(config.angles, observation_size(observations))
+    features = observation_size(observations) + len(config.angles)
+    return config.history * features, config.chunk * action_logits_size(actions)
 
 
 def planned_weights(config: PolicyConfig) -> int:
@@ -91,7 +94,8 @@ class ActionChunking(ImitationPolicy):
 
     def _chunk(self, history: torch.Tensor) -> torch.Tensor:
         """f_θ on a batch of histories (batch, n, *observation shape): (batch, H, width)."""
-        flat = self.obs_rms.normalize(history.reshape(len(history), self.config.history, -1).float())
+        steps = with_angles(history.reshape(len(history), self.config.history, -1).float(), self.config.angles)
+        flat = self.obs_rms.normalize(steps)
         return self.head(self.trunk(flat.reshape(len(history), -1))).reshape(len(history), self.steps, self.width)
 
     def _env_actions(self, chunk: torch.Tensor) -> torch.Tensor:
@@ -137,7 +141,7 @@ class ActionChunking(ImitationPolicy):
         return [self.obs_rms]
 
     def update_normalizer(self, observations: torch.Tensor) -> None:
-        self.obs_rms.update(observations.reshape(len(observations), -1))
+        self.obs_rms.update(with_angles(observations.reshape(len(observations), -1).float(), self.config.angles))
 
     def fit_action_normalizer(self, actions: torch.Tensor, observations: object, *, merge: MomentsMerge | None = None) -> None:
         """Box actions: the head's units standardised by the training actions' mean and std per

@@ -8,7 +8,8 @@ al. 2020) draws a step k ∈ {0, …, K−1} and noise ε ~ N(0, I) per window, 
 
     A^k = √ᾱ_k A⁰ + √(1 − ᾱ_k) ε,   ᾱ_k = Π_{i≤k} (1 − β_i)   (β: the squared-cosine schedule),
 
-and fits the denoiser ε_θ(A^k, k, o), an MLP on [A^k, o normalised, a sinusoidal embedding of k],
+and fits the denoiser ε_θ(A^k, k, o), an MLP on [A^k, o normalised (an angle θ read as (cos θ,
+sin θ) where `--angles` says), a sinusoidal embedding of k],
 by the squared error on every entry of the chunk (past an episode's end its last action stands
 in, as the Diffusion Policy code pads):
 
@@ -45,7 +46,7 @@ from imitation.data.windows import WindowBatch, WindowSpec
 from imitation.errors import ImitationError
 from imitation.limits import LIMITS, over_limit
 from imitation.mlp import ACTIVATIONS, hidden_layers, mlp_weight_count, orthogonal_linear
-from imitation.observation_encoding import observation_size
+from imitation.observation_encoding import check_angles, observation_size, with_angles
 from imitation.observation_history import ObservationHistory
 from imitation.policies import RunningMeanStd
 from imitation.policy_protocol import ImitationObjective, ImitationPolicy, MomentsMerge, PolicyConfig
@@ -62,7 +63,9 @@ def _sizes(config: PolicyConfig) -> tuple[int, int, int]:
     if not isinstance(actions, gym.spaces.Box):
         raise ImitationError(f"the diffusion policy samples Box actions, not {type(actions).__name__} ones")
     action = math.prod(actions.shape)
-    return config.history * observation_size(observations), config.chunk * action, action
+    check_angles(config.angles, observation_size(observations))
+    features = observation_size(observations) + len(config.angles)
+    return config.history * features, config.chunk * action, action
 
 
 def planned_weights(config: PolicyConfig) -> int:
@@ -156,8 +159,8 @@ class DiffusionPolicy(ImitationPolicy):
         return (middle + half * chunk).reshape(len(scaled), self.config.chunk, *self.action_space.shape)
 
     def _conditioning(self, history: torch.Tensor) -> torch.Tensor:
-        flat = self.obs_rms.normalize(history.reshape(len(history), self.config.history, -1).float())
-        return flat.reshape(len(history), -1)
+        steps = with_angles(history.reshape(len(history), self.config.history, -1).float(), self.config.angles)
+        return self.obs_rms.normalize(steps).reshape(len(history), -1)
 
     @property
     def _acting(self) -> Denoiser:
@@ -200,7 +203,7 @@ class DiffusionPolicy(ImitationPolicy):
         return [self.obs_rms]
 
     def update_normalizer(self, observations: torch.Tensor) -> None:
-        self.obs_rms.update(observations.reshape(len(observations), -1))
+        self.obs_rms.update(with_angles(observations.reshape(len(observations), -1).float(), self.config.angles))
 
     def fit_action_normalizer(self, actions: torch.Tensor, observations: object, *, merge: MomentsMerge | None = None) -> None:
         """The training actions' range per dimension, which [−1, 1] stands for (a dimension that

@@ -354,6 +354,17 @@ def megabytes(text: str) -> int:
     return int(value * 2**20)
 
 
+def indices(text: str) -> list[int]:
+    """Positions such as `4` or `2,5`: distinct whole numbers from 0."""
+    try:
+        values = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positions such as 2,5, got {text!r}") from None
+    if any(value < 0 for value in values) or len(set(values)) != len(values):
+        raise argparse.ArgumentTypeError(f"positions must be distinct and at least 0, got {text!r}")
+    return values
+
+
 def hidden_sizes(text: str) -> list[int]:
     """Layer widths such as `64,64`, or `linear` for none."""
     if text == "linear":

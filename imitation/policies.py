@@ -205,6 +205,10 @@ class ActorCritic(ImitationPolicy):
                 f"the actor-critic reads one observation and predicts one action, not {config.history} and "
                 f"{config.chunk}: train sequences with --policy chunk"
             )
+        if config.angles:
+            raise ImitationError(
+                "--angles is read by the sequence policies (chunk, diffusion); the actor-critic reads observations as they are"
+            )
         super().__init__(config)
         self.layout = config.layout(self.observation_space)
         encoders = self._image_encoders()

@@ -76,6 +76,8 @@ class PolicyConfig(ObservationConfig):
     # Temporal ensembling (ACT): plan every step and execute the weighted mean of every chunk's
     # action for it, weight exp(−m·i) for the i-th oldest (None: the receding horizon above).
     ensemble: float | None = None
+    # Flat observations: the positions holding angles (radians), read as (cos, sin) by the sequence kinds.
+    angles: list[int] = field(default_factory=list)
     # Diffusion policies: the noise levels of training (K) and the denoising steps taken when acting (S ≤ K).
     denoising_steps: int = 100
     sampling_steps: int = 10
@@ -113,6 +115,12 @@ class PolicyConfig(ObservationConfig):
             value = getattr(config, name)
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_DENOISING_STEPS:
                 raise ValueError(f"{name} must be a whole number in [1, {MAX_DENOISING_STEPS}], got {str(value)[:40]}")
+        if not (
+            isinstance(config.angles, list)
+            and len(config.angles) <= 1024
+            and all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < 2**31 for i in config.angles)
+        ):
+            raise ValueError(f"angles must be a list of observation positions, got {str(config.angles)[:40]}")
         if config.sampling_steps > config.denoising_steps:
             raise ValueError(
                 f"sampling_steps ({config.sampling_steps}) must be at most denoising_steps ({config.denoising_steps})"

@@ -16,6 +16,7 @@ import torch
 from support import DATASETS
 
 import cli
+from imitation.data.mcap.reader import DemoFile
 from imitation.data.windows import WindowBatch
 from imitation.diffusion_policy import EMA_POWER, DiffusionPolicy
 from imitation.policy_kinds import build_policy, load_policy
@@ -101,7 +102,7 @@ def test_a_plan_executes_k_actions_then_samples_again_and_reset_repeats_an_episo
     assert again == first
 
 
-def test_diffusion_trains_on_pendulum_and_acts_through_eval_policy(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_diffusion_trains_evaluates_records_and_runs_dagger_through_the_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "run"
     flags = ["--policy", "diffusion", "--history", "2", "--chunk", "4", "--hidden", "32,32", "--epochs", "2", "--epoch-samples", "512"]
     assert cli.main(["train", "bc", "--env", "Pendulum-v1", "--demos", str(DATASETS / "Pendulum-v1.mcap"), *flags, "--out", str(out), "--json"]) == 0
@@ -113,6 +114,15 @@ def test_diffusion_trains_on_pendulum_and_acts_through_eval_policy(tmp_path: Pat
     assert isinstance(policy, DiffusionPolicy) and int(policy.updates) > 0
     assert cli.main(["eval", "policy", str(out), "--env", "Pendulum-v1", "--episodes", "1", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["episodes"] == 1
+    demos = tmp_path / "by-diffusion.mcap"
+    assert cli.main(["record", "--env", "Pendulum-v1", "--expert", str(out), "--episodes", "1", "--seed", "3", "--out", str(demos), "--quiet"]) == 0
+    (episode,) = DemoFile(demos).read_episodes()
+    policy.reset()  # the episode's plans again: the same noise, seeded at each episode's start
+    np.testing.assert_array_equal(episode.actions, np.concatenate([policy.predict(o[None]) for o in episode.observations[:-1]]))
+    dagger = tmp_path / "dagger"
+    argv = ["train", "dagger", "--policy", "diffusion", "--chunk", "2", "--hidden", "16", "--env", "Pendulum-v1", "--expert", "scripted"]
+    assert cli.main([*argv, "--rounds", "1", "--episodes-per-round", "1", "--epochs", "1", "--out", str(dagger), "--quiet"]) == 0
+    assert json.loads((dagger / "config.json").read_text())["policy"]["kind"] == "diffusion"
 
 
 @pytest.mark.parametrize(
@@ -154,3 +164,29 @@ def test_pusht_from_the_published_demos_to_coverage(testdata: Path, tmp_path: Pa
     assert cli.main(["eval", "policy", str(out), "--env", "gym_pusht/PushT-v0", "--episodes", "1"]) == 0
     printed = capsys.readouterr().out.splitlines()
     assert printed[1].startswith("success rate ") and ", mean max coverage " in printed[1]
+
+
+def test_angles_are_read_as_cosine_and_sine_so_a_turn_through_zero_is_no_jump() -> None:
+    policy = build_policy("diffusion", gym.spaces.Box(-np.inf, np.inf, (2,), np.float32), ACTION, hidden_sizes=[], angles=[1])
+    assert policy.obs_rms.mean.shape == (3,)  # x, cos θ, sin θ
+    near_zero, near_two_pi = torch.tensor([[[5.0, 0.01]]]), torch.tensor([[[5.0, 2 * math.pi - 0.01]]])
+    a, b = (policy._conditioning(h) for h in (near_zero, near_two_pi))
+    assert torch.allclose(a[:, [0, 1]], b[:, [0, 1]], atol=1e-4) and torch.allclose(a[:, 2], -b[:, 2], atol=1e-4)
+    np.testing.assert_allclose(a.numpy(), [[5.0, math.cos(0.01), math.sin(0.01)]], rtol=1e-5)  # fresh statistics: mean 0, std 1
+
+
+@pytest.mark.parametrize(
+    ("policy", "angles", "message"),
+    [
+        ("diffusion", "5", "--angles 5: the observation holds 3 numbers (positions 0 to 2)"),
+        ("chunk", "3", "--angles 3: the observation holds 3 numbers (positions 0 to 2)"),
+        ("actor-critic", "0", "--angles is read by the sequence policies (chunk, diffusion); the actor-critic reads observations as they are"),
+    ],
+)
+def test_angles_outside_the_observation_or_for_the_actor_critic_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], policy: str, angles: str, message: str
+) -> None:
+    argv = ["train", "bc", "--env", "Pendulum-v1", "--demos", str(DATASETS / "Pendulum-v1.mcap"), "--policy", policy, "--angles", angles]
+    assert cli.main([*argv, "--out", str(tmp_path / "run")]) == 1
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and message in error, error

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from imitation.errors import ConfigError
-from imitation.flags import flag, hidden_sizes, megabytes, names, seed
+from imitation.flags import flag, hidden_sizes, indices, megabytes, names, seed
 
 if TYPE_CHECKING:
     from imitation.data.frame_transform import FrameTransform
@@ -62,6 +62,15 @@ class BCConfig:
         help="sequence policies: plan every step and execute the mean of every chunk's action for the step, the i-th "
         "oldest weighted exp(-M i) (ACT's temporal ensembling; Box actions)",
         default_text="off: execute --execute actions of each chunk",
+    )
+    angles: list[int] = flag(
+        name="--angles",
+        parse=indices,
+        metavar="I,J",
+        help="sequence policies on flat observations: the positions that hold angles in radians, read as (cos, sin) so "
+        "that a turn through 0 is no jump of 2π (PushT's block angle: 4)",
+        default_factory=list,
+        default_text="none",
     )
     denoising_steps: int = flag(
         100,

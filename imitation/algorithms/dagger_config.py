@@ -19,6 +19,7 @@ BC_FLAGS = (
     "chunk",
     "execute",
     "ensemble",
+    "angles",
     "denoising_steps",
     "sampling_steps",
     "epochs",

@@ -239,6 +239,7 @@ def _bc_job(
                 states,
                 scored=parallel is None,
                 previous_action=previous_action if _boxes(spaces.observation_space, spaces.action_space) else None,
+                history=config.history,
             )
             title = f"BC on {env_id or dataset.env_id or 'offline demos'}"
             plot_curve(
@@ -284,13 +285,15 @@ def _yardstick(
     *,
     scored: bool = True,
     previous_action: bool | None = None,
+    history: int = 1,
 ) -> dict[str, Any]:
     """How the run ended, and the policy beside the trivial baselines on the held-out transitions
     (`imitation.evaluation.baselines`, on the `states` alone where the policy saw x_t): scores, which
     baselines it beats (lower NLL and lower squared error or error rate), the baselines' values
     of the plotted loss, and what a user must be told: a baseline not beaten is quoted by the
     scores on which BC lost, and where that is hold, the other `previous_action` setting (None
-    where the spaces cannot take one) is suggested. Streamed data is not scored, nor data not all
+    where the spaces cannot take one) is suggested, or, for a policy of `history` > 1 observations,
+    said that it was scored on each observation alone (as at an episode's start). Streamed data is not scored, nor data not all
     `scored` here: the scores take all the held-out transitions in memory."""
     warnings = []
     if learner.stopped:
@@ -327,7 +330,9 @@ def _yardstick(
             for name in beaten
         )
         advice = ""
-        if "hold" in beaten and previous_action is not None:
+        if history > 1:
+            advice = f"; the policy reads {history} observations and was scored on each alone, as at an episode's start"
+        elif "hold" in beaten and previous_action is not None:
             advice = (
                 "; try --previous-action off: the policy then sees the state alone"
                 if previous_action

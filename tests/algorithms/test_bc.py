@@ -272,6 +272,9 @@ def test_policy_options_resolve_auto_to_tanh_below_small_data_and_normalise_both
         "chunk": 1,
         "execute": None,
         "ensemble": None,
+        "angles": [],
+        "denoising_steps": 100,
+        "sampling_steps": 10,
     }
     assert policy_options(BCConfig(activation="elu"), transitions)["activation"] == "elu"  # a named one stays
 
