@@ -94,7 +94,7 @@ class PersonSpeed:
         1.0,
         parse=speed,
         metavar="X",
-        help="with --expert keyboard or gamepad: the window runs at X times real time, from 0.125 to 4",
+        help="with --expert keyboard, gamepad or pointer: the window runs at X times real time, from 0.125 to 4",
     )
 
 
@@ -272,7 +272,8 @@ class DAggerOptions:
     expert: str = flag(
         metavar="SPEC",
         help="scripted, standin (a scripted person who takes over when the state turns risky; CartPole), keyboard "
-        "(discrete actions), gamepad (continuous actions; arrow keys without one), a run directory, or sb3:ZIP",
+        "(discrete actions), gamepad (continuous actions; arrow keys without one), pointer (a mouse; actions that are a "
+        "point of the picture, as PushT's), a run directory, or sb3:ZIP",
     )
     demos: list[str] | None = flag(
         None,

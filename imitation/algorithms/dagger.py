@@ -77,7 +77,7 @@ from imitation.policy_protocol import ImitationPolicy
 
 class TakesOver(Protocol):
     """An expert that can take the controls (`--mode takeover`): after each call, `engaged` says
-    whether it holds them (a person at the keyboard or gamepad, or `StandIn`)."""
+    whether it holds them (a person at the keyboard, gamepad or mouse, or `StandIn`)."""
 
     engaged: bool
 

@@ -46,7 +46,7 @@ class DAggerConfig:
         "label",
         choices=MODES,
         help="label: the expert labels every visited state (classic DAgger); takeover: the learner drives until the "
-        "expert takes the controls (standin, keyboard, gamepad)",
+        "expert takes the controls (standin, keyboard, gamepad, pointer)",
     )
     # Take-over: "human" trains on the steps the expert drove; "all" also on the learner's own
     # actions where the expert let it drive.

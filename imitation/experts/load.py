@@ -20,8 +20,8 @@ from imitation.policies import SingleObservationPolicy, check_policy_fits_env
 from imitation.policy_kinds import load_policy
 
 Policy = Callable[[Any], Any]
-EXPERT_SPECS = ("scripted", "random", "standin", "keyboard", "gamepad", "RUN_DIR", "sb3:PATH")
-PEOPLE = ("keyboard", "gamepad")
+EXPERT_SPECS = ("scripted", "random", "standin", "keyboard", "gamepad", "pointer", "RUN_DIR", "sb3:PATH")
+PEOPLE = ("keyboard", "gamepad", "pointer")
 
 
 def make_env_for_expert(env_id: str, spec: str, *, pixels: bool = False) -> gym.Env:
@@ -38,7 +38,7 @@ def load_expert(spec: str, env: gym.Env, *, seed: int, speed: float = 1.0) -> Po
     stable-baselines3 zip (PPO, A2C, SAC, TD3, TQC, DQN, QR-DQN), read without unpickling
     (see `imitation.experts.sb3`), acting deterministically; `standin`: a scripted person who
     takes the controls when the state turns risky (see `imitation.experts.standin`); `keyboard`,
-    `gamepad`: a person (see `imitation.experts.keyboard` and `imitation.experts.gamepad`; the
+    `gamepad`, `pointer`: a person (see `imitation.experts.keyboard`, `.gamepad` and `.pointer`; the
     env must come from `make_env_for_expert`), whose window runs at `speed` times real time."""
     if Path(spec).is_dir():
         policy = load_policy(spec)
@@ -65,6 +65,10 @@ def load_expert(spec: str, env: gym.Env, *, seed: int, speed: float = 1.0) -> Po
         from imitation.experts.gamepad import GamepadExpert  # pygame only when a human plays
 
         return GamepadExpert(env, speed=speed)
+    if spec == "pointer":
+        from imitation.experts.pointer import PointerExpert  # pygame only when a human plays
+
+        return PointerExpert(env, speed=speed)
     if spec == "standin":
         return StandIn(env.spec.id if env.spec else "")
     if spec == "random":

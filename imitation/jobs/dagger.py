@@ -72,7 +72,7 @@ def dagger_job(
     if config.mode == "takeover" and not hasattr(expert, "engaged"):
         raise ConfigError(
             "mode",
-            f"takeover needs an expert that takes the controls (standin, keyboard, gamepad), not {expert_spec}",
+            f"takeover needs an expert that takes the controls (standin, keyboard, gamepad, pointer), not {expert_spec}",
             owner="DAggerConfig",
         )
     if workers is not None and (config.mode == "takeover" or hasattr(expert, "show_status")):

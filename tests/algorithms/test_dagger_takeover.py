@@ -167,7 +167,7 @@ def test_takeover_needs_an_expert_that_takes_the_controls(tmp_path: Path) -> Non
         ["train", "dagger", "--env", "CartPole-v1", "--expert", "standin", "--label", "some", "--out", str(tmp_path / "b")],
         ["train", "dagger", "--env", "Pendulum-v1", "--expert", "standin", "--mode", "takeover", "--out", str(tmp_path / "c")],
     ])
-    assert_one_line_error(scripted, "--mode takeover needs an expert that takes the controls (standin, keyboard, gamepad), not scripted")
+    assert_one_line_error(scripted, "--mode takeover needs an expert that takes the controls (standin, keyboard, gamepad, pointer), not scripted")
     assert "argument --label: invalid choice: 'some'" in bad_label.stderr and bad_label.returncode == 2
     assert_one_line_error(pendulum, "--expert standin has no take-over condition for Pendulum-v1")
     assert not any(tmp_path.iterdir())
