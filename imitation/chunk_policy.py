@@ -32,25 +32,20 @@ from torch import nn
 
 from imitation.data.loader import TransitionTensors
 from imitation.data.spaces import space_from_json
-from imitation.data.windows import WindowBatch, WindowSpec
+from imitation.data.windows import WindowBatch
 from imitation.errors import ImitationError
 from imitation.limits import LIMITS, over_limit
 from imitation.mlp import ACTIVATIONS, hidden_layers, mlp_weight_count, orthogonal_linear
-from imitation.observation_encoding import check_angles, observation_size, with_angles
-from imitation.observation_history import ObservationHistory
-from imitation.policies import RunningMeanStd, action_logits_size
-from imitation.policy_protocol import ImitationObjective, ImitationPolicy, MomentsMerge, PolicyConfig
+from imitation.policies import action_logits_size
+from imitation.policy_protocol import ImitationObjective, MomentsMerge, PolicyConfig
+from imitation.sequence_policy import SequencePolicy, step_features
 
 
 def _sizes(config: PolicyConfig) -> tuple[int, int]:
     """(inputs, outputs) of the network: n flat observations in, H action heads out."""
-    observations, actions = space_from_json(config.observation_space), space_from_json(config.action_space)
-    if not isinstance(observations, gym.spaces.Box) or config.layout(observations) is not None:
-        raise ImitationError(f"the chunk policy reads flat Box observations, not {observations}")
+    features, actions = step_features(config, "chunk"), space_from_json(config.action_space)
     if not isinstance(actions, (gym.spaces.Box, gym.spaces.Discrete)):
         raise ImitationError(f"the chunk policy predicts Box or Discrete actions, not {type(actions).__name__}")
-    check_angles(config.angles, observation_size(observations))
-    features = observation_size(observations) + len(config.angles)
     return config.history * features, config.chunk * action_logits_size(actions)
 
 
@@ -60,11 +55,12 @@ def planned_weights(config: PolicyConfig) -> int:
     return mlp_weight_count(inputs, config.hidden_sizes, outputs)
 
 
-class ActionChunking(ImitationPolicy):
+class ActionChunking(SequencePolicy):
     """The module docstring's f_θ, with its observation and action statistics, and the plan it is executing."""
 
     action_mean: torch.Tensor  # buffers, declared for the type checker
     action_scale: torch.Tensor
+    kind = "chunk"
 
     def __init__(self, config: PolicyConfig) -> None:
         super().__init__(config)
@@ -79,14 +75,12 @@ class ActionChunking(ImitationPolicy):
             raise over_limit(f"chunk policy parameters ({inputs} inputs, {outputs} outputs)", weights, "policy_parameters")
         self.steps = self.config.chunk
         self.width = outputs // self.steps  # one step's action (Box) or logits (Discrete)
-        self.obs_rms = RunningMeanStd((inputs // config.history,))
         hidden = config.hidden_sizes[-1] if config.hidden_sizes else inputs
         self.trunk = hidden_layers(inputs, config.hidden_sizes, config.activation)
         self.head = orthogonal_linear(hidden, outputs, 0.01)
         self.register_buffer("action_mean", torch.zeros(self.width if self.is_continuous else 0))
         self.register_buffer("action_scale", torch.ones(self.width if self.is_continuous else 0))
         self.execute = 1 if config.ensemble is not None else config.execute or max(1, self.steps // 2)
-        self._history = ObservationHistory(config.history)
         self._plans: list[np.ndarray] = []  # (batch, H, …) env actions, oldest first; the newest is executed
         self._done = 0  # actions of the newest plan executed
 
@@ -94,9 +88,7 @@ class ActionChunking(ImitationPolicy):
 
     def _chunk(self, history: torch.Tensor) -> torch.Tensor:
         """f_θ on a batch of histories (batch, n, *observation shape): (batch, H, width)."""
-        steps = with_angles(history.reshape(len(history), self.config.history, -1).float(), self.config.angles)
-        flat = self.obs_rms.normalize(steps)
-        return self.head(self.trunk(flat.reshape(len(history), -1))).reshape(len(history), self.steps, self.width)
+        return self.head(self.trunk(self.observed(history))).reshape(len(history), self.steps, self.width)
 
     def _env_actions(self, chunk: torch.Tensor) -> torch.Tensor:
         """A chunk of head outputs → env actions (Box: back to the env's units; Discrete: the likeliest class)."""
@@ -109,17 +101,11 @@ class ActionChunking(ImitationPolicy):
 
     # -- training ----------------------------------------------------------------------------------
 
-    @property
-    def window(self) -> WindowSpec:
-        return WindowSpec(self.config.history, self.config.chunk)
-
     def imitation_loss(
         self, batch: TransitionTensors | WindowBatch, objective: ImitationObjective
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        if not isinstance(batch, WindowBatch):
-            raise ImitationError("the chunk policy trains on windows of the demos (its loader gathers them)")
-        assert isinstance(batch.observations, torch.Tensor)  # flat Box observations, checked when built
-        predicted = self._chunk(batch.observations)
+        batch, observations = self.windows(batch)
+        predicted = self._chunk(observations)
         inside = (~batch.action_pad).float()
         if self.is_continuous:
             target = (batch.actions.reshape(*predicted.shape).float() - self.action_mean) / self.action_scale
@@ -135,13 +121,6 @@ class ActionChunking(ImitationPolicy):
         if objective.l2_coef:
             loss = loss + objective.l2_coef * sum((parameter**2).sum() for parameter in self.parameters())
         return loss, fit
-
-    @property
-    def observation_normalizers(self) -> list[RunningMeanStd]:
-        return [self.obs_rms]
-
-    def update_normalizer(self, observations: torch.Tensor) -> None:
-        self.obs_rms.update(with_angles(observations.reshape(len(observations), -1).float(), self.config.angles))
 
     def fit_action_normalizer(self, actions: torch.Tensor, observations: object, *, merge: MomentsMerge | None = None) -> None:
         """Box actions: the head's units standardised by the training actions' mean and std per

@@ -42,14 +42,12 @@ from torch import nn
 
 from imitation.data.loader import TransitionTensors
 from imitation.data.spaces import space_from_json
-from imitation.data.windows import WindowBatch, WindowSpec
+from imitation.data.windows import WindowBatch
 from imitation.errors import ImitationError
 from imitation.limits import LIMITS, over_limit
 from imitation.mlp import ACTIVATIONS, hidden_layers, mlp_weight_count, orthogonal_linear
-from imitation.observation_encoding import check_angles, observation_size, with_angles
-from imitation.observation_history import ObservationHistory
-from imitation.policies import RunningMeanStd
-from imitation.policy_protocol import ImitationObjective, ImitationPolicy, MomentsMerge, PolicyConfig
+from imitation.policy_protocol import ImitationObjective, MomentsMerge, PolicyConfig
+from imitation.sequence_policy import SequencePolicy, step_features
 
 STEP_FEATURES = 32  # the sinusoidal embedding of the diffusion step k
 EMA_POWER, EMA_MAX = 0.75, 0.9999
@@ -57,14 +55,10 @@ EMA_POWER, EMA_MAX = 0.75, 0.9999
 
 def _sizes(config: PolicyConfig) -> tuple[int, int, int]:
     """(observation inputs, chunk numbers, one action's numbers) of the denoiser."""
-    observations, actions = space_from_json(config.observation_space), space_from_json(config.action_space)
-    if not isinstance(observations, gym.spaces.Box) or config.layout(observations) is not None:
-        raise ImitationError(f"the diffusion policy reads flat Box observations, not {observations}")
+    features, actions = step_features(config, "diffusion"), space_from_json(config.action_space)
     if not isinstance(actions, gym.spaces.Box):
         raise ImitationError(f"the diffusion policy samples Box actions, not {type(actions).__name__} ones")
     action = math.prod(actions.shape)
-    check_angles(config.angles, observation_size(observations))
-    features = observation_size(observations) + len(config.angles)
     return config.history * features, config.chunk * action, action
 
 
@@ -95,12 +89,13 @@ class Denoiser(nn.Module):
         return self.head(self.trunk(torch.cat([noisy, observations, step_embedding(steps)], dim=-1)))
 
 
-class DiffusionPolicy(ImitationPolicy):
+class DiffusionPolicy(SequencePolicy):
     """The module docstring's ε_θ with its moving average, statistics, schedulers and current plan."""
 
     action_low: torch.Tensor  # buffers, declared for the type checker
     action_high: torch.Tensor
     updates: torch.Tensor
+    kind = "diffusion"
 
     def __init__(self, config: PolicyConfig) -> None:
         super().__init__(config)
@@ -123,7 +118,6 @@ class DiffusionPolicy(ImitationPolicy):
             raise over_limit(
                 f"diffusion policy parameters ({observations} inputs, {chunk} outputs)", weights, "policy_parameters"
             )
-        self.obs_rms = RunningMeanStd((observations // config.history,))
         self.denoiser = Denoiser(observations, chunk, config.hidden_sizes, config.activation)
         self.average = copy.deepcopy(self.denoiser).requires_grad_(False)
         self.register_buffer("action_low", torch.full((self.action_width,), -1.0))
@@ -140,7 +134,6 @@ class DiffusionPolicy(ImitationPolicy):
         self.sampler.set_timesteps(config.sampling_steps)
         self.execute = config.execute or max(1, config.chunk // 2)
         self.noise = torch.Generator().manual_seed(0)
-        self._history = ObservationHistory(config.history)
         self._plan: np.ndarray | None = None  # (batch, H, *action shape) env actions
         self._done = 0  # actions of the plan executed
 
@@ -158,10 +151,6 @@ class DiffusionPolicy(ImitationPolicy):
         middle, half = (self.action_high + self.action_low) / 2, (self.action_high - self.action_low) / 2
         return (middle + half * chunk).reshape(len(scaled), self.config.chunk, *self.action_space.shape)
 
-    def _conditioning(self, history: torch.Tensor) -> torch.Tensor:
-        steps = with_angles(history.reshape(len(history), self.config.history, -1).float(), self.config.angles)
-        return self.obs_rms.normalize(steps).reshape(len(history), -1)
-
     @property
     def _acting(self) -> Denoiser:
         """The weights that act and are scored: the moving average, once training has updated any."""
@@ -169,21 +158,15 @@ class DiffusionPolicy(ImitationPolicy):
 
     # -- training ----------------------------------------------------------------------------------
 
-    @property
-    def window(self) -> WindowSpec:
-        return WindowSpec(self.config.history, self.config.chunk)
-
     def imitation_loss(
         self, batch: TransitionTensors | WindowBatch, objective: ImitationObjective
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        if not isinstance(batch, WindowBatch):
-            raise ImitationError("the diffusion policy trains on windows of the demos (its loader gathers them)")
-        assert isinstance(batch.observations, torch.Tensor)  # flat Box observations, checked when built
+        batch, observations = self.windows(batch)
         clean = self._scaled(batch.actions)
         noise = torch.randn_like(clean)
         steps = torch.randint(0, self.config.denoising_steps, (len(clean),), device=clean.device)
         noisy = self.training_schedule.add_noise(clean, noise, steps)
-        predicted = self._acting(noisy, steps, self._conditioning(batch.observations))
+        predicted = self._acting(noisy, steps, self.observed(observations))
         fit = ((predicted - noise) ** 2).mean()
         loss = fit
         if objective.l2_coef:
@@ -197,13 +180,6 @@ class DiffusionPolicy(ImitationPolicy):
         with torch.no_grad():
             for average, current in zip(self.average.parameters(), self.denoiser.parameters()):
                 average.lerp_(current, 1.0 - decay)
-
-    @property
-    def observation_normalizers(self) -> list[RunningMeanStd]:
-        return [self.obs_rms]
-
-    def update_normalizer(self, observations: torch.Tensor) -> None:
-        self.obs_rms.update(with_angles(observations.reshape(len(observations), -1).float(), self.config.angles))
 
     def fit_action_normalizer(self, actions: torch.Tensor, observations: object, *, merge: MomentsMerge | None = None) -> None:
         """The training actions' range per dimension, which [−1, 1] stands for (a dimension that
@@ -223,7 +199,7 @@ class DiffusionPolicy(ImitationPolicy):
 
     def sample(self, history: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         """Chunks (batch, H, …) of env actions denoised by DDIM from noise drawn from `generator`."""
-        conditioning = self._conditioning(history)
+        conditioning = self.observed(history)
         chunk = torch.randn(
             (len(history), self.config.chunk * self.action_width), generator=generator or self.noise, dtype=torch.float32
         ).to(conditioning.device)

@@ -170,7 +170,7 @@ def test_angles_are_read_as_cosine_and_sine_so_a_turn_through_zero_is_no_jump() 
     policy = build_policy("diffusion", gym.spaces.Box(-np.inf, np.inf, (2,), np.float32), ACTION, hidden_sizes=[], angles=[1])
     assert policy.obs_rms.mean.shape == (3,)  # x, cos θ, sin θ
     near_zero, near_two_pi = torch.tensor([[[5.0, 0.01]]]), torch.tensor([[[5.0, 2 * math.pi - 0.01]]])
-    a, b = (policy._conditioning(h) for h in (near_zero, near_two_pi))
+    a, b = (policy.observed(h) for h in (near_zero, near_two_pi))
     assert torch.allclose(a[:, [0, 1]], b[:, [0, 1]], atol=1e-4) and torch.allclose(a[:, 2], -b[:, 2], atol=1e-4)
     np.testing.assert_allclose(a.numpy(), [[5.0, math.cos(0.01), math.sin(0.01)]], rtol=1e-5)  # fresh statistics: mean 0, std 1
 

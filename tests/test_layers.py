@@ -25,6 +25,7 @@ PREFIXES = {
     "imitation.policy_kinds": "models",
     "imitation.chunk_policy": "models",
     "imitation.diffusion_policy": "models",
+    "imitation.sequence_policy": "models",
     "imitation.rewards": "models",
     "imitation.observation_encoding": "models",  # how observations enter policies and reward models
     "imitation.mlp": "models",

@@ -1,0 +1,84 @@
+"""What the sequence policy kinds (`chunk_policy`, `diffusion_policy`) share: windows of the last n
+observations and the next H actions (`imitation.data.windows`), flat Box observations read with
+each angle as (cos θ, sin θ) where `--angles` says and normalised by running statistics, and the
+history of observations they act on, in which, before an episode's n-th step, its first
+observation stands in for the missing ones, as the windows they were trained on pad them."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from imitation.data.loader import TransitionTensors
+from imitation.data.spaces import space_from_json
+from imitation.data.windows import WindowBatch, WindowSpec
+from imitation.errors import ImitationError
+from imitation.observation_encoding import check_angles, observation_size, with_angles
+from imitation.policies import RunningMeanStd
+from imitation.policy_protocol import ImitationPolicy, PolicyConfig
+
+
+def step_features(config: PolicyConfig, kind: str) -> int:
+    """The numbers one observation becomes (an angle two); ImitationError naming `kind` for
+    observations that are not a flat Box."""
+    observations = space_from_json(config.observation_space)
+    if not isinstance(observations, gym.spaces.Box) or config.layout(observations) is not None:
+        raise ImitationError(f"the {kind} policy reads flat Box observations, not {observations}")
+    check_angles(config.angles, observation_size(observations))
+    return observation_size(observations) + len(config.angles)
+
+
+class ObservationHistory:
+    """The n latest flat observations of each row; `push` adds a step's, `clear` starts an episode."""
+
+    def __init__(self, length: int) -> None:
+        self.length = length
+        self.rows: np.ndarray | None = None  # (batch, n, features)
+
+    def push(self, observations: np.ndarray) -> bool:
+        """Add the current observations (a batch of any shape, flattened per row); True when a new
+        episode (or a batch of another size) started the history afresh."""
+        current = np.asarray(observations, dtype=np.float32).reshape(len(observations), -1)
+        if self.rows is None or len(self.rows) != len(current):
+            self.rows = np.repeat(current[:, None], self.length, axis=1)
+            return True
+        self.rows = np.concatenate([self.rows[:, 1:], current[:, None]], axis=1)
+        return False
+
+    def clear(self) -> None:
+        self.rows = None
+
+
+class SequencePolicy(ImitationPolicy):
+    """A policy of n observations and H actions: its windows, observation statistics and history."""
+
+    kind: str  # the registered name, for messages
+
+    def __init__(self, config: PolicyConfig) -> None:
+        super().__init__(config)
+        self.obs_rms = RunningMeanStd((step_features(config, self.kind),))
+        self._history = ObservationHistory(config.history)
+
+    @property
+    def window(self) -> WindowSpec:
+        return WindowSpec(self.config.history, self.config.chunk)
+
+    def windows(self, batch: TransitionTensors | WindowBatch) -> tuple[WindowBatch, torch.Tensor]:
+        """The batch, which must be windows (BC's loader gathers them for a sequence policy), and its observations."""
+        if not isinstance(batch, WindowBatch):
+            raise ImitationError(f"the {self.kind} policy trains on windows of the demos (its loader gathers them)")
+        assert isinstance(batch.observations, torch.Tensor)  # flat Box observations, checked when built
+        return batch, batch.observations
+
+    def observed(self, history: torch.Tensor) -> torch.Tensor:
+        """A batch of histories (batch, n, *observation shape) as the network reads them: (batch, n · features)."""
+        steps = with_angles(history.reshape(len(history), self.config.history, -1).float(), self.config.angles)
+        return self.obs_rms.normalize(steps).reshape(len(history), -1)
+
+    @property
+    def observation_normalizers(self) -> list[RunningMeanStd]:
+        return [self.obs_rms]
+
+    def update_normalizer(self, observations: torch.Tensor) -> None:
+        self.obs_rms.update(with_angles(observations.reshape(len(observations), -1).float(), self.config.angles))
