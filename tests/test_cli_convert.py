@@ -23,7 +23,7 @@ def test_help(command: list[str]) -> None:
 def test_convert_help_says_cameras_convert_and_how_a_layout_ends_episodes() -> None:
     text = " ".join(run_cli("convert", "--help").stdout.split())
     assert "skipped" not in text
-    assert "Cameras become image observations: LeRobot video and image features, and ROS image topics a map names" in text
+    assert "Cameras become image observations: LeRobot video and image features, zarr frame arrays, and ROS image topics a map names" in text
     assert "for a layout with ends: terminal_state, where the env's own termination rule first holds" in text
 
 

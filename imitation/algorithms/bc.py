@@ -542,7 +542,7 @@ def policy_options(config: BCConfig, transitions: int | None = None) -> dict[str
         "chunk": config.chunk,
         "execute": config.execute,
         "ensemble": config.ensemble,
-        "angles": list(config.angles),
+        "angles": list(config.angles or []),
         "denoising_steps": config.denoising_steps,
         "sampling_steps": config.sampling_steps,
     }

@@ -63,13 +63,13 @@ class BCConfig:
         "oldest weighted exp(-M i) (ACT's temporal ensembling; Box actions)",
         default_text="off: execute --execute actions of each chunk",
     )
-    angles: list[int] = flag(
+    angles: list[int] | None = flag(
+        None,
         name="--angles",
         parse=indices,
         metavar="I,J",
         help="sequence policies on flat observations: the positions that hold angles in radians, read as (cos, sin) so "
         "that a turn through 0 is no jump of 2π (PushT's block angle: 4)",
-        default_factory=list,
         default_text="none",
     )
     denoising_steps: int = flag(
