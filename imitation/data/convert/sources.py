@@ -169,6 +169,6 @@ def _zarr_group(path: Path, _: bytes) -> bool:
     return is_replay_buffer(path)
 
 
-register(Source("zarr", _zarr, _zarr_group, frozenset({"image_size"})))
 register(Source("npz", _npz, lambda path, head: head.startswith(b"PK") and path.suffix == ".npz", with_layout="array"))
 register(Source("array", _array, lambda _, head: head.startswith(b"\x93NUMPY"), frozenset({"layout_path"}), _needs_layout))
+register(Source("zarr", _zarr, _zarr_group, frozenset({"image_size"})))
