@@ -26,7 +26,7 @@ schedules and the DDIM step are diffusers' (`DDPMScheduler.add_noise`, `DDIMSche
 The weights it acts with are an exponential moving average θ̄ ← λθ̄ + (1 − λ)θ after each update,
 λ = min(0.9999, 1 − (1 + u)^(−3/4)) at update u (the Diffusion Policy code's EMA), kept with the
 weights; validation and held-out scores use it too. The initial noise of each plan comes from a
-generator seeded afresh at every episode's start, so an episode is reproducible from its seed.
+generator seeded with 0 at every episode's start, so an episode replays exactly from the env's seed.
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ def _import_namespace(env_id: str) -> None:
     """Register the envs of an id's namespace that an installed package of that name provides
     (`gym_pusht/PushT-v0` → `import gym_pusht`), as `gymnasium.make("module:id")` would: gymnasium
     finds a namespace only once its package registered it."""
-    namespace, _, name = env_id.rpartition("/")
+    namespace = env_id.rpartition("/")[0]
     if not namespace or ":" in env_id or gym.registry.get(env_id) is not None or not namespace.isidentifier():
         return
     if importlib.util.find_spec(namespace) is not None:
