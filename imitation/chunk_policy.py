@@ -35,7 +35,7 @@ from imitation.data.spaces import space_from_json
 from imitation.data.windows import WindowBatch
 from imitation.errors import ImitationError
 from imitation.limits import LIMITS, over_limit
-from imitation.mlp import ACTIVATIONS, hidden_layers, mlp_weight_count, orthogonal_linear
+from imitation.mlp import hidden_layers, mlp_weight_count, orthogonal_linear
 from imitation.policies import action_logits_size
 from imitation.policy_protocol import ImitationObjective, MomentsMerge, PolicyConfig
 from imitation.sequence_policy import SequencePolicy, step_features
@@ -64,8 +64,6 @@ class ActionChunking(SequencePolicy):
 
     def __init__(self, config: PolicyConfig) -> None:
         super().__init__(config)
-        if config.activation not in ACTIVATIONS:
-            raise ImitationError(f"activation must be one of {sorted(ACTIVATIONS)}, got {config.activation!r}")
         if config.previous_action:
             raise ImitationError("the chunk policy is not conditioned on the previous action; leave --previous-action off")
         if config.ensemble is not None and not isinstance(self.action_space, gym.spaces.Box):
@@ -80,7 +78,8 @@ class ActionChunking(SequencePolicy):
         self.head = orthogonal_linear(hidden, outputs, 0.01)
         self.register_buffer("action_mean", torch.zeros(self.width if self.is_continuous else 0))
         self.register_buffer("action_scale", torch.ones(self.width if self.is_continuous else 0))
-        self.execute = 1 if config.ensemble is not None else config.execute or max(1, self.steps // 2)
+        if config.ensemble is not None:
+            self.execute = 1
         self._plans: list[np.ndarray] = []  # (batch, H, …) env actions, oldest first; the newest is executed
         self._done = 0  # actions of the newest plan executed
 

@@ -45,7 +45,7 @@ from imitation.data.spaces import space_from_json
 from imitation.data.windows import WindowBatch
 from imitation.errors import ImitationError
 from imitation.limits import LIMITS, over_limit
-from imitation.mlp import ACTIVATIONS, hidden_layers, mlp_weight_count, orthogonal_linear
+from imitation.mlp import hidden_layers, mlp_weight_count, orthogonal_linear
 from imitation.policy_protocol import ImitationObjective, MomentsMerge, PolicyConfig
 from imitation.sequence_policy import SequencePolicy, step_features
 
@@ -102,8 +102,6 @@ class DiffusionPolicy(SequencePolicy):
         from diffusers.schedulers.scheduling_ddim import DDIMScheduler
         from diffusers.schedulers.scheduling_ddpm import DDPMScheduler
 
-        if config.activation not in ACTIVATIONS:
-            raise ImitationError(f"activation must be one of {sorted(ACTIVATIONS)}, got {config.activation!r}")
         if config.previous_action or config.ensemble is not None:
             raise ImitationError(
                 "the diffusion policy executes its plans (--execute); leave --previous-action and --ensemble off"
@@ -132,23 +130,26 @@ class DiffusionPolicy(SequencePolicy):
         # Trailing spacing starts from the last noise level, K − 1, where A^K is pure noise (leading would start at K − K/S).
         self.sampler = DDIMScheduler(**schedule, timestep_spacing="trailing")
         self.sampler.set_timesteps(config.sampling_steps)
-        self.execute = config.execute or max(1, config.chunk // 2)
         self.noise = torch.Generator().manual_seed(0)
         self._plan: np.ndarray | None = None  # (batch, H, *action shape) env actions
         self._done = 0  # actions of the plan executed
 
     # -- units -------------------------------------------------------------------------------------
 
+    def _range(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The middle of the training actions' range and its half-width, which 0 and ±1 stand for."""
+        return (self.action_high + self.action_low) / 2, (self.action_high - self.action_low) / 2
+
     def _scaled(self, actions: torch.Tensor) -> torch.Tensor:
         """Env actions (batch, H, …) → the [−1, 1] units the chunk is denoised in, flat per window."""
+        middle, half = self._range()
         flat = actions.reshape(len(actions), self.config.chunk, self.action_width).float()
-        middle, half = (self.action_high + self.action_low) / 2, (self.action_high - self.action_low) / 2
         return ((flat - middle) / half).reshape(len(actions), -1)
 
     def _env_actions(self, scaled: torch.Tensor) -> torch.Tensor:
         assert isinstance(self.action_space, gym.spaces.Box)
+        middle, half = self._range()
         chunk = scaled.reshape(len(scaled), self.config.chunk, self.action_width)
-        middle, half = (self.action_high + self.action_low) / 2, (self.action_high - self.action_low) / 2
         return (middle + half * chunk).reshape(len(scaled), self.config.chunk, *self.action_space.shape)
 
     @property

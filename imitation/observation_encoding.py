@@ -58,15 +58,14 @@ def check_angles(angles: list[int], size: int) -> None:
         raise ImitationError(f"--angles {outside[0]}: the observation holds {size} numbers (positions 0 to {size - 1})")
 
 
-def with_angles(observations: torch.Tensor, angles: list[int]) -> torch.Tensor:
-    """Flat observations (…, d) with each angle θ at the positions `angles` read as (cos θ, sin θ):
-    cos θ in its place, sin θ appended, so that a turn through 0 (or 2π) is not a jump of 2π."""
-    if not angles:
+def with_angles(observations: torch.Tensor, angles: torch.Tensor) -> torch.Tensor:
+    """Flat observations (…, d) with each angle θ at the positions `angles` (a LongTensor) read as
+    (cos θ, sin θ): cos θ in its place, sin θ appended, so that a turn through 0 (or 2π) is not a
+    jump of 2π."""
+    if not len(angles):
         return observations
     radians = observations[..., angles]
-    return torch.cat(
-        [observations.index_copy(-1, torch.tensor(angles, device=observations.device), radians.cos()), radians.sin()], -1
-    )
+    return torch.cat([observations.index_copy(-1, angles, radians.cos()), radians.sin()], -1)
 
 
 def observation_size(space: gym.Space) -> int:

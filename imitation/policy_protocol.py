@@ -119,8 +119,9 @@ class PolicyConfig(ObservationConfig):
             isinstance(config.angles, list)
             and len(config.angles) <= 1024
             and all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < 2**31 for i in config.angles)
+            and len(set(config.angles)) == len(config.angles)
         ):
-            raise ValueError(f"angles must be a list of observation positions, got {str(config.angles)[:40]}")
+            raise ValueError(f"angles must be a list of distinct observation positions, got {str(config.angles)[:40]}")
         if config.sampling_steps > config.denoising_steps:
             raise ValueError(
                 f"sampling_steps ({config.sampling_steps}) must be at most denoising_steps ({config.denoising_steps})"

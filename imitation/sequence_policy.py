@@ -14,6 +14,7 @@ from imitation.data.loader import TransitionTensors
 from imitation.data.spaces import space_from_json
 from imitation.data.windows import WindowBatch, WindowSpec
 from imitation.errors import ImitationError
+from imitation.mlp import ACTIVATIONS
 from imitation.observation_encoding import check_angles, observation_size, with_angles
 from imitation.policies import RunningMeanStd
 from imitation.policy_protocol import ImitationPolicy, PolicyConfig
@@ -54,11 +55,18 @@ class SequencePolicy(ImitationPolicy):
     """A policy of n observations and H actions: its windows, observation statistics and history."""
 
     kind: str  # the registered name, for messages
+    angle_index: torch.Tensor  # a buffer, declared for the type checker
 
     def __init__(self, config: PolicyConfig) -> None:
         super().__init__(config)
+        if config.activation not in ACTIVATIONS:
+            raise ImitationError(f"activation must be one of {sorted(ACTIVATIONS)}, got {config.activation!r}")
         self.obs_rms = RunningMeanStd((step_features(config, self.kind),))
+        # Made once, on the module's device; derived from the config, so not saved with the weights.
+        self.register_buffer("angle_index", torch.tensor(config.angles, dtype=torch.long), persistent=False)
         self._history = ObservationHistory(config.history)
+        # Actions of each plan executed before planning again.
+        self.execute = config.execute or max(1, config.chunk // 2)
 
     @property
     def window(self) -> WindowSpec:
@@ -73,7 +81,7 @@ class SequencePolicy(ImitationPolicy):
 
     def observed(self, history: torch.Tensor) -> torch.Tensor:
         """A batch of histories (batch, n, *observation shape) as the network reads them: (batch, n · features)."""
-        steps = with_angles(history.reshape(len(history), self.config.history, -1).float(), self.config.angles)
+        steps = with_angles(history.reshape(len(history), self.config.history, -1).float(), self.angle_index)
         return self.obs_rms.normalize(steps).reshape(len(history), -1)
 
     @property
@@ -81,4 +89,4 @@ class SequencePolicy(ImitationPolicy):
         return [self.obs_rms]
 
     def update_normalizer(self, observations: torch.Tensor) -> None:
-        self.obs_rms.update(with_angles(observations.reshape(len(observations), -1).float(), self.config.angles))
+        self.obs_rms.update(with_angles(observations.reshape(len(observations), -1).float(), self.angle_index))

@@ -34,10 +34,11 @@ def _alpha_bars(steps: int) -> np.ndarray:
     return np.cumprod([1 - beta for beta in betas])
 
 
-def _linear(chunk: int, denoising_steps: int = 100, sampling_steps: int = 10) -> DiffusionPolicy:
+def _linear(chunk: int, denoising_steps: int = 100, sampling_steps: int = 10, execute: int | None = None) -> DiffusionPolicy:
     """A diffusion policy whose denoiser is one linear layer (no hidden layer), actions scaled from [0, 4]."""
     policy = build_policy(
-        "diffusion", OBSERVATION, ACTION, hidden_sizes=[], chunk=chunk, denoising_steps=denoising_steps, sampling_steps=sampling_steps
+        "diffusion", OBSERVATION, ACTION, hidden_sizes=[], chunk=chunk, denoising_steps=denoising_steps, sampling_steps=sampling_steps,
+        execute=execute,
     )
     assert isinstance(policy, DiffusionPolicy)
     policy.fit_action_normalizer(torch.tensor([[0.0], [4.0]]), None)
@@ -91,15 +92,18 @@ def test_the_moving_average_follows_the_updates_with_the_warm_up_decay() -> None
     assert policy.eval()._acting is policy.average and policy.train()._acting is policy.denoiser
 
 
-def test_a_plan_executes_k_actions_then_samples_again_and_reset_repeats_an_episode() -> None:
-    policy = _linear(chunk=4, sampling_steps=2).eval()
-    policy.config.execute = None
-    policy.execute = 2
+def test_a_plan_executes_k_actions_then_samples_again_and_reset_repeats_an_episode(monkeypatch: pytest.MonkeyPatch) -> None:
+    policy = _linear(chunk=4, sampling_steps=2, execute=2).eval()
+    plans: list[np.ndarray] = []
+    sample = policy.sample
+    monkeypatch.setattr(policy, "sample", lambda history: plans.append(sample(history).numpy()) or torch.as_tensor(plans[-1]))
     first = [policy.predict(np.array([[0.0]]))[0, 0] for _ in range(4)]
-    assert first[0] != first[2]  # a new plan after two actions (fresh noise)
+    assert len(plans) == 2  # planned at steps 0 and 2
+    assert first == [plans[0][0, 0, 0], plans[0][0, 1, 0], plans[1][0, 0, 0], plans[1][0, 1, 0]]  # two of each plan's four
+    assert not np.array_equal(plans[0], plans[1])  # fresh noise for the second plan
     policy.reset()
     again = [policy.predict(np.array([[0.0]]))[0, 0] for _ in range(4)]
-    assert again == first
+    assert again == first and np.array_equal(plans[2], plans[0])  # the noise seeded afresh at the episode's start
 
 
 def test_diffusion_trains_evaluates_records_and_runs_dagger_through_the_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -293,8 +293,9 @@ def _yardstick(
     of the plotted loss, and what a user must be told: a baseline not beaten is quoted by the
     scores on which BC lost, and where that is hold, the other `previous_action` setting (None
     where the spaces cannot take one) is suggested, or, for a policy of `history` > 1 observations,
-    said that it was scored on each observation alone (as at an episode's start). Streamed data is not scored, nor data not all
-    `scored` here: the scores take all the held-out transitions in memory."""
+    said that it was scored on each observation alone (as at an episode's start). Streamed data is
+    not scored, nor data not all `scored` here: the scores take all the held-out transitions in
+    memory."""
     warnings = []
     if learner.stopped:
         stopped = f"no better validation loss for {config.patience} epochs (best at epoch {learner.best_epoch})"

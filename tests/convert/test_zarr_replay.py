@@ -49,10 +49,14 @@ def test_the_pusht_demos_convert_for_gym_pusht(testdata: Path, tmp_path: Path, c
     assert result["observation_space"] == "Box(float64, (5,))" and result["dt"] == pytest.approx(0.1)
     assert any("the observation is data/state, which fits gym_pusht/PushT-v0; left out: " in w for w in result["warnings"])
     assert any("rewards are zero" in warning for warning in result["warnings"])
-    second = DemoDataset([out])[1]
+    demos = DemoDataset([out])
+    second = demos[1]
     np.testing.assert_array_equal(second.observations, source["data/state"][ends[0] : ends[1]].astype(np.float64))
     np.testing.assert_array_equal(second.actions, source["data/action"][ends[0] : ends[1] - 1])
     assert second.truncated and not second.terminated
+    # The block's angle (state position 4) wraps through 0 within 91 of the 206 episodes: why --angles reads it as (cos, sin).
+    angles = [episode.observations[:, 4] for episode in demos]
+    assert sum(bool(np.any(np.abs(np.diff(angle)) > np.pi)) for angle in angles) == 91
 
 
 def test_without_an_env_every_array_is_observed_and_frames_are_images(testdata: Path, tmp_path: Path) -> None:
