@@ -8,25 +8,35 @@ al. 2020) draws a step k ∈ {0, …, K−1} and noise ε ~ N(0, I) per window, 
 
     A^k = √ᾱ_k A⁰ + √(1 − ᾱ_k) ε,   ᾱ_k = Π_{i≤k} (1 − β_i)   (β: the squared-cosine schedule),
 
-and fits the denoiser ε_θ(A^k, k, o), an MLP on [A^k, o normalised (an angle θ read as (cos θ,
-sin θ) where `--angles` says), a sinusoidal embedding of k],
-by the squared error on every entry of the chunk (past an episode's end its last action stands
-in, as the Diffusion Policy code pads):
+and fits the denoiser D_θ(A^k, k, o), an MLP on [A^k, o normalised (an angle θ read as (cos θ,
+sin θ) where `--angles` says), a sinusoidal embedding of k], to its target y by the squared error
+on every entry of the chunk (past an episode's end its last action stands in, as the Diffusion
+Policy code pads):
 
-    ℓ_θ = E_{k,ε} ||ε − ε_θ(A^k, k, o)||² / (H · d_a)  +  c_2 · ||θ||².
+    ℓ_θ = E_{k,ε} ||y − D_θ(A^k, k, o)||² / (H · d_a)  +  c_2 · ||θ||²,
 
-Acting, DDIM (Song et al. 2021, η = 0) takes S of the K steps, k = K − 1, K − 1 − K/S, …, from
-A^{K−1} ~ N(0, I):
+with y = A⁰, the clean chunk (`prediction` "sample", `train bc`'s default: on PushT it covers more
+of the goal than ε after the same training, bench/RESULTS.md), or y = ε, the noise (DDPM's,
+"noise"). Either way the denoiser gives both estimates, the other from the noising equation:
 
-    Â⁰ = (A^k − √(1 − ᾱ_k) ε_θ) / √ᾱ_k  (clipped to [−1, 1]),
-    A^{k'} = √ᾱ_{k'} Â⁰ + √(1 − ᾱ_{k'}) ε_θ   for the next step k' = k − K/S (ᾱ_{k'} = 1 below 0),
+    sample:  Â⁰ = D_θ,  ε̂ = (A^k − √ᾱ_k Â⁰) / √(1 − ᾱ_k);    noise:  ε̂ = D_θ,  Â⁰ = (A^k − √(1 − ᾱ_k) ε̂) / √ᾱ_k.
 
-and executes the first `execute` actions of Â⁰ before planning again (receding horizon). The
-schedules and the DDIM step are diffusers' (`DDPMScheduler.add_noise`, `DDIMScheduler.step`).
+Acting, DDIM (Song et al. 2021) takes S of the K steps, k = K − 1, K − 1 − K/S, …, from
+A^{K−1} ~ N(0, I), with Â⁰ clipped to [−1, 1]:
+
+    A^{k'} = √ᾱ_{k'} Â⁰ + √(1 − ᾱ_{k'} − σ_k²) ε̂ + σ_k z,   z ~ N(0, I),
+    σ_k = η √((1 − ᾱ_{k'}) / (1 − ᾱ_k)) √(1 − ᾱ_k / ᾱ_{k'})
+
+for the next step k' = k − K/S (ᾱ_{k'} = 1 below 0). η = 0 is deterministic; η = 1 (`train bc`'s
+default: on PushT it covers more of the goal than η = 0) adds the DDPM posterior's noise, so that
+with S = K it is DDPM's ancestral sampling, as the Diffusion Policy paper acts. The first `execute`
+actions of the last Â⁰ are executed before planning again (receding horizon). The schedules and
+the DDIM step are diffusers' (`DDPMScheduler.add_noise`, `DDIMScheduler.step`).
 The weights it acts with are an exponential moving average θ̄ ← λθ̄ + (1 − λ)θ after each update,
 λ = min(0.9999, 1 − (1 + u)^(−3/4)) at update u (the Diffusion Policy code's EMA), kept with the
-weights; validation and held-out scores use it too. The initial noise of each plan comes from a
-generator seeded with 0 at every episode's start, so an episode replays exactly from the env's seed.
+weights; validation and held-out scores use it too. The initial noise of each plan and the z of
+its steps come from a generator seeded with 0 at every episode's start, so an episode replays
+exactly from the env's seed.
 """
 
 from __future__ import annotations
@@ -50,6 +60,7 @@ from imitation.policy_protocol import ImitationObjective, MomentsMerge, PolicyCo
 from imitation.sequence_policy import SequencePolicy, step_features
 
 STEP_FEATURES = 32  # the sinusoidal embedding of the diffusion step k
+TARGETS = {"sample": "sample", "noise": "epsilon"}  # what the denoiser predicts: our name → diffusers' prediction_type
 EMA_POWER, EMA_MAX = 0.75, 0.9999
 
 
@@ -77,7 +88,7 @@ def step_embedding(steps: torch.Tensor, features: int = STEP_FEATURES) -> torch.
 
 
 class Denoiser(nn.Module):
-    """ε_θ(A^k, k, o): an MLP on the noisy chunk, the normalised observations and k's embedding."""
+    """D_θ(A^k, k, o): an MLP on the noisy chunk, the normalised observations and k's embedding."""
 
     def __init__(self, observations: int, chunk: int, hidden_sizes: list[int], activation: str) -> None:
         super().__init__()
@@ -90,7 +101,7 @@ class Denoiser(nn.Module):
 
 
 class DiffusionPolicy(SequencePolicy):
-    """The module docstring's ε_θ with its moving average, statistics, schedulers and current plan."""
+    """The module docstring's D_θ with its moving average, statistics, schedulers and current plan."""
 
     action_low: torch.Tensor  # buffers, declared for the type checker
     action_high: torch.Tensor
@@ -105,6 +116,10 @@ class DiffusionPolicy(SequencePolicy):
         if config.previous_action or config.ensemble is not None:
             raise ImitationError(
                 "the diffusion policy executes its plans (--execute); leave --previous-action and --ensemble off"
+            )
+        if config.prediction not in TARGETS:
+            raise ImitationError(
+                f"a diffusion policy's denoiser predicts one of {', '.join(TARGETS)}, not {config.prediction[:40]!r}"
             )
         if config.sampling_steps > config.denoising_steps:
             raise ImitationError(
@@ -125,6 +140,7 @@ class DiffusionPolicy(SequencePolicy):
             "num_train_timesteps": config.denoising_steps,
             "beta_schedule": "squaredcos_cap_v2",
             "clip_sample": True,
+            "prediction_type": TARGETS[config.prediction],
         }
         self.training_schedule = DDPMScheduler(**schedule)
         # Trailing spacing starts from the last noise level, K − 1, where A^K is pure noise (leading would start at K − K/S).
@@ -168,7 +184,8 @@ class DiffusionPolicy(SequencePolicy):
         steps = torch.randint(0, self.config.denoising_steps, (len(clean),), device=clean.device)
         noisy = self.training_schedule.add_noise(clean, noise, steps)
         predicted = self._acting(noisy, steps, self.observed(observations))
-        fit = ((predicted - noise) ** 2).mean()
+        target = clean if self.config.prediction == "sample" else noise
+        fit = ((predicted - target) ** 2).mean()
         loss = fit
         if objective.l2_coef:
             loss = loss + objective.l2_coef * sum((parameter**2).sum() for parameter in self.denoiser.parameters())
@@ -201,13 +218,15 @@ class DiffusionPolicy(SequencePolicy):
     def sample(self, history: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         """Chunks (batch, H, …) of env actions denoised by DDIM from noise drawn from `generator`."""
         conditioning = self.observed(history)
+        generator = generator or self.noise
         chunk = torch.randn(
-            (len(history), self.config.chunk * self.action_width), generator=generator or self.noise, dtype=torch.float32
+            (len(history), self.config.chunk * self.action_width), generator=generator, dtype=torch.float32
         ).to(conditioning.device)
-        denoiser = self._acting
+        denoiser, eta = self._acting, float(self.config.sampling_noise)
         for step in self.sampler.timesteps:
             steps = torch.full((len(chunk),), int(step), device=chunk.device, dtype=torch.long)
-            chunk = self.sampler.step(denoiser(chunk, steps, conditioning), int(step), chunk).prev_sample
+            predicted = denoiser(chunk, steps, conditioning)
+            chunk = self.sampler.step(predicted, int(step), chunk, eta=eta, generator=generator).prev_sample
         return self._env_actions(chunk.clamp(-1, 1))
 
     def point_action(self, observations: torch.Tensor) -> torch.Tensor:

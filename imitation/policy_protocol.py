@@ -78,9 +78,14 @@ class PolicyConfig(ObservationConfig):
     ensemble: float | None = None
     # Flat observations: the positions holding angles (radians), read as (cos, sin) by the sequence kinds.
     angles: list[int] = field(default_factory=list)
-    # Diffusion policies: the noise levels of training (K) and the denoising steps taken when acting (S ≤ K).
+    # Diffusion policies: the noise levels of training (K), the denoising steps taken when acting
+    # (S ≤ K), DDIM's η (the noise each of them adds), and what the denoiser predicts, the noise ε
+    # or the clean chunk A⁰. The last two default to what runs written before they were settings
+    # did: deterministic steps (η = 0) from a predicted noise.
     denoising_steps: int = 100
     sampling_steps: int = 10
+    sampling_noise: float = 0.0
+    prediction: str = "noise"
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -122,6 +127,12 @@ class PolicyConfig(ObservationConfig):
             and len(set(config.angles)) == len(config.angles)
         ):
             raise ValueError(f"angles must be a list of distinct observation positions, got {str(config.angles)[:40]}")
+        if isinstance(config.sampling_noise, bool) or not (
+            isinstance(config.sampling_noise, (int, float)) and 0 <= config.sampling_noise <= 1
+        ):
+            raise ValueError(f"sampling_noise must be a number in [0, 1], got {str(config.sampling_noise)[:40]}")
+        if not isinstance(config.prediction, str):
+            raise TypeError(f"prediction must be a name, got {str(config.prediction)[:40]}")
         if config.sampling_steps > config.denoising_steps:
             raise ValueError(
                 f"sampling_steps ({config.sampling_steps}) must be at most denoising_steps ({config.denoising_steps})"

@@ -19,6 +19,7 @@ import cli
 from imitation.data.mcap.reader import DemoFile
 from imitation.data.windows import WindowBatch
 from imitation.diffusion_policy import EMA_POWER, DiffusionPolicy
+from imitation.errors import ImitationError
 from imitation.policy_kinds import build_policy, load_policy
 from imitation.policy_protocol import ImitationObjective
 
@@ -34,19 +35,22 @@ def _alpha_bars(steps: int) -> np.ndarray:
     return np.cumprod([1 - beta for beta in betas])
 
 
-def _linear(chunk: int, denoising_steps: int = 100, sampling_steps: int = 10, execute: int | None = None) -> DiffusionPolicy:
+def _linear(
+    chunk: int, denoising_steps: int = 100, sampling_steps: int = 10, execute: int | None = None, prediction: str = "noise"
+) -> DiffusionPolicy:
     """A diffusion policy whose denoiser is one linear layer (no hidden layer), actions scaled from [0, 4]."""
     policy = build_policy(
         "diffusion", OBSERVATION, ACTION, hidden_sizes=[], chunk=chunk, denoising_steps=denoising_steps, sampling_steps=sampling_steps,
-        execute=execute,
+        execute=execute, prediction=prediction,
     )
     assert isinstance(policy, DiffusionPolicy)
     policy.fit_action_normalizer(torch.tensor([[0.0], [4.0]]), None)
     return policy
 
 
-def test_the_loss_is_the_error_of_the_predicted_noise_on_the_noised_chunk() -> None:
-    policy = _linear(chunk=2, denoising_steps=4, sampling_steps=2)
+@pytest.mark.parametrize("prediction", ["noise", "sample"])
+def test_the_loss_is_the_error_of_the_predicted_noise_or_clean_chunk_on_the_noised_chunk(prediction: str) -> None:
+    policy = _linear(chunk=2, denoising_steps=4, sampling_steps=2, prediction=prediction)
     with torch.no_grad():  # ε_θ(A^k, k, o) = A^k: the head copies the noisy chunk and ignores the rest
         policy.denoiser.head.weight.zero_()
         policy.denoiser.head.weight[:, :2] = torch.eye(2)
@@ -60,7 +64,8 @@ def test_the_loss_is_the_error_of_the_predicted_noise_on_the_noised_chunk() -> N
     clean = np.array([[-0.5, 1.0], [0.0, -1.0]])  # (a − 2) / 2: the actions' range [0, 4] is [−1, 1]
     alpha_bar = _alpha_bars(4)[steps.numpy()][:, None]
     noisy = np.sqrt(alpha_bar) * clean + np.sqrt(1 - alpha_bar) * noise.numpy()
-    assert fit.item() == pytest.approx(np.mean((noisy - noise.numpy()) ** 2), rel=1e-5)
+    target = noise.numpy() if prediction == "noise" else clean
+    assert fit.item() == pytest.approx(np.mean((noisy - target) ** 2), rel=1e-5)
 
 
 def test_ddim_denoises_from_the_last_noise_level_in_the_steps_worked_by_hand() -> None:
@@ -77,6 +82,45 @@ def test_ddim_denoises_from_the_last_noise_level_in_the_steps_worked_by_hand() -
         clean = np.clip((x - np.sqrt(1 - alpha_bar[k]) * c) / np.sqrt(alpha_bar[k]), -1, 1)
         x = np.sqrt(previous) * clean + np.sqrt(1 - previous) * c
     np.testing.assert_allclose(sampled.numpy().reshape(-1), 2 + 2 * np.clip(x, -1, 1).reshape(-1), rtol=1e-5)
+
+
+def test_a_denoiser_that_predicts_the_clean_chunk_steps_from_it_as_worked_by_hand() -> None:
+    policy = _linear(chunk=2, denoising_steps=100, sampling_steps=2, prediction="sample").eval()
+    c = 0.3  # D_θ = Â⁰ = c whatever its inputs
+    with torch.no_grad():
+        policy.denoiser.head.weight.zero_()
+        policy.denoiser.head.bias.fill_(c)
+        sampled = policy.sample(torch.zeros(1, 1, 1), torch.Generator().manual_seed(5))
+    x = torch.randn((1, 2), generator=torch.Generator().manual_seed(5)).numpy().astype(np.float64)
+    alpha_bar = _alpha_bars(100)
+    noise = (x - np.sqrt(alpha_bar[99]) * c) / np.sqrt(1 - alpha_bar[99])  # ε̂ from the noising equation
+    x = np.sqrt(alpha_bar[49]) * c + np.sqrt(1 - alpha_bar[49]) * noise
+    assert not np.allclose(x, c)  # the first step lands short of the prediction; the last (ᾱ = 1) on it
+    np.testing.assert_allclose(sampled.numpy().reshape(-1), [2 + 2 * c] * 2, rtol=1e-5)
+
+
+def test_with_eta_one_each_step_adds_the_ddpm_posterior_noise_drawn_from_the_plans_generator() -> None:
+    policy = _linear(chunk=2, denoising_steps=100, sampling_steps=2).eval()
+    policy.config.sampling_noise = 1.0
+    c = 0.3  # ε_θ = c whatever its inputs
+    with torch.no_grad():
+        policy.denoiser.head.weight.zero_()
+        policy.denoiser.head.bias.fill_(c)
+        sampled = policy.sample(torch.zeros(1, 1, 1), torch.Generator().manual_seed(5))
+    draws = torch.Generator().manual_seed(5)  # the plan's noise, then one z per step, in that order
+    x, z = (torch.randn((1, 2), generator=draws).numpy().astype(np.float64) for _ in range(2))
+    alpha_bar = _alpha_bars(100)
+    clean = np.clip((x - np.sqrt(1 - alpha_bar[99]) * c) / np.sqrt(alpha_bar[99]), -1, 1)
+    sigma = np.sqrt((1 - alpha_bar[49]) / (1 - alpha_bar[99])) * np.sqrt(1 - alpha_bar[99] / alpha_bar[49])
+    x = np.sqrt(alpha_bar[49]) * clean + np.sqrt(1 - alpha_bar[49] - sigma**2) * c + sigma * z
+    clean = np.clip((x - np.sqrt(1 - alpha_bar[49]) * c) / np.sqrt(alpha_bar[49]), -1, 1)  # k' below 0: σ = 0
+    np.testing.assert_allclose(sampled.numpy().reshape(-1), 2 + 2 * clean.reshape(-1), rtol=1e-4)  # float32 steps
+    assert sigma > 0.1  # the noise this test checks is no rounding error
+
+
+def test_a_denoiser_target_other_than_the_clean_chunk_or_the_noise_is_refused_naming_both() -> None:
+    with pytest.raises(ImitationError, match=r"^a diffusion policy's denoiser predicts one of sample, noise, not 'velocity'$"):
+        _linear(chunk=2, prediction="velocity")
 
 
 def test_the_moving_average_follows_the_updates_with_the_warm_up_decay() -> None:
@@ -113,7 +157,8 @@ def test_diffusion_trains_evaluates_records_and_runs_dagger_through_the_command_
     result = json.loads(capsys.readouterr().out)
     assert result["epochs"] == 2
     config = json.loads((out / "config.json").read_text())["policy"]
-    assert (config["kind"], config["history"], config["chunk"], config["denoising_steps"], config["sampling_steps"]) == ("diffusion", 2, 4, 100, 10)
+    settings = ("kind", "history", "chunk", "denoising_steps", "sampling_steps", "sampling_noise", "prediction")
+    assert tuple(config[name] for name in settings) == ("diffusion", 2, 4, 100, 10, 1.0, "sample")
     policy = load_policy(out)
     assert isinstance(policy, DiffusionPolicy) and int(policy.updates) > 0
     assert cli.main(["eval", "policy", str(out), "--env", "Pendulum-v1", "--episodes", "1", "--json"]) == 0
@@ -135,6 +180,7 @@ def test_diffusion_trains_evaluates_records_and_runs_dagger_through_the_command_
         ("CartPole-v1", ["--chunk", "4"], "the diffusion policy samples Box actions, not Discrete ones"),
         ("Pendulum-v1", ["--sampling-steps", "20", "--denoising-steps", "10"], "--sampling-steps must be in [1, --denoising-steps 10], got 20"),
         ("Pendulum-v1", ["--denoising-steps", "0"], "--denoising-steps must be in [1, 10000], got 0"),
+        ("Pendulum-v1", ["--sampling-noise", "1.5"], "--sampling-noise must be in [0, 1], got 1.5"),
         ("Pendulum-v1", ["--ensemble", "0.1"], "the diffusion policy executes its plans (--execute); leave --previous-action and --ensemble off"),
     ],
 )

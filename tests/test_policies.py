@@ -401,12 +401,16 @@ def test_a_stochastic_single_observation_expert_samples_its_policy() -> None:
         ({"denoising_steps": 0}, ValueError, "denoising_steps must be a whole number in [1, 10000], got 0"),
         ({"sampling_steps": 1.5}, ValueError, "sampling_steps must be a whole number in [1, 10000], got 1.5"),
         ({"sampling_steps": 101}, ValueError, "sampling_steps (101) must be at most denoising_steps (100)"),
+        ({"sampling_noise": 1.5}, ValueError, "sampling_noise must be a number in [0, 1], got 1.5"),
+        ({"sampling_noise": True}, ValueError, "sampling_noise must be a number in [0, 1], got True"),
+        ({"prediction": 0}, TypeError, "prediction must be a name, got 0"),
         ({"angles": [4, 4]}, ValueError, "angles must be a list of distinct observation positions, got [4, 4]"),
     ],
     ids=[
         "list", "activation", "shared_trunk", "normalize_observations", "normalize_actions", "previous_action", "bool",
         "str", "nan", "-inf", "observation_keys", "frame_stack bool", "frame_stack 65", "cnn", "pixels",
-        "denoising_steps", "sampling_steps float", "sampling_steps over", "angles twice",
+        "denoising_steps", "sampling_steps float", "sampling_steps over", "sampling_noise over", "sampling_noise bool",
+        "prediction", "angles twice",
     ],  # fmt: skip
 )
 def test_a_policy_config_read_from_a_file_refuses_each_malformed_field_naming_it(data, error, message) -> None:

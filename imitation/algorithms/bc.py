@@ -545,4 +545,6 @@ def policy_options(config: BCConfig, transitions: int | None = None) -> dict[str
         "angles": list(config.angles or []),
         "denoising_steps": config.denoising_steps,
         "sampling_steps": config.sampling_steps,
+        "sampling_noise": config.sampling_noise,
+        "prediction": config.prediction,
     }

@@ -18,6 +18,7 @@ LOSSES = ("nll", "mse")
 STEPS = ("all", "human")
 PREVIOUS_ACTION = ("auto", "on", "off")
 ACTIVATIONS = ("auto", "tanh", "relu")
+PREDICTIONS = ("sample", "noise")  # a diffusion policy's denoiser's target (imitation.diffusion_policy.TARGETS)
 
 
 def _image_size(text: str) -> list[int]:
@@ -78,6 +79,17 @@ class BCConfig:
         help="diffusion policies: the noise levels the denoiser is trained on (DDPM, squared-cosine schedule)",
     )
     sampling_steps: int = flag(10, metavar="S", help="diffusion policies: the DDIM steps of each plan when acting (S ≤ K)")
+    sampling_noise: float = flag(
+        1.0,
+        metavar="η",
+        help="diffusion policies: DDIM's η, the noise each sampling step adds; 0 samples deterministically, 1 adds the "
+        "DDPM posterior's (with S = K: DDPM's sampling)",
+    )
+    prediction: str = flag(
+        "sample",
+        choices=PREDICTIONS,
+        help="diffusion policies: what the denoiser predicts from a noised chunk, the clean chunk or the noise (DDPM's ε)",
+    )
     epochs: int = flag(300, metavar="N", help="maximum epochs")
     batch_size: int = flag(256, metavar="B", help="minibatch size")
     learning_rate: float = flag(1e-3, name="--lr", metavar="LR", help="Adam learning rate")
@@ -223,6 +235,12 @@ class BCConfig:
                 f"must be in [1, --denoising-steps {self.denoising_steps}], got {self.sampling_steps}",
                 owner="BCConfig",
             )
+        if self.prediction not in PREDICTIONS:
+            raise ConfigError(
+                "prediction", f"must be one of {', '.join(PREDICTIONS)}, got {self.prediction!r}", owner="BCConfig"
+            )
+        if not 0 <= self.sampling_noise <= 1:  # NaN fails too
+            raise ConfigError("sampling_noise", f"must be in [0, 1], got {self.sampling_noise}", owner="BCConfig")
         if self.threads is not None and not 1 <= self.threads <= 1024:
             raise ConfigError("threads", f"must be in [1, 1024], got {self.threads}", owner="BCConfig")
         if self.steps not in STEPS:

@@ -22,6 +22,8 @@ BC_FLAGS = (
     "angles",
     "denoising_steps",
     "sampling_steps",
+    "sampling_noise",
+    "prediction",
     "epochs",
     "patience",
     "hidden_sizes",

@@ -275,6 +275,8 @@ def test_policy_options_resolve_auto_to_tanh_below_small_data_and_normalise_both
         "angles": [],
         "denoising_steps": 100,
         "sampling_steps": 10,
+        "sampling_noise": 1.0,
+        "prediction": "sample",
     }
     assert policy_options(BCConfig(activation="elu"), transitions)["activation"] == "elu"  # a named one stays
 

@@ -16,6 +16,7 @@ from imitation.errors import ConfigError, ImitationError
     [
         ({"loss": "l1"}, "loss must be one of nll, mse, got 'l1'"),
         ({"previous_action": "yes"}, "previous_action must be one of auto, on, off, got 'yes'"),
+        ({"prediction": "velocity"}, "prediction must be one of sample, noise, got 'velocity'"),
         ({"frame_stack": 0}, "frame_stack must be in [1, 64], got 0"),
         ({"frame_stack": 65}, "frame_stack must be in [1, 64], got 65"),
         ({"random_shift": -1}, "random_shift must be at least 0 pixels, got -1"),
