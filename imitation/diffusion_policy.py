@@ -119,7 +119,7 @@ class DiffusionPolicy(SequencePolicy):
             )
         if config.prediction not in TARGETS:
             raise ImitationError(
-                f"a diffusion policy's denoiser predicts one of {', '.join(TARGETS)}, not {config.prediction[:40]!r}"
+                f"a diffusion policy's denoiser predicts one of {', '.join(TARGETS)}, not {str(config.prediction)[:40]!r}"
             )
         if config.sampling_steps > config.denoising_steps:
             raise ImitationError(

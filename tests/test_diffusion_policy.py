@@ -21,7 +21,7 @@ from imitation.data.windows import WindowBatch
 from imitation.diffusion_policy import EMA_POWER, DiffusionPolicy
 from imitation.errors import ImitationError
 from imitation.policy_kinds import build_policy, load_policy
-from imitation.policy_protocol import ImitationObjective
+from imitation.policy_protocol import ImitationObjective, PolicyConfig
 
 OBSERVATION = gym.spaces.Box(-np.inf, np.inf, (1,), np.float32)
 ACTION = gym.spaces.Box(-10, 10, (1,), np.float32)
@@ -121,6 +121,15 @@ def test_with_eta_one_each_step_adds_the_ddpm_posterior_noise_drawn_from_the_pla
 def test_a_denoiser_target_other_than_the_clean_chunk_or_the_noise_is_refused_naming_both() -> None:
     with pytest.raises(ImitationError, match=r"^a diffusion policy's denoiser predicts one of sample, noise, not 'velocity'$"):
         _linear(chunk=2, prediction="velocity")
+
+
+def test_a_run_written_before_the_target_and_eta_were_settings_loads_as_it_was_trained() -> None:
+    """Such a run's config has neither field: its denoiser predicted the noise and its plans were deterministic."""
+    config = _linear(chunk=2, prediction="sample").config.to_json() | {"sampling_noise": 1.0}
+    older = {name: value for name, value in config.items() if name not in ("prediction", "sampling_noise")}
+    loaded = PolicyConfig.from_json(older)
+    assert (loaded.prediction, loaded.sampling_noise) == ("noise", 0.0)
+    assert DiffusionPolicy(loaded).training_schedule.config.prediction_type == "epsilon"
 
 
 def test_the_moving_average_follows_the_updates_with_the_warm_up_decay() -> None:
