@@ -86,17 +86,19 @@ def test_ddim_denoises_from_the_last_noise_level_in_the_steps_worked_by_hand() -
 
 def test_a_denoiser_that_predicts_the_clean_chunk_steps_from_it_as_worked_by_hand() -> None:
     policy = _linear(chunk=2, denoising_steps=100, sampling_steps=2, prediction="sample").eval()
-    c = 0.3  # D_θ = Â⁰ = c whatever its inputs
+    a, c = 0.5, 0.3  # D_θ = Â⁰ = a·A^k + c whatever the rest of its inputs
     with torch.no_grad():
         policy.denoiser.head.weight.zero_()
+        policy.denoiser.head.weight[:, :2] = a * torch.eye(2)
         policy.denoiser.head.bias.fill_(c)
         sampled = policy.sample(torch.zeros(1, 1, 1), torch.Generator().manual_seed(5))
     x = torch.randn((1, 2), generator=torch.Generator().manual_seed(5)).numpy().astype(np.float64)
     alpha_bar = _alpha_bars(100)
-    noise = (x - np.sqrt(alpha_bar[99]) * c) / np.sqrt(1 - alpha_bar[99])  # ε̂ from the noising equation
-    x = np.sqrt(alpha_bar[49]) * c + np.sqrt(1 - alpha_bar[49]) * noise
-    assert not np.allclose(x, c)  # the first step lands short of the prediction; the last (ᾱ = 1) on it
-    np.testing.assert_allclose(sampled.numpy().reshape(-1), [2 + 2 * c] * 2, rtol=1e-5)
+    clean = np.clip(a * x + c, -1, 1)
+    noise = (x - np.sqrt(alpha_bar[99]) * clean) / np.sqrt(1 - alpha_bar[99])  # ε̂ from the noising equation
+    x = np.sqrt(alpha_bar[49]) * clean + np.sqrt(1 - alpha_bar[49]) * noise
+    clean = np.clip(a * x + c, -1, 1)  # the last step (ᾱ = 1 below step 0) lands on its Â⁰
+    np.testing.assert_allclose(sampled.numpy().reshape(-1), 2 + 2 * clean.reshape(-1), rtol=1e-5)
 
 
 def test_with_eta_one_each_step_adds_the_ddpm_posterior_noise_drawn_from_the_plans_generator() -> None:
