@@ -240,13 +240,8 @@ class BehaviouralCloning:
                 raise ConfigError(
                     "stream_memory", "streams no data for a policy of the previous action; leave it unset", owner="BCConfig"
                 )
-            if policy.window is not None:
-                raise ConfigError(
-                    "stream_memory",
-                    "streams single transitions, and a sequence policy (--history, --chunk) trains on windows of them; "
-                    "leave it unset",
-                    owner="BCConfig",
-                )
+            # A sequence policy's streams gather its windows (`StreamingLoader`'s window).
+            assert train.window == policy.window and (validation is None or validation.window == policy.window)
             self.validation, self.loader = validation, train
             _fit_normalizers(policy, train, device)
         else:

@@ -181,7 +181,8 @@ class BCConfig:
         parse=megabytes,
         metavar="MB",
         help="stream shuffled batches from the demos, holding at most MB megabytes of decoded transitions (plus one "
-        "episode), for image datasets larger than memory; no baseline scores then",
+        "episode), for datasets larger than memory (a sequence policy's windows are gathered as episodes stream in); no "
+        "baseline scores then",
         default_text="load everything",
     )
     # "human": train on the steps a person drove (the /intervention channels of DAgger's rounds).

@@ -13,6 +13,11 @@ Each epoch (seeded, reproducible):
 4. the learner takes ready batches from a short queue and only waits when decoding falls behind
    (`wait_seconds` counts it).
 
+With a `window` (a sequence policy's), each buffered row is a window of its episode instead of one
+transition: the n observations up to the row and the H actions from it, padded at the episode's
+edges with their masks (`imitation.data.windows`), gathered when the episode enters the buffer,
+so that a window never crosses episodes and batches are `WindowBatch`es.
+
 Memory held at once (`peak_bytes`): the buffer plus the decoded episodes waiting for it stays
 within `memory` plus one episode (the last admitted may overshoot), counted at the size the
 learner takes its frames (`transform`). The content of every batch
@@ -42,8 +47,10 @@ from imitation.data.frame_transform import FrameTransform
 from imitation.data.loader import TransitionTensors, check_episodes_finite, transitions_to_torch
 from imitation.data.spaces import LeafPath, space_leaves
 from imitation.data.types import Transitions, episodes_to_transitions, tree_from_leaves, tree_leaves
+from imitation.data.windows import WindowBatch, WindowSpec, window_index
 from imitation.envs.pixels import frame_stack_index
 from imitation.errors import ImitationError
+from imitation.tensors import tree_map
 
 _QUEUE_BATCHES = 4  # batches assembled ahead of the learner: enough to hide a slow refill
 _POLL_SECONDS = 0.1  # how often a blocked producer checks whether the consumer has gone
@@ -51,22 +58,49 @@ _POLL_SECONDS = 0.1  # how often a blocked producer checks whether the consumer 
 
 @dataclass(frozen=True)
 class _Leaf:
-    """One array of a buffered row: which field and leaf it is, its row shape and dtype."""
+    """One array of a buffered row: which field and leaf it is, its row shape and dtype, and
+    which of the episode's rows it gathers (`_Gathers`: "frames", "history", "chunk"; None for
+    the row itself; a pad mask is taken whole from the episode's windows)."""
 
     field: str
     path: LeafPath
     shape: tuple[int, ...]
     dtype: np.dtype
-    stacked: bool  # an image leaf whose rows are stacks of `frames` frames
+    gathers: str | None = None
 
     @property
     def row_bytes(self) -> int:
         return self.dtype.itemsize * math.prod(self.shape)
 
+    @property
+    def decoded_row_bytes(self) -> int:
+        """What one decoded transition holds of this leaf (a gathered row's one entry; a mask nothing)."""
+        if self.field in _PAD_FIELDS:
+            return 0
+        return self.dtype.itemsize * math.prod(self.shape[1:]) if self.gathers else self.row_bytes
+
+
+_PAD_FIELDS = ("observation_pad", "action_pad")
+
+
+@dataclass(frozen=True)
+class _Gathers:
+    """An episode's rows per buffered row: its frame stacks, or its windows' observation and action rows and pads."""
+
+    frames: np.ndarray
+    history: np.ndarray | None = None
+    chunk: np.ndarray | None = None
+    observation_pad: np.ndarray | None = None
+    action_pad: np.ndarray | None = None
+
+    def rows(self, start: int, stop: int) -> _Gathers:
+        return _Gathers(*(None if value is None else value[start:stop] for value in vars(self).values()))
+
 
 class StreamingLoader:
-    """Shuffled minibatches (CPU `TransitionTensors`, no next observations) of `episodes` of
-    `dataset`, decoded on the fly within a `memory` budget in bytes (see the module docstring).
+    """Shuffled minibatches (CPU `TransitionTensors`, no next observations; `WindowBatch`es with
+    a `window`) of `episodes` of `dataset`, decoded on the fly within a `memory` budget in bytes
+    (see the module docstring).
 
     `frames` > 1 stacks the top-level image leaves `image_keys` as `stack_frames` does. An epoch
     passes over the data as often as it takes to reach `min_samples` samples, each pass in its own
@@ -89,9 +123,12 @@ class StreamingLoader:
         workers: int = 2,
         min_samples: int = 0,
         transform: FrameTransform | None = None,
+        window: WindowSpec | None = None,
     ) -> None:
         if batch_size < 1:
             raise ImitationError(f"batch size must be positive, got {batch_size}")
+        if window is not None and frames > 1:
+            raise ImitationError("a stream gathers windows of observations or stacks of frames, not both")
         self.dataset = dataset
         self.episodes = sorted(set(int(k) for k in episodes))
         if self.episodes and not 0 <= self.episodes[0] <= self.episodes[-1] < len(dataset):
@@ -103,12 +140,12 @@ class StreamingLoader:
         self.transitions = sum(self._lengths.values())
         self.batch_size, self.memory, self.frames, self.shuffle, self.workers = batch_size, memory, frames, shuffle, workers
         self.image_keys = list(image_keys)
-        self.transform = transform
+        self.transform, self.window = transform, window
         observation_space = transform.space(dataset.observation_space) if transform is not None else dataset.observation_space
-        self._leaves = _buffer_leaves(observation_space, dataset.action_space, frames, set(image_keys))
+        self._leaves = _buffer_leaves(observation_space, dataset.action_space, frames, set(image_keys), window)
         self.row_bytes = sum(leaf.row_bytes for leaf in self._leaves)
-        # Decoded, unstacked: what a waiting episode holds per row (counted for its T + 1 observations).
-        self._decoded_row_bytes = sum(leaf.row_bytes // (frames if leaf.stacked else 1) for leaf in self._leaves)
+        # Decoded, ungathered: what a waiting episode holds per row (counted for its T + 1 observations).
+        self._decoded_row_bytes = sum(leaf.decoded_row_bytes for leaf in self._leaves)
         self.capacity = batch_size if not shuffle else (memory // 2) // self.row_bytes
         if self.capacity < batch_size:
             needed = math.ceil(2 * batch_size * self.row_bytes / 2**20)
@@ -122,7 +159,8 @@ class StreamingLoader:
         self.wait_seconds = 0.0  # time the consumer spent waiting for a batch, over all epochs
 
     def in_order(self) -> StreamingLoader:
-        """The same episodes, one pass in ascending order, within the same budget (for statistics)."""
+        """The same episodes, one pass in ascending order as single transitions, within the same
+        budget (for statistics)."""
         return StreamingLoader(
             self.dataset,
             self.episodes,
@@ -145,10 +183,10 @@ class StreamingLoader:
     def __len__(self) -> int:
         return -(-self.passes * self.transitions // self.batch_size)
 
-    def __iter__(self) -> Iterator[TransitionTensors]:
+    def __iter__(self) -> Iterator[TransitionTensors | WindowBatch]:
         return self.batches()
 
-    def batches(self, skip: int = 0) -> Iterator[TransitionTensors]:
+    def batches(self, skip: int = 0) -> Iterator[TransitionTensors | WindowBatch]:
         """An epoch's batches, the first `skip` of them decoded and left out (an epoch resumed
         midway: the buffer's draws depend on every batch before)."""
         with closing(self._epoch()) as epoch:  # a consumer that stops early stops the producer at once
@@ -156,7 +194,7 @@ class StreamingLoader:
                 if index >= skip:
                     yield batch
 
-    def _epoch(self) -> Generator[TransitionTensors, None, None]:
+    def _epoch(self) -> Generator[TransitionTensors | WindowBatch, None, None]:
         if self.shuffle:
             order = [
                 self.episodes[i]
@@ -166,7 +204,7 @@ class StreamingLoader:
         else:
             order = self.episodes * self.passes
         seed = int(torch.randint(2**62, (1,), generator=self._generator)) if self.shuffle else 0
-        batches: queue.Queue[TransitionTensors | BaseException | None] = queue.Queue(_QUEUE_BATCHES)
+        batches: queue.Queue[TransitionTensors | WindowBatch | BaseException | None] = queue.Queue(_QUEUE_BATCHES)
         stop = threading.Event()
         producer = threading.Thread(target=self._produce, args=(order, seed, batches, stop), daemon=True)
         producer.start()
@@ -208,7 +246,7 @@ class StreamingLoader:
         exhausted = False
         current: Transitions | None = None  # the episode being copied into the buffer
         current_bytes, copied, filled = 0, 0, 0
-        stacks = np.zeros((0, self.frames), dtype=np.int64)  # rows of `current` and their frames
+        gathers = self._gathers(0)  # the rows of `current` each buffered row takes
         while not stop.is_set():
             # Decode ahead while the budget allows; always at least the next episode.
             while not exhausted and (not waiting or buffer_bytes + current_bytes + waiting_bytes < self.memory):
@@ -228,9 +266,9 @@ class StreamingLoader:
                     future, current_bytes = waiting.popleft()
                     waiting_bytes -= current_bytes
                     current, copied = future.result(), 0
-                    stacks = frame_stack_index(np.zeros(len(current), dtype=np.int64), self.frames)
+                    gathers = self._gathers(len(current))
                 count = min(len(current) - copied, self.capacity - filled)
-                self._copy(current, stacks[copied : copied + count], buffer, filled)
+                self._copy(current, gathers.rows(copied, copied + count), buffer, filled)
                 copied, filled = copied + count, filled + count
                 if copied == len(current):
                     current, current_bytes = None, 0
@@ -242,7 +280,8 @@ class StreamingLoader:
                 taken = rng.choice(filled, min(self.batch_size, filled), replace=False)
             else:
                 taken = np.arange(filled)
-            batch = _tensors({leaf: array[taken] for leaf, array in buffer.items()})
+            rows = {leaf: array[taken] for leaf, array in buffer.items()}
+            batch = _tensors(rows) if self.window is None else _windows(rows)
             filled = _remove(buffer, taken, filled)
             self._put(out, batch, stop)
 
@@ -253,13 +292,25 @@ class StreamingLoader:
         check_episodes_finite([episode], self.dataset, [k])
         return episodes_to_transitions([episode], [k], next_observations=False)
 
-    def _copy(self, source: Transitions, stacks: np.ndarray, buffer: dict[_Leaf, np.ndarray], at: int) -> None:
-        """Rows `stacks[:, -1]` of `source` into buffer rows from `at`; stacked leaves gather their frames."""
-        rows = stacks[:, -1]
+    def _gathers(self, length: int) -> _Gathers:
+        """The rows each of an episode's `length` rows gathers: its frames, or its window's."""
+        stacks = frame_stack_index(np.zeros(length, dtype=np.int64), self.frames)
+        if self.window is None:
+            return _Gathers(stacks)
+        index = window_index(np.zeros(length, dtype=np.int64), self.window)
+        return _Gathers(stacks, index.observation_rows, index.action_rows, index.observation_pad, index.action_pad)
+
+    def _copy(self, source: Transitions, gathers: _Gathers, buffer: dict[_Leaf, np.ndarray], at: int) -> None:
+        """Rows `gathers.frames[:, -1]` of `source` into buffer rows from `at`, each leaf gathering what it holds."""
+        rows = gathers.frames[:, -1]
         for leaf, array in buffer.items():
+            end = at + len(rows)
+            if leaf.field in _PAD_FIELDS:
+                array[at:end] = getattr(gathers, leaf.field)
+                continue
             tree = getattr(source, leaf.field)
             values = dict(tree_leaves(tree))[leaf.path] if isinstance(tree, dict) else tree
-            array[at : at + len(rows)] = values[stacks] if leaf.stacked else values[rows]
+            array[at:end] = values[rows] if leaf.gathers is None else values[getattr(gathers, leaf.gathers)]
 
     @staticmethod
     def _put(out: queue.Queue, item: object, stop: threading.Event) -> None:
@@ -271,18 +322,37 @@ class StreamingLoader:
                 continue
 
 
-def _buffer_leaves(observation_space: gym.Space, action_space: gym.Space, frames: int, image_keys: set[str]) -> list[_Leaf]:
-    """The arrays of one buffered row: observations (image leaves stacked), actions, rewards, flags, episode."""
+def _buffer_leaves(
+    observation_space: gym.Space, action_space: gym.Space, frames: int, image_keys: set[str], window: WindowSpec | None
+) -> list[_Leaf]:
+    """The arrays of one buffered row: observations (image leaves stacked), actions, rewards, flags,
+    episode; with a `window`, the window's observations and actions and their pad masks."""
+    if window is not None:
+        observations = [
+            _Leaf("observations", path, (window.observations, *shape), np.dtype(dtype), "history")
+            for path, dtype, shape in space_leaves(observation_space)
+        ]
+        actions = [
+            _Leaf("actions", path, (window.actions, *shape), np.dtype(dtype), "chunk")
+            for path, dtype, shape in space_leaves(action_space)
+        ]
+        masks = [
+            _Leaf("observation_pad", (), (window.observations,), np.dtype(bool)),
+            _Leaf("action_pad", (), (window.actions,), np.dtype(bool)),
+        ]
+        return observations + actions + masks
     leaves = []
     for path, dtype, shape in space_leaves(observation_space):
         stacked = frames > 1 and ("" if not path else path[0]) in image_keys and len(path) <= 1
-        leaves.append(_Leaf("observations", path, (frames, *shape) if stacked else shape, np.dtype(dtype), stacked))
-    leaves += [_Leaf("actions", path, shape, np.dtype(dtype), False) for path, dtype, shape in space_leaves(action_space)]
+        leaves.append(
+            _Leaf("observations", path, (frames, *shape) if stacked else shape, np.dtype(dtype), "frames" if stacked else None)
+        )
+    leaves += [_Leaf("actions", path, shape, np.dtype(dtype)) for path, dtype, shape in space_leaves(action_space)]
     leaves += [
-        _Leaf("rewards", (), (), np.dtype(np.float64), False),
-        _Leaf("terminated", (), (), np.dtype(bool), False),
-        _Leaf("truncated", (), (), np.dtype(bool), False),
-        _Leaf("episode_index", (), (), np.dtype(np.int64), False),
+        _Leaf("rewards", (), (), np.dtype(np.float64)),
+        _Leaf("terminated", (), (), np.dtype(bool)),
+        _Leaf("truncated", (), (), np.dtype(bool)),
+        _Leaf("episode_index", (), (), np.dtype(np.int64)),
     ]
     return leaves
 
@@ -298,14 +368,25 @@ def _remove(buffer: dict[_Leaf, np.ndarray], taken: np.ndarray, filled: int) -> 
     return left
 
 
+def _field(rows: dict[_Leaf, np.ndarray], field: str) -> Any:
+    """One field of gathered buffer rows, as the tree of its leaves."""
+    return tree_from_leaves({leaf.path: array for leaf, array in rows.items() if leaf.field == field})
+
+
 def _tensors(rows: dict[_Leaf, np.ndarray]) -> TransitionTensors:
     """Gathered buffer rows as CPU tensors (sharing the gathered arrays' memory)."""
-
-    def tree(field: str) -> Any:
-        return tree_from_leaves({leaf.path: array for leaf, array in rows.items() if leaf.field == field})
-
     fields = ("observations", "actions", "rewards", "terminated", "truncated", "episode_index")
-    return transitions_to_torch(Transitions(next_observations=None, **{field: tree(field) for field in fields}))
+    return transitions_to_torch(Transitions(next_observations=None, **{field: _field(rows, field) for field in fields}))
+
+
+def _windows(rows: dict[_Leaf, np.ndarray]) -> WindowBatch:
+    """Gathered buffered windows as CPU tensors (sharing the gathered arrays' memory)."""
+    return WindowBatch(
+        observations=tree_map(torch.from_numpy, _field(rows, "observations")),
+        observation_pad=torch.from_numpy(_field(rows, "observation_pad")),
+        actions=torch.from_numpy(_field(rows, "actions")),
+        action_pad=torch.from_numpy(_field(rows, "action_pad")),
+    )
 
 
 __all__ = ["StreamingLoader"]

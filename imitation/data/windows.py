@@ -96,6 +96,14 @@ class WindowBatch:
     def __len__(self) -> int:
         return len(self.action_pad)
 
+    def to(self, device: str | torch.device) -> WindowBatch:
+        return WindowBatch(
+            observations=tree_map(lambda tensor: tensor.to(device), self.observations),
+            observation_pad=self.observation_pad.to(device),
+            actions=self.actions.to(device),
+            action_pad=self.action_pad.to(device),
+        )
+
 
 def gather_windows(data: TransitionTensors, index: WindowIndex, rows: np.ndarray) -> WindowBatch:
     """The windows of transitions `rows` of `data` (whose windows `index` describes)."""

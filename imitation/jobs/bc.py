@@ -33,6 +33,7 @@ from imitation.data.shards import Share, plan_shares
 from imitation.data.spaces import space_leaves
 from imitation.data.stream import StreamingLoader
 from imitation.data.types import Transitions
+from imitation.data.windows import WindowSpec
 from imitation.encoders import CNNConfig
 from imitation.envs.make import make_env
 from imitation.envs.pixels import PIXELS_KEY, image_keys, make_pixel_env, recorded_pixels, stack_frames, stacked_space
@@ -143,8 +144,16 @@ def _bc_job(
         return plan[parallel.rank].episodes
 
     if config.stream_memory is not None:
+        # Stacked frames are images, which a sequence kind refuses itself when it is built (train-63).
+        window = WindowSpec(config.history, config.chunk) if kind.sequences and frames == 1 else None
         train, validation, split = _streams(
-            dataset, config, previous_action=previous_action, frames=frames, image_keys=keys, transform=transform
+            dataset,
+            config,
+            previous_action=previous_action,
+            frames=frames,
+            image_keys=keys,
+            transform=transform,
+            window=window,
         )
     else:
         resized = f", frames {transform.describe()} as they load" if transform is not None else ""
@@ -559,6 +568,7 @@ def _streams(
     frames: int,
     image_keys: list[str],
     transform: FrameTransform | None = None,
+    window: WindowSpec | None = None,
 ) -> tuple[StreamingLoader, StreamingLoader | None, dict[str, Any]]:
     """`_split` for `config.stream_memory`: whole episodes held out (never episode tails), each
     side streamed within the memory budget; validation in order, one batch at a time."""
@@ -574,6 +584,7 @@ def _streams(
         "frames": frames,
         "image_keys": image_keys,
         "transform": transform,
+        "window": window,
     }
     train = StreamingLoader(dataset, train_ids, seed=config.seed, min_samples=config.epoch_samples, **options)
     if train.transitions == 0:

@@ -1,6 +1,7 @@
 """StreamingLoader: every training transition once per epoch, batches mixing episodes, frame stacks
-as `stack_frames` builds them, the memory budget honoured, the same batches for the same seed; and
-BC trained from the stream through the command line."""
+as `stack_frames` builds them, a sequence policy's windows as the in-memory loader gathers them, the
+memory budget honoured, the same batches for the same seed; and BC trained from the stream through
+the command line."""
 
 from __future__ import annotations
 
@@ -16,10 +17,11 @@ from support import run_cli_many
 from imitation.algorithms.bc import BCConfig, BehaviouralCloning, policy_options
 from imitation.checkpoints import snapshot
 from imitation.data.dataset import DemoDataset
-from imitation.data.loader import load_transitions
+from imitation.data.loader import load_transitions, transitions_to_torch
 from imitation.data.mcap.writer import write_episodes
 from imitation.data.stream import StreamingLoader
 from imitation.data.types import Episode
+from imitation.data.windows import WindowSpec, gather_windows, window_index
 from imitation.envs.pixels import stack_frames, stacked_space
 from imitation.errors import ImitationError
 from imitation.policies import make_policy
@@ -96,6 +98,29 @@ def test_frame_stacks_equal_stack_frames(dataset: DemoDataset) -> None:
         assert np.array_equal(batch.observations["state"].numpy(), loaded.observations["state"][rows])
         assert np.array_equal(batch.actions.numpy(), loaded.actions[rows])
         assert np.array_equal(batch.rewards.numpy(), loaded.rewards[rows])
+
+
+@pytest.mark.parametrize("shuffle", [False, True])
+def test_windows_equal_the_in_memory_windows(dataset: DemoDataset, shuffle: bool) -> None:
+    spec = WindowSpec(observations=3, actions=5)
+    loaded = load_transitions(dataset, episodes=TRAIN, next_observations=False)
+    expected = gather_windows(transitions_to_torch(loaded), window_index(loaded.episode_index, spec), np.arange(len(loaded)))
+    steps = loaded.observations["pixels"][:, 0, 0, 0]
+    where = {(int(k), int(t)): i for i, (k, t) in enumerate(zip(loaded.episode_index, steps))}
+    loader = _loader(dataset, frames=1, window=spec, shuffle=shuffle)
+    seen = []
+    for batch in loader:
+        newest = batch.observations["pixels"][:, -1, 0, :2, 0].numpy()  # the window's current step and episode
+        rows = [where[(int(k), int(t))] for t, k in newest]
+        for name in ("observation_pad", "action_pad", "actions"):
+            assert torch.equal(getattr(batch, name), getattr(expected, name)[rows]), name
+        for key in ("pixels", "state"):
+            assert torch.equal(batch.observations[key], expected.observations[key][rows]), key
+        seen += rows
+    assert sorted(seen) == list(range(len(loaded)))  # every window once
+    assert bool(expected.observation_pad.any()) and bool(expected.action_pad.any())  # the edges were exercised
+    with pytest.raises(ImitationError, match="windows of observations or stacks of frames, not both"):
+        _loader(dataset, window=spec)
 
 
 def test_memory_budget_bounds_what_is_held(dataset: DemoDataset) -> None:
