@@ -83,7 +83,9 @@ def objective(config: BCConfig) -> ImitationObjective:
     return ImitationObjective(config.loss, config.entropy_coef, config.l2_coef, config.random_shift)
 
 
-def bc_loss(policy: ImitationPolicy, batch: TransitionTensors, config: BCConfig) -> tuple[torch.Tensor, dict[str, float]]:
+def bc_loss(
+    policy: ImitationPolicy, batch: TransitionTensors | WindowBatch, config: BCConfig
+) -> tuple[torch.Tensor, dict[str, float]]:
     """The objective above on one batch (the policy kind's `imitation_loss`), and its parts for logging."""
     loss, fit = policy.imitation_loss(batch, objective(config))
     return loss, {"fit": fit.item()}
@@ -241,6 +243,7 @@ class BehaviouralCloning:
                     "stream_memory", "streams no data for a policy of the previous action; leave it unset", owner="BCConfig"
                 )
             # A sequence policy's streams gather its windows (`StreamingLoader`'s window).
+            assert validation is None or isinstance(validation, StreamingLoader)
             assert train.window == policy.window and (validation is None or validation.window == policy.window)
             self.validation, self.loader = validation, train
             _fit_normalizers(policy, train, device)

@@ -94,7 +94,12 @@ class _Gathers:
     action_pad: np.ndarray | None = None
 
     def rows(self, start: int, stop: int) -> _Gathers:
-        return _Gathers(*(None if value is None else value[start:stop] for value in vars(self).values()))
+        def part(value: np.ndarray | None) -> np.ndarray | None:
+            return None if value is None else value[start:stop]
+
+        return _Gathers(
+            self.frames[start:stop], part(self.history), part(self.chunk), part(self.observation_pad), part(self.action_pad)
+        )
 
 
 class StreamingLoader:
