@@ -85,9 +85,10 @@ class ActionChunking(SequencePolicy):
 
     # -- the network -------------------------------------------------------------------------------
 
-    def _chunk(self, history: torch.Tensor) -> torch.Tensor:
-        """f_θ on a batch of histories (batch, n, *observation shape): (batch, H, width)."""
-        return self.head(self.trunk(self.observed(history))).reshape(len(history), self.steps, self.width)
+    def _chunk(self, history: torch.Tensor, noise: float = 0.0) -> torch.Tensor:
+        """f_θ on a batch of histories (batch, n, *observation shape), their normalised numbers
+        noised by σ = `noise`: (batch, H, width)."""
+        return self.head(self.trunk(self.observed(history, noise))).reshape(len(history), self.steps, self.width)
 
     def _env_actions(self, chunk: torch.Tensor) -> torch.Tensor:
         """A chunk of head outputs → env actions (Box: back to the env's units; Discrete: the likeliest class)."""
@@ -104,7 +105,7 @@ class ActionChunking(SequencePolicy):
         self, batch: TransitionTensors | WindowBatch, objective: ImitationObjective
     ) -> tuple[torch.Tensor, torch.Tensor]:
         batch, observations = self.windows(batch)
-        predicted = self._chunk(observations)
+        predicted = self._chunk(observations, self.training_noise(objective))
         inside = (~batch.action_pad).float()
         if self.is_continuous:
             target = (batch.actions.reshape(*predicted.shape).float() - self.action_mean) / self.action_scale

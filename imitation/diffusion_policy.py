@@ -183,7 +183,7 @@ class DiffusionPolicy(SequencePolicy):
         noise = torch.randn_like(clean)
         steps = torch.randint(0, self.config.denoising_steps, (len(clean),), device=clean.device)
         noisy = self.training_schedule.add_noise(clean, noise, steps)
-        predicted = self._acting(noisy, steps, self.observed(observations))
+        predicted = self._acting(noisy, steps, self.observed(observations, self.training_noise(objective)))
         target = clean if self.config.prediction == "sample" else noise
         fit = ((predicted - target) ** 2).mean()
         loss = fit

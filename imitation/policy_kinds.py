@@ -75,15 +75,16 @@ def _diffusion() -> Any:
     return diffusion_policy
 
 
-def policy_kind(name: str, *, history: int = 1, chunk: int = 1) -> PolicyKind:
-    """The kind registered as `name`, for a policy of `history` observations and `chunk` actions;
-    a `ConfigError` on BC's field naming what is wrong otherwise."""
+def policy_kind(name: str, *, history: int = 1, chunk: int = 1, observation_noise: float = 0.0) -> PolicyKind:
+    """The kind registered as `name`, for a policy of `history` observations and `chunk` actions
+    trained with `observation_noise`; a `ConfigError` on BC's field naming what is wrong otherwise."""
     if name not in POLICY_KINDS:
         raise ConfigError(
             "policy", f"must be a registered policy kind ({', '.join(POLICY_KINDS)}), got {name[:40]!r}", owner="BCConfig"
         )
     kind = POLICY_KINDS[name]
     sequential = [field for field, value in (("history", history), ("chunk", chunk)) if value != 1]
+    sequential += ["observation_noise"] if observation_noise else []
     if sequential and not kind.sequences:
         sequence_kinds = ", ".join(other.name for other in POLICY_KINDS.values() if other.sequences)
         raise ConfigError(

@@ -160,13 +160,15 @@ class PolicyConfig(ObservationConfig):
 class ImitationObjective:
     """The settings of BC's objective a kind's `imitation_loss` reads: the fit ("nll", the
     negative log-likelihood of the demo's action, or "mse", the squared error of the policy's
-    action), an entropy bonus and an L2 penalty on the actor's weights (coefficients), and the
-    random shift of training frames in pixels."""
+    action), an entropy bonus and an L2 penalty on the actor's weights (coefficients), the
+    random shift of training frames in pixels, and the σ of the Gaussian noise a sequence kind
+    adds to its normalised training observations."""
 
     loss: str = "nll"
     entropy_coef: float = 0.0
     l2_coef: float = 0.0
     random_shift: int = 0
+    observation_noise: float = 0.0
 
 
 class ImitationPolicy(nn.Module, ABC):

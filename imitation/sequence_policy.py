@@ -17,7 +17,7 @@ from imitation.errors import ImitationError
 from imitation.mlp import ACTIVATIONS
 from imitation.observation_encoding import check_angles, observation_size, with_angles
 from imitation.policies import RunningMeanStd
-from imitation.policy_protocol import ImitationPolicy, PolicyConfig
+from imitation.policy_protocol import ImitationObjective, ImitationPolicy, PolicyConfig
 
 
 def step_features(config: PolicyConfig, kind: str) -> int:
@@ -79,10 +79,16 @@ class SequencePolicy(ImitationPolicy):
         assert isinstance(batch.observations, torch.Tensor)  # flat Box observations, checked when built
         return batch, batch.observations
 
-    def observed(self, history: torch.Tensor) -> torch.Tensor:
-        """A batch of histories (batch, n, *observation shape) as the network reads them: (batch, n · features)."""
+    def observed(self, history: torch.Tensor, noise: float = 0.0) -> torch.Tensor:
+        """A batch of histories (batch, n, *observation shape) as the network reads them: (batch, n · features);
+        with `noise` σ, each normalised number plus σ z, z ~ N(0, 1) (training's augmentation)."""
         steps = with_angles(history.reshape(len(history), self.config.history, -1).float(), self.angle_index)
-        return self.obs_rms.normalize(steps).reshape(len(history), -1)
+        features = self.obs_rms.normalize(steps).reshape(len(history), -1)
+        return features + noise * torch.randn_like(features) if noise else features
+
+    def training_noise(self, objective: ImitationObjective) -> float:
+        """The σ of the observation noise for a loss: the objective's while training, none when scored."""
+        return objective.observation_noise if self.training else 0.0
 
     @property
     def observation_normalizers(self) -> list[RunningMeanStd]:

@@ -83,6 +83,22 @@ def test_the_discrete_loss_is_each_steps_cross_entropy() -> None:
     assert policy.point_action(torch.zeros(2, 1)).tolist() == [3, 3]
 
 
+def test_observation_noise_adds_sigma_z_to_the_normalised_observations_while_training_only() -> None:
+    policy = build_policy("chunk", BOX1, BOX1, hidden_sizes=[], chunk=1)
+    with torch.no_grad():  # the head passes the normalised observation through: the chunk is o / √(1 + ε)
+        policy.head.weight.fill_(1.0)
+        policy.head.bias.zero_()
+    batch = WindowBatch(torch.tensor([[[0.5]], [[-1.0]]]), torch.zeros(2, 1, dtype=torch.bool), torch.zeros(2, 1, 1), torch.zeros(2, 1, dtype=torch.bool))
+    normalised = policy.observed(batch.observations).reshape(-1)
+    objective = ImitationObjective(observation_noise=0.5)
+    torch.manual_seed(7)
+    _, fit = policy.train().imitation_loss(batch, objective)
+    torch.manual_seed(7)
+    assert fit.item() == pytest.approx((normalised + 0.5 * torch.randn(2)).abs().mean().item(), rel=1e-6)  # L1 to the zero target
+    _, scored = policy.eval().imitation_loss(batch, objective)
+    assert scored.item() == pytest.approx(normalised.abs().mean().item(), rel=1e-6)
+
+
 def test_it_executes_k_actions_of_a_chunk_then_plans_again_and_forgets_at_reset() -> None:
     policy = _constant(gym.spaces.Box(-5, 5, (1,), np.float32), [1.0, 2.0, 3.0, 4.0], chunk=4, history=2, execute=3)
     plans = []
@@ -177,6 +193,8 @@ def test_a_streamed_policy_scores_the_windows_the_in_memory_loader_gathers(tmp_p
     [
         (["--chunk", "4"], "--chunk is for sequence policies (chunk, diffusion); the actor-critic policy reads one observation and predicts one action"),
         (["--policy", "chunk", "--chunk", "4", "--execute", "5"], "--execute must be in [1, --chunk 4], got 5"),
+        (["--observation-noise", "0.1"], "--observation-noise is for sequence policies (chunk, diffusion); the actor-critic policy reads one"),
+        (["--policy", "chunk", "--observation-noise", "-1"], "--observation-noise must be in [0, 10], got -1.0"),
         (["--policy", "chunk", "--chunk", "4", "--execute", "2", "--ensemble", "0.1", *PENDULUM], "--ensemble plans every step; leave --execute unset"),
         (["--policy", "chunk", "--chunk", "4", "--ensemble", "-1", *PENDULUM], "--ensemble must be a weight in [0, 1000), got -1.0"),
         (["--policy", "chunk", "--chunk", "4", "--ensemble", "0.1"], "--env CartPole-v1: temporal ensembling averages Box actions"),

@@ -80,7 +80,7 @@ def default_threads(policy: ImitationPolicy) -> int:
 
 def objective(config: BCConfig) -> ImitationObjective:
     """The settings of BC's objective a policy kind's loss reads."""
-    return ImitationObjective(config.loss, config.entropy_coef, config.l2_coef, config.random_shift)
+    return ImitationObjective(config.loss, config.entropy_coef, config.l2_coef, config.random_shift, config.observation_noise)
 
 
 def bc_loss(

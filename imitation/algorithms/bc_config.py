@@ -85,6 +85,12 @@ class BCConfig:
         help="diffusion policies: DDIM's η, the noise each sampling step adds; 0 samples deterministically, 1 adds the "
         "DDPM posterior's (with S = K: DDPM's sampling)",
     )
+    observation_noise: float = flag(
+        0.0,
+        metavar="σ",
+        help="sequence policies: add N(0, σ²) to each normalised number of a training window's observations, an "
+        "augmentation against fitting a few demos too closely; 0 turns it off",
+    )
     prediction: str = flag(
         "sample",
         choices=PREDICTIONS,
@@ -240,6 +246,8 @@ class BCConfig:
             raise ConfigError(
                 "prediction", f"must be one of {', '.join(PREDICTIONS)}, got {self.prediction!r}", owner="BCConfig"
             )
+        if not 0 <= self.observation_noise <= 10:  # NaN fails too
+            raise ConfigError("observation_noise", f"must be in [0, 10], got {self.observation_noise}", owner="BCConfig")
         if not 0 <= self.sampling_noise <= 1:  # NaN fails too
             raise ConfigError("sampling_noise", f"must be in [0, 1], got {self.sampling_noise}", owner="BCConfig")
         if self.threads is not None and not 1 <= self.threads <= 1024:

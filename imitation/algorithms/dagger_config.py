@@ -23,6 +23,7 @@ BC_FLAGS = (
     "denoising_steps",
     "sampling_steps",
     "sampling_noise",
+    "observation_noise",
     "prediction",
     "epochs",
     "patience",

@@ -93,7 +93,8 @@ def _bc_job(
     parallel: ProcessGroup | None,
 ) -> dict[str, Any]:
     """`bc_job` as one process, or as one of the data-parallel `parallel`."""
-    kind = policy_kind(config.policy, history=config.history, chunk=config.chunk)  # refused before anything loads
+    # Refused before anything loads.
+    kind = policy_kind(config.policy, history=config.history, chunk=config.chunk, observation_noise=config.observation_noise)
     seed_everything(config.seed)
     dataset = DemoDataset(demos)
     first = dataset.files[0]

@@ -67,7 +67,9 @@ def dagger_job(
     if frames > 1 and pixels is None:
         raise ConfigError("frame_stack", "stacks rendered frames: give --pixels too", owner="BCConfig")
     config.validate()
-    policy_kind(config.bc.policy, history=config.bc.history, chunk=config.bc.chunk)
+    policy_kind(
+        config.bc.policy, history=config.bc.history, chunk=config.bc.chunk, observation_noise=config.bc.observation_noise
+    )
     env, expert = env_and_expert(env_id, expert_spec, pixels, frames, seed=config.seed, speed=speed)
     if config.mode == "takeover" and not hasattr(expert, "engaged"):
         raise ConfigError(
