@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -80,6 +81,9 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--keep", type=Path, default=None, help="keep the demos and runs in this folder")
+    parser.add_argument("--patience", type=int, default=None, help="the sequence heads' patience (default: --epochs)")
+    parser.add_argument("--train-flags", default="", help="more `train bc` flags for every head, as one string")
+    parser.add_argument("--name", default="", help="a suffix of the run folders' names (with --keep)")
     args = parser.parse_args()
     results: dict[str, dict[str, float]] = {}
     for name in ("random", "hold"):
@@ -94,8 +98,10 @@ def main() -> None:
         if not demos.exists():
             cli("convert", str(ZARR), "--env", ENV, "--out", str(demos), "--quiet", threads=args.threads)
         for head in args.heads:
-            run = work / f"{head}-seed{args.seed}"
-            common = ["--epochs", str(args.epochs)] + (["--patience", str(args.epochs)] if head != "gaussian" else [])
+            run = work / f"{head}-seed{args.seed}{args.name}"
+            patience = str(args.patience or args.epochs)
+            common = ["--epochs", str(args.epochs), *(["--patience", patience] if head != "gaussian" else [])]
+            common += shlex.split(args.train_flags)
             started = time.perf_counter()
             cli("train", "bc", "--demos", str(demos), "--env", ENV, *HEADS[head], *common, "--seed", str(args.seed),
                 "--threads", str(args.threads), "--out", str(run), "--quiet", threads=args.threads)  # fmt: skip
@@ -129,7 +135,8 @@ def main() -> None:
             )
     print(
         json.dumps(
-            {"epochs": args.epochs, "episodes": args.episodes, "seed": args.seed, "threads": args.threads, "results": results}
+            {"epochs": args.epochs, "episodes": args.episodes, "seed": args.seed, "threads": args.threads,
+             "train_flags": args.train_flags, "results": results}  # fmt: skip
         )
     )
 

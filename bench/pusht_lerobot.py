@@ -1,4 +1,4 @@
-"""Peer side of issue 53's PushT comparison: LeRobot's own DiffusionPolicy, trained on the CPU for a
+"""Peer side of issue 53's PushT comparison: LeRobot's own DiffusionPolicy (or ACTPolicy), trained on the CPU for a
 wall-clock budget on the state-based PushT human demos, then scored closed-loop in gym_pusht/PushT-v0.
 
 Everything LeRobot does is done through lerobot's own API (the installed version, 0.6.1 when written):
@@ -24,7 +24,7 @@ Everything LeRobot does is done through lerobot's own API (the installed version
    noise is reproducible. An episode scores the maximum of `info["coverage"]` and whether
    `info["is_success"]` was ever true.
 
-Presets (--preset), both with LeRobot's PushT training settings (batch 64, Adam lr 1e-4, betas 0.95,
+Presets (--preset); the diffusion ones with LeRobot's PushT training settings (batch 64, Adam lr 1e-4, betas 0.95,
 0.999, eps 1e-8, weight decay 1e-6, grad-clip norm 10, cosine schedule with 500 warm-up steps over
 200,000 steps, no EMA: LeRobot dropped it, huggingface/lerobot#134) and n_obs_steps 2, horizon 16, n_action_steps 8:
   pusht: DiffusionConfig's defaults otherwise, as the lerobot/diffusion_pusht card: U-Net down_dims
@@ -32,6 +32,12 @@ Presets (--preset), both with LeRobot's PushT training settings (batch 64, Adam 
   pusht_keypoints: LeRobot's own state-based PushT config (its former hydra file
     lerobot/configs/policy/diffusion_pusht_keypoints.yaml): down_dims (256, 512, 1024), DDIM, 10
     inference steps.
+  act: ACTPolicy with ACTConfig's defaults (LeRobot has no PushT ACT config: dim_model 512, 4 encoder
+    layers, 1 decoder layer, the CVAE with KL weight 10, AdamW lr 1e-5, weight decay 1e-4, no LR
+    schedule) but the other heads' windows: a chunk of 16 actions, 8 executed before planning again
+    (its default 100 is 10 s of PushT); with --ensemble M it plans every step and executes ACT's
+    temporal ensemble with coefficient M instead. ACT reads one observation (n_obs_steps 1). Train it
+    with --batch-size 8, ACT's own.
 
 Nothing reaches the Hugging Face hub: HF_HUB_OFFLINE=1 and a fresh HF_HOME are set before lerobot is
 imported, and the dataset is always opened by `root`. Progress goes to stderr; stdout gets one JSON line.
@@ -69,9 +75,11 @@ import lerobot  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import zarr  # noqa: E402
+from lerobot.configs.policies import PreTrainedConfig  # noqa: E402
 from lerobot.datasets import EpisodeAwareSampler, LeRobotDataset, LeRobotDatasetMetadata  # noqa: E402
 from lerobot.datasets.factory import resolve_delta_timestamps  # noqa: E402
 from lerobot.policies import PreTrainedPolicy, make_policy, make_pre_post_processors  # noqa: E402
+from lerobot.policies.act.configuration_act import ACTConfig  # noqa: E402
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig  # noqa: E402
 from lerobot.utils.random_utils import set_seed  # noqa: E402
 from lerobot.utils.utils import cycle  # noqa: E402
@@ -96,9 +104,14 @@ FEATURES = {
     },
     "action": {"dtype": "float32", "shape": (2,), "names": ["target_x", "target_y"]},
 }
-PRESETS: dict[str, dict[str, Any]] = {
-    "pusht": {},
-    "pusht_keypoints": {"down_dims": (256, 512, 1024), "noise_scheduler_type": "DDIM", "num_inference_steps": 10},
+DIFFUSION_WINDOWS = {"n_obs_steps": 2, "horizon": 16, "n_action_steps": 8}
+PRESETS: dict[str, tuple[type[PreTrainedConfig], dict[str, Any]]] = {
+    "pusht": (DiffusionConfig, DIFFUSION_WINDOWS),
+    "pusht_keypoints": (
+        DiffusionConfig,
+        {**DIFFUSION_WINDOWS, "down_dims": (256, 512, 1024), "noise_scheduler_type": "DDIM", "num_inference_steps": 10},
+    ),
+    "act": (ACTConfig, {"chunk_size": 16, "n_action_steps": 8}),
 }
 
 
@@ -156,17 +169,20 @@ def write_dataset(demos: Path, root: Path) -> int:
     return len(ends)
 
 
-def make_config(preset: str) -> DiffusionConfig:
-    return DiffusionConfig(n_obs_steps=2, horizon=16, n_action_steps=8, device="cpu", push_to_hub=False, **PRESETS[preset])
+def make_config(preset: str, ensemble: float | None) -> PreTrainedConfig:
+    kind, settings = PRESETS[preset]
+    if ensemble is not None:
+        settings = {**settings, "n_action_steps": 1, "temporal_ensemble_coeff": ensemble}
+    return kind(device="cpu", push_to_hub=False, **settings)
 
 
-def batches(dataset: LeRobotDataset, config: DiffusionConfig, batch_size: int, seed: int) -> Iterator[dict]:
+def batches(dataset: LeRobotDataset, config: PreTrainedConfig, batch_size: int, seed: int) -> Iterator[dict]:
     """lerobot-train's data order: EpisodeAwareSampler over every episode, cycled."""
     sampler = EpisodeAwareSampler(
         dataset.meta.episodes["dataset_from_index"],
         dataset.meta.episodes["dataset_to_index"],
         episode_indices_to_use=dataset.episodes,
-        drop_n_last_frames=config.drop_n_last_frames,
+        drop_n_last_frames=getattr(config, "drop_n_last_frames", 0),  # as lerobot-train: ACT has none
         shuffle=True,
         seed=seed,
         absolute_to_relative_idx=dataset.absolute_to_relative_idx,
@@ -179,14 +195,15 @@ def train(
     policy: PreTrainedPolicy,
     preprocessor: Any,
     data: Iterator[dict],
-    config: DiffusionConfig,
+    config: PreTrainedConfig,
     budget_seconds: float,
     schedule_steps: int,
 ) -> Training:
     """lerobot-train's update_policy, step after step, until the budget is spent."""
     optimizer_config = config.get_optimizer_preset()
     optimizer = optimizer_config.build(policy.get_optim_params())
-    scheduler = config.get_scheduler_preset().build(optimizer, schedule_steps)
+    schedule = config.get_scheduler_preset()  # None for ACT: a constant learning rate
+    scheduler = schedule.build(optimizer, schedule_steps) if schedule is not None else None
     policy.train()
     losses: list[float] = []
     samples = 0
@@ -198,7 +215,8 @@ def train(
         torch.nn.utils.clip_grad_norm_(policy.parameters(), optimizer_config.grad_clip_norm)
         optimizer.step()
         optimizer.zero_grad()
-        scheduler.step()
+        if scheduler is not None:
+            scheduler.step()
         losses.append(loss.item())
         samples += len(batch["action"])
         now = time.perf_counter()
@@ -263,6 +281,7 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--threads", type=int, default=2, help="torch.set_num_threads (default 2)")
     parser.add_argument("--batch-size", type=int, default=64, help="default 64, LeRobot's PushT batch")
     parser.add_argument("--preset", choices=sorted(PRESETS), default="pusht", help="see the module docstring")
+    parser.add_argument("--ensemble", type=float, default=None, help="act: temporal ensembling with this coefficient")
     parser.add_argument("--schedule-steps", type=int, default=SCHEDULE_STEPS, help="steps the cosine LR schedule spans")
     parser.add_argument("--demos", type=Path, default=DEMOS, help="the PushT zarr replay buffer")
     parser.add_argument(
@@ -289,7 +308,9 @@ def main() -> None:
     progress(f"wrote {episodes} episodes to {root} in {dataset_seconds:.1f}s")
 
     set_seed(args.seed)
-    config = make_config(args.preset)
+    if args.ensemble is not None and args.preset != "act":
+        raise SystemExit("--ensemble is ACT's temporal ensembling: use it with --preset act")
+    config = make_config(args.preset, args.ensemble)
     meta = LeRobotDatasetMetadata(REPO_ID, root=root)
     delta_timestamps = resolve_delta_timestamps(config, meta)
     dataset = LeRobotDataset(REPO_ID, root=root, delta_timestamps=delta_timestamps, video_backend=VIDEO_BACKEND)
@@ -302,8 +323,9 @@ def main() -> None:
     evaluation = evaluate(policy, preprocessor, postprocessor, args.episodes, args.eval_seed)
 
     result = {
-        "peer": f"lerobot {lerobot.__version__} DiffusionPolicy",
+        "peer": f"lerobot {lerobot.__version__} {type(policy).__name__}",
         "preset": args.preset,
+        "ensemble": args.ensemble,
         "budget_minutes": args.budget_minutes,
         "train_steps": training.steps,
         "samples": training.samples,
