@@ -11,6 +11,7 @@ is the agent's own position: nothing moves, the block's first coverage stays). P
 policy and one JSON object (bench/RESULTS.md, "PushT").
 
     .venv/bin/python bench/pusht.py [--heads gaussian chunk diffusion] [--epochs N] [--seed S] [--threads T]
+        [--patience P] [--train-flags="--observation-noise 0.1"] [--keep DIR --name=-SUFFIX]
 """
 
 from __future__ import annotations
