@@ -39,6 +39,7 @@ from imitation.mlp import hidden_layers, mlp_weight_count, orthogonal_linear
 from imitation.policies import action_logits_size
 from imitation.policy_protocol import ImitationObjective, MomentsMerge, PolicyConfig
 from imitation.sequence_policy import SequencePolicy, step_features
+from imitation.tensors import TensorTree
 
 
 def _sizes(config: PolicyConfig) -> tuple[int, int]:
@@ -85,10 +86,11 @@ class ActionChunking(SequencePolicy):
 
     # -- the network -------------------------------------------------------------------------------
 
-    def _chunk(self, history: torch.Tensor, noise: float = 0.0) -> torch.Tensor:
+    def _chunk(self, history: TensorTree, noise: float = 0.0) -> torch.Tensor:
         """f_θ on a batch of histories (batch, n, *observation shape), their normalised numbers
         noised by σ = `noise`: (batch, H, width)."""
-        return self.head(self.trunk(self.observed(history, noise))).reshape(len(history), self.steps, self.width)
+        features = self.observed(history, noise)
+        return self.head(self.trunk(features)).reshape(len(features), self.steps, self.width)
 
     def _env_actions(self, chunk: torch.Tensor) -> torch.Tensor:
         """A chunk of head outputs → env actions (Box: back to the env's units; Discrete: the likeliest class)."""
@@ -137,17 +139,16 @@ class ActionChunking(SequencePolicy):
 
     # -- acting ------------------------------------------------------------------------------------
 
-    def point_action(self, observations: torch.Tensor) -> torch.Tensor:
+    def point_action(self, observations: TensorTree) -> torch.Tensor:
         """The first action of the chunk planned from each observation alone (as at an episode's
         first step, the observation standing in for the history)."""
-        history = observations.unsqueeze(1).expand(len(observations), self.config.history, *observations.shape[1:])
-        first = self._env_actions(self._chunk(history))[:, 0]
-        return first.reshape(len(observations), -1) if self.is_continuous else first
+        first = self._env_actions(self._chunk(self.first_step_history(observations)))[:, 0]
+        return first.reshape(len(first), -1) if self.is_continuous else first
 
-    def predict(self, observations: np.ndarray, *, deterministic: bool = True) -> np.ndarray:
+    def predict(self, observations: np.ndarray | dict, *, deterministic: bool = True) -> np.ndarray:
         """The next action of each row: its plan's, planning again every `execute` actions, or
         the ensemble of every plan that covers this step."""
-        if self._history.push(observations):
+        if self._history.push(self.acting_rows(observations)):
             self._plans = []
         if not self._plans or self._done >= self.execute:
             with torch.no_grad():

@@ -58,6 +58,7 @@ from imitation.limits import LIMITS, over_limit
 from imitation.mlp import hidden_layers, mlp_weight_count, orthogonal_linear
 from imitation.policy_protocol import ImitationObjective, MomentsMerge, PolicyConfig
 from imitation.sequence_policy import SequencePolicy, step_features
+from imitation.tensors import TensorTree
 
 STEP_FEATURES = 32  # the sinusoidal embedding of the diffusion step k
 TARGETS = {"sample": "sample", "noise": "epsilon"}  # what the denoiser predicts: our name → diffusers' prediction_type
@@ -229,16 +230,15 @@ class DiffusionPolicy(SequencePolicy):
             chunk = self.sampler.step(predicted, int(step), chunk, eta=eta, generator=generator).prev_sample
         return self._env_actions(chunk.clamp(-1, 1))
 
-    def point_action(self, observations: torch.Tensor) -> torch.Tensor:
+    def point_action(self, observations: TensorTree) -> torch.Tensor:
         """The first action of a chunk sampled from each observation alone (standing in for the
         history), with noise of a fixed seed so that held-out scores repeat."""
-        history = observations.unsqueeze(1).expand(len(observations), self.config.history, *observations.shape[1:])
-        first = self.sample(history, torch.Generator().manual_seed(0))[:, 0]
-        return first.reshape(len(observations), -1)
+        first = self.sample(self.first_step_history(observations), torch.Generator().manual_seed(0))[:, 0]
+        return first.reshape(len(first), -1)
 
-    def predict(self, observations: np.ndarray, *, deterministic: bool = True) -> np.ndarray:
+    def predict(self, observations: np.ndarray | dict, *, deterministic: bool = True) -> np.ndarray:
         """The next action of each row, from the plan sampled every `execute` actions."""
-        if self._history.push(observations):
+        if self._history.push(self.acting_rows(observations)):
             self._plan = None
         if self._plan is None or self._done >= self.execute:
             with torch.no_grad():

@@ -99,6 +99,32 @@ def test_observation_noise_adds_sigma_z_to_the_normalised_observations_while_tra
     assert scored.item() == pytest.approx(normalised.abs().mean().item(), rel=1e-6)
 
 
+def test_a_dict_observation_is_read_as_its_vector_leaves_side_by_side_in_key_order() -> None:
+    space = gym.spaces.Dict({"b": gym.spaces.Box(-1, 1, (2,), np.float32), "a": gym.spaces.Discrete(3)})
+    policy = build_policy("chunk", space, BOX1, hidden_sizes=[], history=2, chunk=2)
+    windows = {"a": torch.tensor([[0, 2]]), "b": torch.tensor([[[0.5, -0.5], [0.25, 1.0]]])}  # one window of 2 steps
+    expected = torch.tensor([[[1.0, 0.0, 0.0, 0.5, -0.5], [0.0, 0.0, 1.0, 0.25, 1.0]]])  # a one-hot, then b
+    assert torch.equal(policy.flat(windows, 2), expected)
+    policy.update_normalizer({"a": torch.tensor([0, 2]), "b": torch.tensor([[0.5, -0.5], [0.25, 1.0]])})
+    assert torch.allclose(policy.obs_rms.mean, expected[0].mean(0).double(), atol=1e-3)  # beside the statistics' prior count ε
+    step = {"a": np.array([2]), "b": np.array([[0.25, 1.0]], dtype=np.float32)}
+    with torch.no_grad():
+        planned = policy._env_actions(policy._chunk(expected[:, 1:].expand(1, 2, 5)))[:, 0].numpy()
+    np.testing.assert_allclose(policy.predict(step), planned, rtol=1e-6)  # the first step stands in for the one before
+
+
+def test_sequence_kinds_read_a_robots_state_leaf_beside_its_camera(testdata: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    demos = tmp_path / "so101.mcap"
+    source = testdata / "lerobot" / "so101_v30"
+    assert cli.main(["convert", str(source), "--out", str(demos), "--image-size", "24x32", "--quiet"]) == 0, capsys.readouterr().err
+    for kind in ("chunk", "diffusion"):
+        flags = ["--policy", kind, "--history", "2", "--chunk", "4", "--observation-keys", "state", "--hidden", "16", "--epochs", "1"]
+        assert cli.main(["train", "bc", "--demos", str(demos), *flags, "--out", str(tmp_path / kind), "--quiet"]) == 0, capsys.readouterr().err
+        policy = load_policy(tmp_path / kind)
+        observation = {"images.wrist": np.zeros((1, 24, 32, 3), np.uint8), "state": np.zeros((1, 6), np.float32)}
+        assert policy.predict(observation).shape == (1, 6)
+
+
 def test_it_executes_k_actions_of_a_chunk_then_plans_again_and_forgets_at_reset() -> None:
     policy = _constant(gym.spaces.Box(-5, 5, (1,), np.float32), [1.0, 2.0, 3.0, 4.0], chunk=4, history=2, execute=3)
     plans = []
@@ -136,7 +162,7 @@ def test_actions_are_clipped_to_the_space() -> None:
 
 
 def test_what_it_cannot_read_is_refused_in_one_line() -> None:
-    with pytest.raises(ImitationError, match="reads flat Box observations"):
+    with pytest.raises(ImitationError, match="reads Box observations or Dicts of Box and Discrete leaves"):
         build_policy("chunk", gym.spaces.Discrete(4), gym.spaces.Discrete(2), chunk=2)
     with pytest.raises(ImitationError, match="predicts Box or Discrete actions, not MultiDiscrete"):
         build_policy("chunk", BOX1, gym.spaces.MultiDiscrete([2, 2]), chunk=2)
@@ -201,7 +227,7 @@ def test_a_streamed_policy_scores_the_windows_the_in_memory_loader_gathers(tmp_p
         (["--policy", "chunk", "--previous-action", "on", *PENDULUM],
          "the chunk policy is not conditioned on the previous action"),
         (["--policy", "chunk", "--env", "imitation/GridWorld8x8-v0", "--demos", str(DATASETS / "GridWorld8x8-v0.mcap")],
-         "--env imitation/GridWorld8x8-v0: the chunk policy reads flat Box observations, not Discrete(64)"),
+         "--env imitation/GridWorld8x8-v0: the chunk policy reads Box observations or Dicts of Box and Discrete leaves, not Discrete(64)"),
     ],
 )
 def test_sequence_flags_are_refused_where_they_do_not_apply(flags: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
