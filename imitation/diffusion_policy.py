@@ -32,6 +32,9 @@ default: on PushT it covers more of the goal than η = 0) adds the DDPM posterio
 with S = K it is DDPM's ancestral sampling, as the Diffusion Policy paper acts. The first `execute`
 actions of the last Â⁰ are executed before planning again (receding horizon). The schedules and
 the DDIM step are diffusers' (`DDPMScheduler.add_noise`, `DDIMScheduler.step`).
+With M > 1 `members` the denoiser is a deep ensemble: M MLPs D_θ_m from their own initial
+weights, each fitted to the same noised chunks (ℓ the mean of their M errors), and sampling steps
+from their mean prediction (1/M) Σ_m D_θ_m; validation scores that mean, as it acts.
 The weights it acts with are an exponential moving average θ̄ ← λθ̄ + (1 − λ)θ after each update,
 λ = min(0.9999, 1 − (1 + u)^(−3/4)) at update u (the Diffusion Policy code's EMA), kept with the
 weights; validation and held-out scores use it too. The initial noise of each plan and the z of
@@ -77,7 +80,7 @@ def _sizes(config: PolicyConfig) -> tuple[int, int, int]:
 def planned_weights(config: PolicyConfig) -> int:
     """The weights a diffusion policy of `config` holds, its moving average included (biases and statistics not counted)."""
     observations, chunk, _ = _sizes(config)
-    return 2 * mlp_weight_count(chunk + observations + STEP_FEATURES, config.hidden_sizes, chunk)
+    return 2 * config.members * mlp_weight_count(chunk + observations + STEP_FEATURES, config.hidden_sizes, chunk)
 
 
 def step_embedding(steps: torch.Tensor, features: int = STEP_FEATURES) -> torch.Tensor:
@@ -99,6 +102,17 @@ class Denoiser(nn.Module):
 
     def forward(self, noisy: torch.Tensor, steps: torch.Tensor, observations: torch.Tensor) -> torch.Tensor:
         return self.head(self.trunk(torch.cat([noisy, observations, step_embedding(steps)], dim=-1)))
+
+
+class DenoiserEnsemble(nn.Module):
+    """M denoisers side by side; their predictions stacked (M, batch, chunk)."""
+
+    def __init__(self, members: list[Denoiser]) -> None:
+        super().__init__()
+        self.members = nn.ModuleList(members)
+
+    def forward(self, noisy: torch.Tensor, steps: torch.Tensor, observations: torch.Tensor) -> torch.Tensor:
+        return torch.stack([member(noisy, steps, observations) for member in self.members])
 
 
 class DiffusionPolicy(SequencePolicy):
@@ -132,7 +146,9 @@ class DiffusionPolicy(SequencePolicy):
             raise over_limit(
                 f"diffusion policy parameters ({observations} inputs, {chunk} outputs)", weights, "policy_parameters"
             )
-        self.denoiser = Denoiser(observations, chunk, config.hidden_sizes, config.activation)
+        # One member keeps the layout runs written before `members` have.
+        members = [Denoiser(observations, chunk, config.hidden_sizes, config.activation) for _ in range(config.members)]
+        self.denoiser: Denoiser | DenoiserEnsemble = members[0] if len(members) == 1 else DenoiserEnsemble(members)
         self.average = copy.deepcopy(self.denoiser).requires_grad_(False)
         self.register_buffer("action_low", torch.full((self.action_width,), -1.0))
         self.register_buffer("action_high", torch.ones(self.action_width))
@@ -170,9 +186,15 @@ class DiffusionPolicy(SequencePolicy):
         return (middle + half * chunk).reshape(len(scaled), self.config.chunk, *self.action_space.shape)
 
     @property
-    def _acting(self) -> Denoiser:
+    def _acting(self) -> Denoiser | DenoiserEnsemble:
         """The weights that act and are scored: the moving average, once training has updated any."""
         return self.average if int(self.updates) > 0 and not self.training else self.denoiser
+
+    def _predictions(self, noisy: torch.Tensor, steps: torch.Tensor, conditioning: torch.Tensor) -> torch.Tensor:
+        """Every member's prediction (M, batch, chunk) by the weights that act."""
+        denoiser = self._acting
+        predicted = denoiser(noisy, steps, conditioning)
+        return predicted if isinstance(denoiser, DenoiserEnsemble) else predicted.unsqueeze(0)
 
     # -- training ----------------------------------------------------------------------------------
 
@@ -184,9 +206,10 @@ class DiffusionPolicy(SequencePolicy):
         noise = torch.randn_like(clean)
         steps = torch.randint(0, self.config.denoising_steps, (len(clean),), device=clean.device)
         noisy = self.training_schedule.add_noise(clean, noise, steps)
-        predicted = self._acting(noisy, steps, self.observed(observations, self.training_noise(objective)))
+        predicted = self._predictions(noisy, steps, self.observed(observations, self.training_noise(objective)))
         target = clean if self.config.prediction == "sample" else noise
-        fit = ((predicted - target) ** 2).mean()
+        # Training fits each member; a score is of their mean, which acts.
+        fit = ((predicted - target) ** 2).mean() if self.training else ((predicted.mean(0) - target) ** 2).mean()
         loss = fit
         if objective.l2_coef:
             loss = loss + objective.l2_coef * sum((parameter**2).sum() for parameter in self.denoiser.parameters())
@@ -223,10 +246,10 @@ class DiffusionPolicy(SequencePolicy):
         chunk = torch.randn(
             (len(history), self.config.chunk * self.action_width), generator=generator, dtype=torch.float32
         ).to(conditioning.device)
-        denoiser, eta = self._acting, float(self.config.sampling_noise)
+        eta = float(self.config.sampling_noise)
         for step in self.sampler.timesteps:
             steps = torch.full((len(chunk),), int(step), device=chunk.device, dtype=torch.long)
-            predicted = denoiser(chunk, steps, conditioning)
+            predicted = self._predictions(chunk, steps, conditioning).mean(0)
             chunk = self.sampler.step(predicted, int(step), chunk, eta=eta, generator=generator).prev_sample
         return self._env_actions(chunk.clamp(-1, 1))
 

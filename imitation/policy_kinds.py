@@ -26,13 +26,14 @@ from imitation.runs import read_run
 @dataclass(frozen=True)
 class PolicyKind:
     """A policy kind: its name (`--policy`, and "kind" in a run's policy config), its
-    constructor, the weight count a config plans, and whether it reads histories and predicts
-    chunks (`--history`, `--chunk`)."""
+    constructor, the weight count a config plans, whether it reads histories and predicts
+    chunks (`--history`, `--chunk`), and whether it can be a deep ensemble (`--members`)."""
 
     name: str
     build: Callable[[PolicyConfig], ImitationPolicy]
     planned_weights: Callable[[PolicyConfig], int]
     sequences: bool = False
+    ensembles: bool = False
 
 
 POLICY_KINDS: dict[str, PolicyKind] = {}
@@ -64,6 +65,7 @@ register(
         lambda config: _diffusion().DiffusionPolicy(config),
         lambda config: _diffusion().planned_weights(config),
         sequences=True,
+        ensembles=True,
     )
 )
 
@@ -75,9 +77,12 @@ def _diffusion() -> Any:
     return diffusion_policy
 
 
-def policy_kind(name: str, *, history: int = 1, chunk: int = 1, observation_noise: float = 0.0) -> PolicyKind:
+def policy_kind(
+    name: str, *, history: int = 1, chunk: int = 1, observation_noise: float = 0.0, members: int = 1
+) -> PolicyKind:
     """The kind registered as `name`, for a policy of `history` observations and `chunk` actions
-    trained with `observation_noise`; a `ConfigError` on BC's field naming what is wrong otherwise."""
+    trained with `observation_noise`, of `members` networks; a `ConfigError` on BC's field naming
+    what is wrong otherwise."""
     if name not in POLICY_KINDS:
         raise ConfigError(
             "policy", f"must be a registered policy kind ({', '.join(POLICY_KINDS)}), got {name[:40]!r}", owner="BCConfig"
@@ -92,6 +97,9 @@ def policy_kind(name: str, *, history: int = 1, chunk: int = 1, observation_nois
             f"is for sequence policies ({sequence_kinds}); the {name} policy reads one observation and predicts one action",
             owner="BCConfig",
         )
+    if members != 1 and not kind.ensembles:
+        ensemble_kinds = ", ".join(other.name for other in POLICY_KINDS.values() if other.ensembles)
+        raise ConfigError("members", f"is for {ensemble_kinds} policies; the {name} policy is one network", owner="BCConfig")
     return kind
 
 

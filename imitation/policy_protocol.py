@@ -40,6 +40,7 @@ if TYPE_CHECKING:
 MomentsMerge = Callable[[int, torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 
 ACTOR_CRITIC = "actor-critic"
+MAX_MEMBERS = 64  # denoisers of a diffusion policy's ensemble: bounds a crafted config's loops
 MAX_DENOISING_STEPS = 10_000  # far beyond the 100 of the Diffusion Policy paper; bounds a crafted config's loops
 
 
@@ -86,6 +87,8 @@ class PolicyConfig(ObservationConfig):
     sampling_steps: int = 10
     sampling_noise: float = 0.0
     prediction: str = "noise"
+    # Diffusion policies: the denoisers of a deep ensemble (1: one denoiser, as runs written before).
+    members: int = 1
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -116,6 +119,8 @@ class PolicyConfig(ObservationConfig):
             value = getattr(config, name)
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_WINDOW:
                 raise ValueError(f"{name} must be a whole number in [1, {MAX_WINDOW}], got {str(value)[:40]}")
+        if isinstance(config.members, bool) or not isinstance(config.members, int) or not 1 <= config.members <= MAX_MEMBERS:
+            raise ValueError(f"members must be a whole number in [1, {MAX_MEMBERS}], got {str(config.members)[:40]}")
         for name in ("denoising_steps", "sampling_steps"):
             value = getattr(config, name)
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_DENOISING_STEPS:

@@ -18,7 +18,7 @@ from support import DATASETS
 import cli
 from imitation.data.mcap.reader import DemoFile
 from imitation.data.windows import WindowBatch
-from imitation.diffusion_policy import EMA_POWER, DiffusionPolicy
+from imitation.diffusion_policy import EMA_POWER, DiffusionPolicy, planned_weights
 from imitation.errors import ImitationError
 from imitation.policy_kinds import build_policy, load_policy
 from imitation.policy_protocol import ImitationObjective, PolicyConfig
@@ -36,12 +36,13 @@ def _alpha_bars(steps: int) -> np.ndarray:
 
 
 def _linear(
-    chunk: int, denoising_steps: int = 100, sampling_steps: int = 10, execute: int | None = None, prediction: str = "noise"
+    chunk: int, denoising_steps: int = 100, sampling_steps: int = 10, execute: int | None = None, prediction: str = "noise",
+    members: int = 1,
 ) -> DiffusionPolicy:
     """A diffusion policy whose denoiser is one linear layer (no hidden layer), actions scaled from [0, 4]."""
     policy = build_policy(
         "diffusion", OBSERVATION, ACTION, hidden_sizes=[], chunk=chunk, denoising_steps=denoising_steps, sampling_steps=sampling_steps,
-        execute=execute, prediction=prediction,
+        execute=execute, prediction=prediction, members=members,
     )
     assert isinstance(policy, DiffusionPolicy)
     policy.fit_action_normalizer(torch.tensor([[0.0], [4.0]]), None)
@@ -120,6 +121,34 @@ def test_with_eta_one_each_step_adds_the_ddpm_posterior_noise_drawn_from_the_pla
     assert sigma > 0.1  # the noise this test checks is no rounding error
 
 
+def test_an_ensemble_fits_each_member_scores_their_mean_and_samples_from_it() -> None:
+    policy = _linear(chunk=2, denoising_steps=100, sampling_steps=2, members=2)
+    constants = (0.1, 0.5)  # member m predicts ε = c_m whatever its inputs
+    with torch.no_grad():
+        for member, c in zip(policy.denoiser.members, constants):
+            member.head.weight.zero_()
+            member.head.bias.fill_(c)
+    policy.average.load_state_dict(policy.denoiser.state_dict())
+    batch = WindowBatch(torch.zeros(2, 1, 1), torch.zeros(2, 1, dtype=torch.bool), torch.ones(2, 2, 1), torch.zeros(2, 2, dtype=torch.bool))
+    torch.manual_seed(3)
+    _, fitted = policy.train().imitation_loss(batch, ImitationObjective())
+    torch.manual_seed(3)
+    noise = torch.randn(2, 2).numpy()
+    assert fitted.item() == pytest.approx(np.mean([np.mean((c - noise) ** 2) for c in constants]), rel=1e-5)
+    policy.updates += 1  # the moving average (a copy of the members) acts
+    torch.manual_seed(3)
+    _, scored = policy.eval().imitation_loss(batch, ImitationObjective())
+    assert scored.item() == pytest.approx(np.mean((np.mean(constants) - noise) ** 2), rel=1e-5)
+    single = _linear(chunk=2, denoising_steps=100, sampling_steps=2).eval()
+    with torch.no_grad():
+        single.denoiser.head.weight.zero_()
+        single.denoiser.head.bias.fill_(np.mean(constants))
+        expected = single.sample(torch.zeros(1, 1, 1), torch.Generator().manual_seed(5))
+        sampled = policy.sample(torch.zeros(1, 1, 1), torch.Generator().manual_seed(5))
+    torch.testing.assert_close(sampled, expected)  # the steps of one denoiser predicting the members' mean
+    assert planned_weights(policy.config) == 2 * planned_weights(single.config)
+
+
 def test_a_denoiser_target_other_than_the_clean_chunk_or_the_noise_is_refused_naming_both() -> None:
     with pytest.raises(ImitationError, match=r"^a diffusion policy's denoiser predicts one of sample, noise, not 'velocity'$"):
         _linear(chunk=2, prediction="velocity")
@@ -128,9 +157,9 @@ def test_a_denoiser_target_other_than_the_clean_chunk_or_the_noise_is_refused_na
 def test_a_run_written_before_the_target_and_eta_were_settings_loads_as_it_was_trained() -> None:
     """Such a run's config has neither field: its denoiser predicted the noise and its plans were deterministic."""
     config = _linear(chunk=2, prediction="sample").config.to_json() | {"sampling_noise": 1.0}
-    older = {name: value for name, value in config.items() if name not in ("prediction", "sampling_noise")}
+    older = {name: value for name, value in config.items() if name not in ("prediction", "sampling_noise", "members")}
     loaded = PolicyConfig.from_json(older)
-    assert (loaded.prediction, loaded.sampling_noise) == ("noise", 0.0)
+    assert (loaded.prediction, loaded.sampling_noise, loaded.members) == ("noise", 0.0, 1)
     assert DiffusionPolicy(loaded).training_schedule.config.prediction_type == "epsilon"
 
 
@@ -192,6 +221,8 @@ def test_diffusion_trains_evaluates_records_and_runs_dagger_through_the_command_
         ("Pendulum-v1", ["--sampling-steps", "20", "--denoising-steps", "10"], "--sampling-steps must be in [1, --denoising-steps 10], got 20"),
         ("Pendulum-v1", ["--denoising-steps", "0"], "--denoising-steps must be in [1, 10000], got 0"),
         ("Pendulum-v1", ["--sampling-noise", "1.5"], "--sampling-noise must be in [0, 1], got 1.5"),
+        ("Pendulum-v1", ["--members", "0"], "--members must be in [1, 64], got 0"),
+        ("Pendulum-v1", ["--policy", "chunk", "--members", "2"], "--members is for diffusion policies; the chunk policy is one network"),
         ("Pendulum-v1", ["--ensemble", "0.1"], "the diffusion policy executes its plans (--execute); leave --previous-action and --ensemble off"),
     ],
 )

@@ -545,4 +545,5 @@ def policy_options(config: BCConfig, transitions: int | None = None) -> dict[str
         "sampling_steps": config.sampling_steps,
         "sampling_noise": config.sampling_noise,
         "prediction": config.prediction,
+        "members": config.members,
     }

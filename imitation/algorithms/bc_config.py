@@ -85,6 +85,12 @@ class BCConfig:
         help="diffusion policies: DDIM's η, the noise each sampling step adds; 0 samples deterministically, 1 adds the "
         "DDPM posterior's (with S = K: DDPM's sampling)",
     )
+    members: int = flag(
+        1,
+        metavar="M",
+        help="diffusion policies: denoisers trained side by side from their own initial weights, each sampling step "
+        "taking their mean prediction (a deep ensemble; M times the training)",
+    )
     observation_noise: float = flag(
         0.0,
         metavar="σ",
@@ -246,6 +252,8 @@ class BCConfig:
             raise ConfigError(
                 "prediction", f"must be one of {', '.join(PREDICTIONS)}, got {self.prediction!r}", owner="BCConfig"
             )
+        if not 1 <= self.members <= 64:
+            raise ConfigError("members", f"must be in [1, 64], got {self.members}", owner="BCConfig")
         if not 0 <= self.observation_noise <= 10:  # NaN fails too
             raise ConfigError("observation_noise", f"must be in [0, 10], got {self.observation_noise}", owner="BCConfig")
         if not 0 <= self.sampling_noise <= 1:  # NaN fails too

@@ -24,6 +24,7 @@ BC_FLAGS = (
     "sampling_steps",
     "sampling_noise",
     "observation_noise",
+    "members",
     "prediction",
     "epochs",
     "patience",

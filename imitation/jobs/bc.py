@@ -49,7 +49,7 @@ from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
 from imitation.observation_encoding import check_cnn_size, observation_layout
 from imitation.policies import SingleObservationPolicy, acting_env, policy_tensors
-from imitation.policy_kinds import build_policy, policy_kind
+from imitation.policy_kinds import PolicyKind, build_policy, policy_kind
 from imitation.policy_protocol import ImitationPolicy
 from imitation.progress import activity
 from imitation.seeding import seed_everything
@@ -93,8 +93,7 @@ def _bc_job(
     parallel: ProcessGroup | None,
 ) -> dict[str, Any]:
     """`bc_job` as one process, or as one of the data-parallel `parallel`."""
-    # Refused before anything loads.
-    kind = policy_kind(config.policy, history=config.history, chunk=config.chunk, observation_noise=config.observation_noise)
+    kind = bc_policy_kind(config)  # refused before anything loads
     seed_everything(config.seed)
     dataset = DemoDataset(demos)
     first = dataset.files[0]
@@ -555,6 +554,17 @@ def _plan_summary(plan: list[Share]) -> dict[str, Any]:
             for share in plan
         ],
     }
+
+
+def bc_policy_kind(config: BCConfig) -> PolicyKind:
+    """The registered kind `config.policy`; a ConfigError naming the setting of BC's that does not apply to it."""
+    return policy_kind(
+        config.policy,
+        history=config.history,
+        chunk=config.chunk,
+        observation_noise=config.observation_noise,
+        members=config.members,
+    )
 
 
 def _transitions(data: TransitionTensors | StreamingLoader) -> int:

@@ -18,11 +18,12 @@ from imitation.errors import ConfigError, ImitationError
 from imitation.evaluation.plots import plot_curve
 from imitation.evaluation.policy import EVAL_SEED, evaluate_policy
 from imitation.experts.load import close_expert, load_expert, make_env_for_expert
+from imitation.jobs.bc import bc_policy_kind
 from imitation.jobs.loop import run as run_learner
 from imitation.jobs.run_config import RunConfig, config_json
 from imitation.jobs.run_directory import check_demos_fit_env, checkpointing, final_evaluation, fingerprints, training_run
 from imitation.policies import SingleObservationPolicy, policy_tensors
-from imitation.policy_kinds import build_policy, policy_kind
+from imitation.policy_kinds import build_policy
 from imitation.policy_protocol import ImitationPolicy
 from imitation.ray_engine import Workers
 from imitation.seeding import seed_everything
@@ -67,9 +68,7 @@ def dagger_job(
     if frames > 1 and pixels is None:
         raise ConfigError("frame_stack", "stacks rendered frames: give --pixels too", owner="BCConfig")
     config.validate()
-    policy_kind(
-        config.bc.policy, history=config.bc.history, chunk=config.bc.chunk, observation_noise=config.bc.observation_noise
-    )
+    bc_policy_kind(config.bc)
     env, expert = env_and_expert(env_id, expert_spec, pixels, frames, seed=config.seed, speed=speed)
     if config.mode == "takeover" and not hasattr(expert, "engaged"):
         raise ConfigError(
