@@ -277,6 +277,7 @@ def test_policy_options_resolve_auto_to_tanh_below_small_data_and_normalise_both
         "sampling_steps": 10,
         "sampling_noise": 1.0,
         "prediction": "sample",
+        "members": 1,
     }
     assert policy_options(BCConfig(activation="elu"), transitions)["activation"] == "elu"  # a named one stays
 

@@ -63,12 +63,16 @@ def test_a_generations_row_restates_its_scores_on_the_generations_episode_starts
     search.close()
     assert len({scores[0], float(np.mean(scores[1:])), max(scores[1:])}) == 3  # the test can tell them apart
     improved = max(scores[1:]) > scores[0]
+    # The search acts on 3 envs at once, this test on one: float32 products of a batch of 3 and of 1
+    # round differently on some CPUs' kernels, and Pendulum's 200 steps grow that (an Intel Xeon's:
+    # up to 9e-9 relative), far below what another episode start changes (whole units of return).
+    same = {"rel": 1e-6}
     assert row == {
         "step": float(steps),
         "generation": 1.0,
-        "return": pytest.approx(scores[0], rel=1e-12),
-        "population_return": pytest.approx(float(np.mean(scores[1:])), rel=1e-12),
-        "best_return": pytest.approx(max(scores[1:]), rel=1e-12),
+        "return": pytest.approx(scores[0], **same),
+        "population_return": pytest.approx(float(np.mean(scores[1:])), **same),
+        "best_return": pytest.approx(max(scores[1:]), **same),
         "episodes": 8.0,
         "steps_per_second": row["steps_per_second"],
         "sigma": 0.25 if improved else 1.0,
