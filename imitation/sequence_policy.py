@@ -47,10 +47,9 @@ class ObservationHistory:
         self.length = length
         self.rows: np.ndarray | None = None  # (batch, n, features)
 
-    def push(self, observations: np.ndarray) -> bool:
-        """Add the current observations (a batch of any shape, flattened per row); True when a new
-        episode (or a batch of another size) started the history afresh."""
-        current = np.asarray(observations, dtype=np.float32).reshape(len(observations), -1)
+    def push(self, current: np.ndarray) -> bool:
+        """Add the current observations, flat rows (batch, features); True when a new episode (or a
+        batch of another size) started the history afresh."""
         if self.rows is None or len(self.rows) != len(current):
             self.rows = np.repeat(current[:, None], self.length, axis=1)
             return True
@@ -105,8 +104,7 @@ class SequencePolicy(ImitationPolicy):
         """A batch of env observations as the flat rows the acting history holds."""
         if self.layout is None:
             return np.asarray(observations, dtype=np.float32).reshape(len(observations), -1)
-        tree = tree_map(torch.as_tensor, observations)
-        return self.flat(tree, 1).numpy()
+        return self.flat(tree_map(torch.as_tensor, observations), 1).numpy()
 
     def first_step_history(self, observations: TensorTree) -> torch.Tensor:
         """Each observation alone as a history (batch, n, features), standing in for the steps

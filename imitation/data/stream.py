@@ -308,8 +308,8 @@ class StreamingLoader:
     def _copy(self, source: Transitions, gathers: _Gathers, buffer: dict[_Leaf, np.ndarray], at: int) -> None:
         """Rows `gathers.frames[:, -1]` of `source` into buffer rows from `at`, each leaf gathering what it holds."""
         rows = gathers.frames[:, -1]
+        end = at + len(rows)
         for leaf, array in buffer.items():
-            end = at + len(rows)
             if leaf.field in _PAD_FIELDS:
                 array[at:end] = getattr(gathers, leaf.field)
                 continue
